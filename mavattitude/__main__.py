@@ -1,0 +1,5 @@
+"""`python -m mavattitude` is the `mavattitude` command."""
+
+from mavattitude.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,1 @@
+"""The estimation core: pure functions on numpy arrays, no I/O, no logging, no clock."""

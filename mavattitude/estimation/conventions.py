@@ -1,0 +1,173 @@
+"""Frames, quaternions and Euler angles: the project's one statement of its conventions.
+
+- Earth frame NED, body frame FRD.
+- Quaternions scalar-first ``[w, x, y, z]``, Hamilton product, rotating body vectors into NED:
+  ``v_ned = q ⊗ v_body ⊗ q*``. This is MAVLink's ATTITUDE_QUATERNION ``q1..q4`` and the quaternion
+  of the autopilot's ATTITUDE (ZYX Euler: ``q = q_yaw ⊗ q_pitch ⊗ q_roll``).
+- ``R(q)`` rotates body → NED; the paper's attitude matrix (Eq. 27, Shuster's sign)
+  ``A(q) = (w² − ρᵀρ) I + 2ρρᵀ − 2w[ρ×] = R(q)ᵀ`` maps NED → body: ``w_body = A v_ned``.
+- Error angles live in the body frame (Eq. 14, 28–30): ``q̂ = q_true ⊗ [1, δα/2]``.
+
+Every function is vectorised over leading axes: a quaternion argument is ``(..., 4)``, a vector ``(..., 3)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+Array = NDArray[np.float64]
+
+
+def skew(v: ArrayLike) -> Array:
+    """Cross-product matrix ``[v×]``, so that ``skew(v) @ x == np.cross(v, x)``."""
+    v = np.asarray(v, dtype=float)
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    o = np.zeros_like(x)
+    return np.stack([np.stack([o, -z, y], -1), np.stack([z, o, -x], -1), np.stack([-y, x, o], -1)], -2)
+
+
+def quat_multiply(p: ArrayLike, q: ArrayLike) -> Array:
+    """Hamilton product ``p ⊗ q``."""
+    p = np.asarray(p, dtype=float)
+    q = np.asarray(q, dtype=float)
+    pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack(
+        [
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        ],
+        -1,
+    )
+
+
+def quat_conjugate(q: ArrayLike) -> Array:
+    """``q*``: the inverse rotation of a unit quaternion."""
+    q = np.array(q, dtype=float)
+    q[..., 1:] *= -1.0
+    return q
+
+
+def quat_normalize(q: ArrayLike) -> Array:
+    """Unit quaternion with a non-negative scalar part (``q`` and ``−q`` are the same rotation)."""
+    q = np.asarray(q, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., :1] < 0.0, -q, q)
+
+
+def rotation_matrix(q: ArrayLike) -> Array:
+    """``R(q)``: body → NED rotation matrix of a unit quaternion."""
+    q = np.asarray(q, dtype=float)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
+
+
+def attitude_matrix(q: ArrayLike) -> Array:
+    """The paper's ``A(q)`` (Eq. 27): NED → body, ``A(q) = R(q)ᵀ``."""
+    return np.swapaxes(rotation_matrix(q), -1, -2)
+
+
+def rotate_body_to_ned(q: ArrayLike, v_body: ArrayLike) -> Array:
+    """``R(q) v``: a body-frame vector expressed in NED."""
+    return np.einsum("...ij,...j->...i", rotation_matrix(q), np.asarray(v_body, dtype=float))
+
+
+def rotate_ned_to_body(q: ArrayLike, v_ned: ArrayLike) -> Array:
+    """``A(q) v``: a NED vector expressed in the body frame."""
+    return np.einsum("...ij,...j->...i", attitude_matrix(q), np.asarray(v_ned, dtype=float))
+
+
+def quat_from_rotation_matrix(r: ArrayLike) -> Array:
+    """Unit quaternion (``w ≥ 0``) of a body → NED rotation matrix (Shepperd's method, branch-free).
+
+    Of the four candidate formulas the one with the largest pivot is used per sample, so the result
+    is accurate for every rotation, 180° included.
+    """
+    r = np.asarray(r, dtype=float)
+    r00, r11, r22 = r[..., 0, 0], r[..., 1, 1], r[..., 2, 2]
+    trace = r00 + r11 + r22
+    # Antisymmetric (d*) and symmetric (s*) off-diagonal combinations.
+    dx, dy, dz = r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]
+    sxy, sxz, syz = r[..., 0, 1] + r[..., 1, 0], r[..., 0, 2] + r[..., 2, 0], r[..., 1, 2] + r[..., 2, 1]
+    candidates = np.stack(
+        [
+            np.stack([1 + trace, dx, dy, dz], -1),
+            np.stack([dx, 1 + 2 * r00 - trace, sxy, sxz], -1),
+            np.stack([dy, sxy, 1 + 2 * r11 - trace, syz], -1),
+            np.stack([dz, sxz, syz, 1 + 2 * r22 - trace], -1),
+        ],
+        -2,
+    )
+    pivot = np.argmax(np.stack([trace, r00, r11, r22], -1), axis=-1)
+    q = np.take_along_axis(candidates, pivot[..., None, None], axis=-2)[..., 0, :]
+    return quat_normalize(q)
+
+
+def quat_from_euler(roll_rad: ArrayLike, pitch_rad: ArrayLike, yaw_rad: ArrayLike) -> Array:
+    """Quaternion of ZYX Euler angles (yaw, then pitch, then roll), as MAVLink's ATTITUDE uses them."""
+    hr, hp, hy = (np.asarray(a, dtype=float) / 2.0 for a in (roll_rad, pitch_rad, yaw_rad))
+    cr, sr, cp, sp, cy, sy = np.cos(hr), np.sin(hr), np.cos(hp), np.sin(hp), np.cos(hy), np.sin(hy)
+    return np.stack(
+        [
+            cr * cp * cy + sr * sp * sy,
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+        ],
+        -1,
+    )
+
+
+def euler_from_quat(q: ArrayLike) -> Array:
+    """ZYX Euler angles ``[..., (roll, pitch, yaw)]`` in radians; yaw in (−π, π]."""
+    q = np.asarray(q, dtype=float)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    roll = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = np.arcsin(np.clip(2 * (w * y - x * z), -1.0, 1.0))
+    yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return np.stack([roll, pitch, yaw], -1)
+
+
+def quat_from_rotvec(theta: ArrayLike) -> Array:
+    """Exponential map: the quaternion of a rotation vector (axis × angle, rad)."""
+    theta = np.asarray(theta, dtype=float)
+    angle = np.linalg.norm(theta, axis=-1, keepdims=True)
+    half = angle / 2.0
+    # sin(x/2)/x → 1/2 as x → 0; the series keeps full precision for tiny angles.
+    scale = np.where(angle > 1e-8, np.sin(half) / np.where(angle > 1e-8, angle, 1.0), 0.5 - angle**2 / 48.0)
+    return np.concatenate([np.cos(half), scale * theta], -1)
+
+
+def rotvec_from_quat(q: ArrayLike) -> Array:
+    """Logarithmic map: rotation vector (rad) of a unit quaternion, angle in [0, π]."""
+    q = quat_normalize(q)
+    vec = q[..., 1:]
+    s = np.linalg.norm(vec, axis=-1, keepdims=True)
+    angle = 2.0 * np.arctan2(s, q[..., :1])
+    scale = np.where(s > 1e-12, angle / np.where(s > 1e-12, s, 1.0), 2.0)
+    return scale * vec
+
+
+def body_error_angles(q_est: ArrayLike, q_true: ArrayLike) -> Array:
+    """Body-frame error angles ``δα`` with ``q_est = q_true ⊗ exp(δα)`` (Eq. 28–30), rad."""
+    return rotvec_from_quat(quat_multiply(quat_conjugate(q_true), q_est))
+
+
+def angle_between(q_a: ArrayLike, q_b: ArrayLike) -> Array:
+    """Rotation angle (rad, in [0, π]) that takes one attitude to the other.
+
+    Uses ``atan2`` of the relative quaternion rather than ``arccos`` of a dot product, which keeps
+    full precision for tiny angles (the solvers are compared to 1e-9 rad).
+    """
+    d = quat_multiply(quat_conjugate(q_a), q_b)
+    return 2.0 * np.arctan2(np.linalg.norm(d[..., 1:], axis=-1), np.abs(d[..., 0]))

@@ -1,0 +1,1 @@
+"""The MAVLink edge: the only package that imports pymavlink."""

@@ -1,0 +1,1 @@
+"""The sensor front end: MAVLink units, mounting, calibration, filtering and resampling."""
