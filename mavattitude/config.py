@@ -1,0 +1,537 @@
+"""The typed, validated configuration: one YAML schema for the service, `solve`, `replay` and validation.
+
+Every section is a frozen dataclass; every value is checked once, here, for type and range, and an
+unknown key is an error naming its full path with the nearest known key
+(``estimator.methd: unknown key; did you mean method?``).
+
+Precedence (highest first), each layer overriding the one below key by key:
+
+1. command-line flags (``overrides``), e.g. ``--method cgn``;
+2. the file named by the ``MAVATTITUDE_CONFIG`` environment variable (an overlay: a site-specific file
+   that changes a few keys of the main one, such as ``link.connect`` or the signing key);
+3. the config file given on the command line (``--config FILE`` / ``check-config FILE``);
+4. the defaults written in this module (and in ``configs/*.yaml``).
+
+Mappings merge key by key across layers; a scalar or a list replaces the value below it. The two
+polymorphic values, ``reference.magnetic`` and ``mounting.rotation``, are always replaced whole, so a
+higher layer can switch e.g. from angles to a field vector without leftovers.
+
+Units are in the key names (``_mps2``, ``_uT``, ``_radps``, ``_hz``, ``_s``, ``_deg``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import os
+import typing
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from mavattitude.errors import ConfigError
+
+ENV_VAR = "MAVATTITUDE_CONFIG"
+
+Vec3 = tuple[float, float, float]
+Mat3 = tuple[Vec3, Vec3, Vec3]
+IDENTITY: Mat3 = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+ZERO: Vec3 = (0.0, 0.0, 0.0)
+
+MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
+PROFILES = ("ardupilot", "px4", "adis16405", "custom")
+METHODS = ("ign", "cgn", "ml", "triad", "fused")
+LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
+# Paths whose value is replaced whole by a higher layer (polymorphic: a string or a mapping/matrix).
+REPLACE_WHOLE = frozenset({"reference.magnetic", "mounting.rotation"})
+
+Check = Callable[[Any, str], Any]
+
+
+# --- value checks: each takes the raw YAML value and its dotted path, returns the typed value -----------
+
+
+def _fail(path: str, why: str) -> typing.NoReturn:
+    raise ConfigError(f"{path}: {why}")
+
+
+def _number(lo: float | None = None, hi: float | None = None, *, integer: bool = False, lo_open: bool = False) -> Check:
+    """A finite number in [lo, hi] (or (lo, hi] with ``lo_open``); ``integer`` refuses fractions."""
+
+    def check(value: Any, path: str) -> float | int:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            _fail(path, f"expected a number, got {value!r}")
+        if integer and not (isinstance(value, int) or float(value).is_integer()):
+            _fail(path, f"expected an integer, got {value!r}")
+        if not math.isfinite(value):
+            _fail(path, f"expected a finite number, got {value!r}")
+        if lo is not None and (value <= lo if lo_open else value < lo):
+            _fail(path, f"{value!r} is out of range: must be {'>' if lo_open else '≥'} {lo}")
+        if hi is not None and value > hi:
+            _fail(path, f"{value!r} is out of range: must be ≤ {hi}")
+        return int(value) if integer else float(value)
+
+    return check
+
+
+def _choice(*options: str, fold: Callable[[str], str] = str.lower) -> Check:
+    def check(value: Any, path: str) -> str:
+        if isinstance(value, str) and fold(value) in options:
+            return fold(value)
+        close = difflib.get_close_matches(str(value), options, n=1)
+        hint = f"; did you mean {close[0]}?" if close else ""
+        _fail(path, f"{value!r} is not one of {', '.join(options)}{hint}")
+
+    return check
+
+
+def _boolean(value: Any, path: str) -> bool:
+    if not isinstance(value, bool):
+        _fail(path, f"expected true or false, got {value!r}")
+    return value
+
+
+def _text(value: Any, path: str) -> str:
+    if not isinstance(value, str) or not value.strip():
+        _fail(path, f"expected a non-empty string, got {value!r}")
+    return value
+
+
+def _optional(check: Check) -> Check:
+    return lambda value, path: None if value is None else check(value, path)
+
+
+def _vec3(value: Any, path: str, element: Check | None = None) -> Vec3:
+    element = element or _number()
+    if not isinstance(value, (list, tuple)) or len(value) != 3:
+        _fail(path, f"expected a list of 3 numbers, got {value!r}")
+    return tuple(element(v, f"{path}[{i}]") for i, v in enumerate(value))  # type: ignore[return-value]
+
+
+def _mat3(value: Any, path: str) -> Mat3:
+    if not isinstance(value, (list, tuple)) or len(value) != 3:
+        _fail(path, f"expected a 3×3 matrix (a list of 3 rows of 3 numbers), got {value!r}")
+    m = tuple(_vec3(row, f"{path}[{i}]") for i, row in enumerate(value))
+    if abs(_det(m)) < 1e-6:
+        _fail(path, "the matrix is singular (determinant ≈ 0)")
+    return m  # type: ignore[return-value]
+
+
+def _per_axis_std(value: Any, path: str) -> Vec3:
+    """A noise σ: one positive value for all three axes, or three."""
+    positive = _number(0.0, lo_open=True)
+    if isinstance(value, (list, tuple)):
+        return _vec3(value, path, positive)
+    s = positive(value, path)
+    return (s, s, s)
+
+
+def _rotation(value: Any, path: str) -> str | Mat3:
+    """A mounting rotation: an ArduPilot-style name (checked by the front end) or a proper rotation matrix."""
+    if isinstance(value, str):
+        return _text(value, path).upper()
+    m = _mat3(value, path)
+    gram_error = max(abs(sum(m[i][k] * m[j][k] for k in range(3)) - (i == j)) for i in range(3) for j in range(3))
+    if gram_error > 1e-6 or _det(m) < 0:
+        _fail(path, "a mounting matrix must be a rotation (orthonormal, determinant +1)")
+    return m
+
+
+def _det(m: Any) -> float:
+    return (
+        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+        - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+        + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+    )
+
+
+def _meta(check: Check, doc: str) -> dict[str, Any]:
+    """A field's check and one-line description (shown by ``describe``)."""
+    return {"check": check, "doc": doc}
+
+
+# --- the schema -------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SigningConfig:
+    key_file: str | None = field(
+        default=None, metadata=_meta(_optional(_text), "MAVLink 2 signing key: 32 raw bytes or a passphrase")
+    )
+    require_signing: bool = field(default=False, metadata=_meta(_boolean, "reject unsigned or badly signed input"))
+
+
+@dataclass(frozen=True)
+class LinkConfig:
+    connect: str = field(
+        default="udpin:0.0.0.0:14550",
+        metadata=_meta(_text, "pymavlink connection string (udpin:, udpout:, tcp:, serial)"),
+    )
+    vehicle_system_id: int = field(
+        default=0, metadata=_meta(_number(0, 254, integer=True), "autopilot system id; 0 = first autopilot")
+    )
+    component_id: int = field(
+        default=191, metadata=_meta(_number(1, 255, integer=True), "our component id (191 = onboard computer)")
+    )
+    request_messages: bool = field(
+        default=True, metadata=_meta(_boolean, "request the input message with SET_MESSAGE_INTERVAL")
+    )
+    request_rate_hz: float = field(
+        default=200.0, metadata=_meta(_number(0.0, 2000.0, lo_open=True), "requested input rate, Hz")
+    )
+    request_repeat_s: float = field(
+        default=5.0, metadata=_meta(_number(0.5, 3600.0), "re-assert the requested rate this often, s")
+    )
+    signing: SigningConfig = field(default_factory=SigningConfig)
+
+
+@dataclass(frozen=True)
+class CustomScales:
+    accel_mps2_per_lsb: float | None = field(
+        default=None, metadata=_meta(_optional(_number(0.0, lo_open=True)), "m/s² per raw unit")
+    )
+    gyro_radps_per_lsb: float | None = field(
+        default=None, metadata=_meta(_optional(_number(0.0, lo_open=True)), "rad/s per raw unit")
+    )
+    mag_uT_per_lsb: float | None = field(
+        default=None, metadata=_meta(_optional(_number(0.0, lo_open=True)), "µT per raw unit")
+    )
+
+
+@dataclass(frozen=True)
+class InputConfig:
+    message: str = field(
+        default="RAW_IMU", metadata=_meta(_choice(*MESSAGES, fold=str.upper), "MAVLink IMU message to read")
+    )
+    profile: str = field(default="ardupilot", metadata=_meta(_choice(*PROFILES), "unit profile of that message"))
+    input_timeout_s: float = field(
+        default=0.5, metadata=_meta(_number(0.0, 60.0, lo_open=True), "input gap that stops output, s")
+    )
+    custom: CustomScales = field(default_factory=CustomScales)
+
+
+@dataclass(frozen=True)
+class MountingConfig:
+    rotation: str | Mat3 = field(
+        default="NONE", metadata=_meta(_rotation, "board → body rotation: ArduPilot name or 3×3 matrix")
+    )
+
+
+@dataclass(frozen=True)
+class AccelCalibration:
+    bias_mps2: Vec3 = field(default=ZERO, metadata=_meta(_vec3, "accelerometer bias b_a, m/s²"))
+    matrix: Mat3 = field(
+        default=IDENTITY, metadata=_meta(_mat3, "accelerometer scale/misalignment M_a: acc = M_a (raw − b_a)")
+    )
+
+
+@dataclass(frozen=True)
+class MagCalibration:
+    hard_iron_uT: Vec3 = field(default=ZERO, metadata=_meta(_vec3, "hard-iron offset h, µT"))
+    soft_iron: Mat3 = field(default=IDENTITY, metadata=_meta(_mat3, "soft-iron matrix S: mag = S (raw − h)"))
+
+
+@dataclass(frozen=True)
+class GyroCalibration:
+    bias_radps: Vec3 = field(default=ZERO, metadata=_meta(_vec3, "gyroscope bias, rad/s"))
+
+
+@dataclass(frozen=True)
+class CalibrationConfig:
+    accel: AccelCalibration = field(default_factory=AccelCalibration)
+    mag: MagCalibration = field(default_factory=MagCalibration)
+    gyro: GyroCalibration = field(default_factory=GyroCalibration)
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    enabled: bool = field(
+        default=True, metadata=_meta(_boolean, "low-pass + resample; false solves every input sample as it comes")
+    )
+    cutoff_hz: float = field(
+        default=10.0, metadata=_meta(_number(0.0, lo_open=True), "Butterworth cutoff, Hz (< output_rate_hz / 2)")
+    )
+    output_rate_hz: float = field(
+        default=50.0, metadata=_meta(_number(0.0, 1000.0, lo_open=True), "resampled output rate, Hz")
+    )
+
+
+@dataclass(frozen=True)
+class NoiseConfig:
+    accel_std_mps2: Vec3 = field(
+        default=(0.05, 0.05, 0.05), metadata=_meta(_per_axis_std, "accelerometer σ per axis, m/s²")
+    )
+    mag_std_uT: Vec3 = field(default=(0.5, 0.5, 0.5), metadata=_meta(_per_axis_std, "magnetometer σ per axis, µT"))
+
+
+@dataclass(frozen=True)
+class MagneticReference:
+    """The NED magnetic field: ``auto`` (WMM at the vehicle's position), two angles, or a vector."""
+
+    mode: str = "auto"  # "auto" | "angles" | "vector"
+    declination_deg: float | None = None
+    inclination_deg: float | None = None
+    intensity_uT: float | None = None
+    field_ned_uT: Vec3 | None = None
+
+    def to_yaml(self) -> Any:
+        if self.mode == "auto":
+            return "auto"
+        if self.mode == "vector":
+            return {"field_ned_uT": list(self.field_ned_uT or ())}
+        out = {"declination_deg": self.declination_deg, "inclination_deg": self.inclination_deg}
+        return out if self.intensity_uT is None else {**out, "intensity_uT": self.intensity_uT}
+
+
+def _magnetic(value: Any, path: str) -> MagneticReference:
+    if isinstance(value, str):
+        if value.lower() != "auto":
+            _fail(path, f"{value!r}: expected auto, {{declination_deg, inclination_deg}} or {{field_ned_uT}}")
+        return MagneticReference()
+    if not isinstance(value, Mapping):
+        _fail(path, f"expected auto or a mapping, got {value!r}")
+    if "field_ned_uT" in value:
+        _reject_unknown(value, ("field_ned_uT",), path)
+        v = _vec3(value["field_ned_uT"], f"{path}.field_ned_uT")
+        if math.hypot(*v) == 0.0:
+            _fail(f"{path}.field_ned_uT", "the field vector is zero")
+        return MagneticReference(mode="vector", field_ned_uT=v)
+    _reject_unknown(value, ("declination_deg", "inclination_deg", "intensity_uT"), path)
+    for key in ("declination_deg", "inclination_deg"):
+        if key not in value:
+            _fail(f"{path}.{key}", "missing (give declination_deg and inclination_deg, or field_ned_uT)")
+    return MagneticReference(
+        mode="angles",
+        declination_deg=_number(-180.0, 180.0)(value["declination_deg"], f"{path}.declination_deg"),
+        inclination_deg=_number(-90.0, 90.0)(value["inclination_deg"], f"{path}.inclination_deg"),
+        intensity_uT=_optional(_number(0.0, 1000.0, lo_open=True))(value.get("intensity_uT"), f"{path}.intensity_uT"),
+    )
+
+
+@dataclass(frozen=True)
+class ReferenceConfig:
+    magnetic: MagneticReference = field(
+        default_factory=MagneticReference,
+        metadata=_meta(_magnetic, "auto | {declination_deg, inclination_deg[, intensity_uT]} | {field_ned_uT}"),
+    )
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    method: str = field(
+        default="ign", metadata=_meta(_choice(*METHODS), "solver: ign, cgn, ml, triad, or fused (gyro-aided)")
+    )
+    max_iterations: int = field(
+        default=10, metadata=_meta(_number(1, 100, integer=True), "Gauss–Newton iteration bound")
+    )
+    tolerance: float = field(
+        default=1e-12, metadata=_meta(_number(0.0, 1e-3, lo_open=True), "Gauss–Newton step tolerance")
+    )
+    min_angle_deg: float = field(
+        default=5.0, metadata=_meta(_number(0.0, 90.0), "refuse acc/mag closer than this to collinear, deg")
+    )
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    stats_interval_s: float = field(
+        default=10.0, metadata=_meta(_number(0.0, 86400.0, lo_open=True), "counters log line period, s")
+    )
+    statustext: bool = field(
+        default=True, metadata=_meta(_boolean, "send STATUSTEXT on start, input loss, degenerate geometry")
+    )
+    statustext_interval_s: float = field(
+        default=5.0, metadata=_meta(_number(0.0, 3600.0), "minimum time between repeated STATUSTEXT, s")
+    )
+
+
+@dataclass(frozen=True)
+class LoggingConfig:
+    level: str = field(default="INFO", metadata=_meta(_choice(*LOG_LEVELS, fold=str.upper), "log level"))
+
+
+@dataclass(frozen=True)
+class Config:
+    link: LinkConfig = field(default_factory=LinkConfig)
+    input: InputConfig = field(default_factory=InputConfig)
+    mounting: MountingConfig = field(default_factory=MountingConfig)
+    calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
+    filter: FilterConfig = field(default_factory=FilterConfig)
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    reference: ReferenceConfig = field(default_factory=ReferenceConfig)
+    estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
+    output: OutputConfig = field(default_factory=OutputConfig)
+    logging: LoggingConfig = field(default_factory=LoggingConfig)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain YAML-ready data (lists, not tuples), the same shape the loader reads."""
+        return _to_plain(self)
+
+    def to_yaml(self) -> str:
+        return yaml.safe_dump(self.to_dict(), sort_keys=False, default_flow_style=None)
+
+
+# --- building and cross-checks ----------------------------------------------------------------------------
+
+
+def _reject_unknown(data: Mapping[str, Any], known: typing.Iterable[str], path: str) -> None:
+    known = list(known)
+    for key in data:
+        if key not in known:
+            where = f"{path}.{key}" if path else str(key)
+            close = difflib.get_close_matches(str(key), known, n=1)
+            hint = f"; did you mean {close[0]}?" if close else f"; known keys: {', '.join(known)}"
+            raise ConfigError(f"{where}: unknown key{hint}")
+
+
+def _build(cls: type, data: Any, path: str) -> Any:
+    if data is None:
+        data = {}
+    if not isinstance(data, Mapping):
+        _fail(path or "config", f"expected a mapping of keys, got {data!r}")
+    fields = dataclasses.fields(cls)
+    _reject_unknown(data, (f.name for f in fields), path)
+    hints = typing.get_type_hints(cls)
+    values = {}
+    for f in fields:
+        if f.name not in data:
+            continue
+        sub = f"{path}.{f.name}" if path else f.name
+        if "check" in f.metadata:
+            values[f.name] = f.metadata["check"](data[f.name], sub)
+        else:
+            values[f.name] = _build(hints[f.name], data[f.name], sub)
+    return cls(**values)
+
+
+def _cross_check(c: Config) -> None:
+    """Rules that span keys."""
+    if c.link.signing.require_signing and c.link.signing.key_file is None:
+        _fail("link.signing.require_signing", "true needs link.signing.key_file")
+    if c.input.profile == "adis16405" and c.input.message != "RAW_IMU":
+        _fail("input.message", "the adis16405 profile reads raw counts carried in RAW_IMU")
+    scales = dataclasses.asdict(c.input.custom)
+    if c.input.profile == "custom":
+        for key, value in scales.items():
+            if value is None:
+                _fail(f"input.custom.{key}", "required with profile: custom")
+    elif any(v is not None for v in scales.values()):
+        _fail("input.custom", f"scales are only used with profile: custom (profile is {c.input.profile})")
+    if c.filter.enabled and c.filter.cutoff_hz >= c.filter.output_rate_hz / 2:
+        _fail("filter.cutoff_hz", f"must be below half of filter.output_rate_hz ({c.filter.output_rate_hz / 2:g} Hz)")
+
+
+def _to_plain(value: Any) -> Any:
+    if isinstance(value, MagneticReference):
+        return value.to_yaml()
+    if dataclasses.is_dataclass(value):
+        return {f.name: _to_plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, tuple):
+        return [_to_plain(v) for v in value]
+    return value
+
+
+def _merge(low: Mapping[str, Any], high: Mapping[str, Any], path: str = "") -> dict[str, Any]:
+    out = dict(low)
+    for key, value in high.items():
+        sub = f"{path}.{key}" if path else str(key)
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping) and sub not in REPLACE_WHOLE:
+            out[key] = _merge(out[key], value, sub)
+        else:
+            out[key] = value
+    return out
+
+
+def _nest(dotted: Mapping[str, Any]) -> dict[str, Any]:
+    """``{"estimator.method": "cgn"}`` → ``{"estimator": {"method": "cgn"}}``."""
+    out: dict[str, Any] = {}
+    for key, value in dotted.items():
+        *parents, leaf = key.split(".")
+        node = out
+        for p in parents:
+            node = node.setdefault(p, {})
+        node[leaf] = value
+    return out
+
+
+def read_yaml(path: str | Path) -> dict[str, Any]:
+    """One config file as raw data; a missing or malformed file is a ConfigError naming it."""
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read config file: {exc.strerror or exc}") from exc
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {exc}".splitlines()[0]) from exc
+    if data is None:
+        return {}
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{path}: expected a mapping of sections at the top level")
+    return dict(data)
+
+
+def from_dict(data: Mapping[str, Any], source: str = "config", *, cross_check: bool = True) -> Config:
+    """Validate raw data into a Config; ``cross_check=False`` checks the keys and values only (one layer)."""
+    try:
+        config = _build(Config, data, "")
+        if cross_check:
+            _cross_check(config)
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
+    return config
+
+
+def layers(
+    path: str | Path | None = None,
+    overrides: Mapping[str, Any] | None = None,
+    env: Mapping[str, str] | None = None,
+) -> list[tuple[str, dict[str, Any]]]:
+    """The raw layers, lowest first, each named by its source: file, ``$MAVATTITUDE_CONFIG`` file, flags."""
+    env = os.environ if env is None else env
+    out: list[tuple[str, dict[str, Any]]] = []
+    if path is not None:
+        out.append((str(path), read_yaml(path)))
+    if env.get(ENV_VAR):
+        out.append((f"{ENV_VAR}={env[ENV_VAR]}", read_yaml(env[ENV_VAR])))
+    if overrides:
+        out.append(("command-line flags", _nest(overrides)))
+    return out
+
+
+def load_config(
+    path: str | Path | None = None,
+    overrides: Mapping[str, Any] | None = None,
+    env: Mapping[str, str] | None = None,
+) -> Config:
+    """The effective config: defaults < ``path`` < ``$MAVATTITUDE_CONFIG`` file < ``overrides`` (dotted keys).
+
+    Each layer's keys and values are checked on their own first, so an error names the file (or the flags)
+    it came from; rules spanning keys are checked on the merged result.
+    """
+    merged: dict[str, Any] = {}
+    for source, data in layers(path, overrides, env):
+        from_dict(data, source, cross_check=False)
+        merged = _merge(merged, data)
+    return from_dict(merged, "effective config")
+
+
+def describe() -> list[tuple[str, Any, str]]:
+    """``(dotted key, default, description)`` for every key, for help texts and the example files' test."""
+    rows: list[tuple[str, Any, str]] = []
+
+    def walk(cls: type, prefix: str) -> None:
+        hints = typing.get_type_hints(cls)
+        for f in dataclasses.fields(cls):
+            key = f"{prefix}{f.name}"
+            if "check" in f.metadata:
+                rows.append((key, _to_plain(getattr(cls(), f.name)), f.metadata["doc"]))
+            else:
+                walk(hints[f.name], f"{key}.")
+
+    walk(Config, "")
+    return rows
