@@ -1,0 +1,93 @@
+"""Sensor models for the fake vehicle: turn a truth trajectory into noisy IMU samples in SI.
+
+Per sensor (accelerometer m/s², gyroscope rad/s, magnetometer µT), in this order::
+
+    measured = saturate(M · truth + bias + noise)
+
+with ``M = (I + misalignment) · diag(scale)`` for the accelerometer and gyroscope, and for the
+magnetometer ``M = soft_iron`` and ``bias = hard_iron`` (the distortion that the calibration
+``S (raw − h)`` undoes with ``S = soft_iron⁻¹``, ``h = hard_iron``). Noise is white Gaussian, per-axis σ.
+Sample times run at ``rate_hz`` with optional Gaussian jitter (kept monotonic) and dropped samples.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mavattitude.errors import InputError
+from mavattitude.estimation.conventions import Array
+from mavattitude.sim.trajectory import Script
+
+Vec3 = tuple[float, float, float]
+Mat3 = tuple[Vec3, Vec3, Vec3]
+_IDENTITY: Mat3 = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+
+
+@dataclass(frozen=True)
+class AxisModel:
+    """One triaxial sensor: ``saturate(matrix · truth + bias + N(0, σ²))``."""
+
+    noise_std: Vec3 = (0.0, 0.0, 0.0)
+    bias: Vec3 = (0.0, 0.0, 0.0)
+    matrix: Mat3 = _IDENTITY
+    full_scale: float = np.inf  # |component| limit, sensor units
+
+    @staticmethod
+    def scaled(scale: Vec3, misalignment_rad: Vec3 = (0.0, 0.0, 0.0), **kwargs: object) -> AxisModel:
+        """Scale factors and small non-orthogonality angles (rad): ``T · diag(scale)``.
+
+        ``T`` is lower-triangular (x is the reference axis, y leans towards x by ``mz``, z towards x and
+        y by ``my`` and ``mx``): the usual triaxial non-orthogonality model, not a rotation.
+        """
+        mx, my, mz = misalignment_rad
+        mis = np.array([[1.0, 0.0, 0.0], [mz, 1.0, 0.0], [-my, mx, 1.0]])
+        matrix = mis @ np.diag(scale)
+        return AxisModel(matrix=tuple(map(tuple, matrix)), **kwargs)  # type: ignore[arg-type]
+
+    def apply(self, truth: Array, rng: np.random.Generator) -> Array:
+        out = truth @ np.asarray(self.matrix, float).T + np.asarray(self.bias, float)
+        out = out + rng.standard_normal(truth.shape) * np.asarray(self.noise_std, float)
+        return np.clip(out, -self.full_scale, self.full_scale)
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """The vehicle's IMU: three sensors, a rate, jitter and drop-outs."""
+
+    accel: AxisModel = field(default_factory=AxisModel)
+    gyro: AxisModel = field(default_factory=AxisModel)
+    mag: AxisModel = field(default_factory=AxisModel)
+    rate_hz: float = 200.0
+    jitter_std_s: float = 0.0
+    drop_probability: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.rate_hz) and self.rate_hz > 0):
+            raise InputError(f"rate_hz must be positive, got {self.rate_hz}")
+        if not 0.0 <= self.drop_probability < 1.0:
+            raise InputError(f"drop_probability must be in [0, 1), got {self.drop_probability}")
+        if self.jitter_std_s < 0 or self.jitter_std_s * self.rate_hz > 0.25:
+            raise InputError("jitter_std_s must be ≥ 0 and under a quarter of the sample period")
+
+    def sample_times(self, start_s: float, stop_s: float, rng: np.random.Generator) -> Array:
+        """Sample times in ``[start_s, stop_s)``: nominal grid + jitter, minus dropped samples."""
+        n0, n1 = int(np.ceil(start_s * self.rate_hz)), int(np.ceil(stop_s * self.rate_hz))
+        t = np.arange(n0, n1) / self.rate_hz
+        if self.jitter_std_s > 0:
+            # Clipped at ±0.4 period so the stream stays strictly increasing.
+            half = 0.4 / self.rate_hz
+            t = t + np.clip(rng.standard_normal(t.shape) * self.jitter_std_s, -half, half)
+        if self.drop_probability > 0:
+            t = t[rng.random(t.shape) >= self.drop_probability]
+        return t
+
+    def measure(self, script: Script, t_s: Array, rng: np.random.Generator) -> tuple[Array, Array, Array]:
+        """``(acc_mps2, gyr_radps, mag_uT)`` measured at script times ``t_s`` (each ``(N, 3)``)."""
+        truth = script.sample(t_s)
+        return (
+            self.accel.apply(truth.specific_force_mps2, rng),
+            self.gyro.apply(truth.gyr_radps, rng),
+            self.mag.apply(truth.mag_uT, rng),
+        )

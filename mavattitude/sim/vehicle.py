@@ -1,0 +1,413 @@
+"""The scripted fake vehicle: a MAVLink 2 autopilot peer that flies a truth script and scores what it hears.
+
+It behaves like an autopilot on a companion-computer link:
+
+- HEARTBEAT at 1 Hz (wall-clock), as an ArduPilot (or PX4) autopilot, component 1;
+- GLOBAL_POSITION_INT (2 Hz by default) and the IMU messages of its profile, encoded by
+  :func:`mavattitude.sensors.units.encode` (the project's only MAVLink unit conversion);
+- honours MAV_CMD_SET_MESSAGE_INTERVAL (interval µs; −1 stops, 0 restores the default) and answers every
+  COMMAND_LONG with COMMAND_ACK. Like ArduPilot Copter it starts with the IMU stream off until asked
+  (``stream_on_start`` turns it on), and like ArduPilot it denies the command when param3 is not 0
+  (``deny_nonzero_param3``);
+- on ``udpin:`` it serves every peer that has sent it a datagram (pymavlink's multi-client UDP server,
+  as ArduPilot and MAVProxy do), so a ground station and the service can share it;
+- records every ATTITUDE_QUATERNION, STATUSTEXT and COMMAND_LONG it receives, and scores the attitude
+  against the truth at the same vehicle time (:mod:`mavattitude.sim.scoring`).
+
+The vehicle clock is the script clock scaled by ``speed`` (an accelerated soak runs faster than real
+time); ``time_boot_ms``/``time_usec`` count from the last (simulated) boot. Faults are injected through
+methods: :meth:`FakeVehicle.send_bytes`, :meth:`send_imu`, :meth:`jump_clock`, :meth:`reboot`,
+:meth:`pause_imu`, and by changing stream rates.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import threading
+import time
+from array import array
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from mavattitude.errors import LinkError
+from mavattitude.estimation.conventions import Array
+from mavattitude.link.mavlink2 import force_mavlink2, mavlink2, mavutil, message_id
+from mavattitude.sensors.units import ImuSample, encode, get_profile, time_boot_ms
+from mavattitude.sim.scoring import Comparison, Score, compare, score
+from mavattitude.sim.sensors import SensorModel
+from mavattitude.sim.trajectory import Script
+
+log = logging.getLogger(__name__)
+
+IMU_MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
+_MSG_GLOBAL_POSITION_INT = mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT
+_AUTOPILOT = {"px4": mavlink2.MAV_AUTOPILOT_PX4}
+_POSITION_RATE_HZ = 2.0
+_HEARTBEAT_PERIOD_S = 1.0
+# The sender wakes at least this often (s): the pacing granularity of IMU sends at high rates.
+_MAX_SLEEP_S = 0.002
+
+
+def _vec(v: Any) -> tuple[float, float, float]:
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+@dataclass(frozen=True)
+class VehicleConfig:
+    connect: str  # pymavlink connection string (udpin:127.0.0.1:0 binds an ephemeral port)
+    profile: str = "ardupilot"  # unit profile of the IMU messages (sensors.units)
+    message: str = "RAW_IMU"  # the IMU message streamed by default
+    system_id: int = 1
+    component_id: int = 1
+    stream_on_start: bool = False  # ArduPilot Copter: silent until SET_MESSAGE_INTERVAL
+    deny_nonzero_param3: bool = True  # ArduPilot denies SET_MESSAGE_INTERVAL with param3 ≠ 0
+    speed: float = 1.0  # vehicle seconds per real second
+    seed: int = 0
+    signing_key: bytes | None = None  # sign outgoing packets with this key
+    home_lat_deg: float = 47.3977
+    home_lon_deg: float = 8.5456
+    home_alt_m: float = 488.0
+
+
+@dataclass
+class _Stream:
+    rate_hz: float
+    next_t_s: float  # script time of the next sample
+
+
+@dataclass
+class _Epoch:
+    """Vehicle time = script time − boot_script_s + clock_offset_s while this epoch holds."""
+
+    boot_script_s: float = 0.0
+    clock_offset_s: float = 0.0
+
+
+class FakeVehicle:
+    """Run with ``with FakeVehicle(...) as v:`` (or :meth:`start` / :meth:`stop`)."""
+
+    def __init__(self, script: Script, sensors: SensorModel, config: VehicleConfig) -> None:
+        self.script = script
+        self.sensors = sensors
+        self.config = config
+        self._rng = np.random.default_rng(config.seed)
+        self._profile = get_profile(config.profile)
+        self._send_lock = threading.Lock()
+        self._cond = threading.Condition()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._epoch = _Epoch()
+        self._imu_paused = False
+        self._streams: dict[int, _Stream] = {}
+        # Records (appended by the receive thread, read under self._cond).
+        self.attitude_log: list[tuple[float, float, tuple[float, float, float, float], _Epoch, int]] = []
+        self.statustexts: list[str] = []
+        self.commands: list[Any] = []
+        self.heartbeats_from_peers: dict[tuple[int, int], int] = {}
+        self._sent_t_s = array("d")
+        self._sent_mono_s = array("d")
+        self.imu_sent = 0
+        self.conn = self._open(config)
+        self._t0_mono = time.monotonic()
+        self._default_streams()
+
+    # --- set-up -----------------------------------------------------------------------------------------
+
+    def _open(self, config: VehicleConfig) -> Any:
+        try:
+            conn = mavutil.mavlink_connection(
+                config.connect, source_system=config.system_id, source_component=config.component_id
+            )
+        except (OSError, ValueError) as exc:
+            raise LinkError(f"fake vehicle cannot open {config.connect!r}: {exc}") from exc
+        force_mavlink2(conn)
+        if config.signing_key is not None:
+            conn.setup_signing(config.signing_key, sign_outgoing=True, allow_unsigned_callback=lambda *_: True)
+        return conn
+
+    @property
+    def port(self) -> int:
+        """The local port (for a ``udpin:…:0`` vehicle: the ephemeral port the service must reach)."""
+        return int(self.conn.port.getsockname()[1])
+
+    def _default_streams(self) -> None:
+        now = self.script_time()
+        self._streams = {_MSG_GLOBAL_POSITION_INT: _Stream(_POSITION_RATE_HZ, now)}
+        if self.config.stream_on_start:
+            self._streams[self._msg_id(self.config.message)] = _Stream(self.sensors.rate_hz, now)
+
+    @staticmethod
+    def _msg_id(name: str) -> int:
+        msg_id = message_id(name)
+        if msg_id is None:
+            raise LinkError(f"unknown MAVLink message {name!r}")
+        return msg_id
+
+    def start(self) -> FakeVehicle:
+        for target in (self._send_loop, self._receive_loop):
+            thread = threading.Thread(target=target, name=f"fake-vehicle-{target.__name__}", daemon=True)
+            thread.start()
+            self._threads.append(thread)
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        for thread in self._threads:
+            thread.join(timeout=2.0)
+        self.conn.close()
+
+    def __enter__(self) -> FakeVehicle:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # --- clocks -----------------------------------------------------------------------------------------
+
+    def script_time(self, mono_s: float | None = None) -> float:
+        mono_s = time.monotonic() if mono_s is None else mono_s
+        return (mono_s - self._t0_mono) * self.config.speed
+
+    def vehicle_time(self, script_s: float) -> float:
+        return script_s - self._epoch.boot_script_s + self._epoch.clock_offset_s
+
+    def jump_clock(self, delta_s: float) -> None:
+        """Shift the vehicle's timestamps by ``delta_s`` (negative: time goes back) from now on."""
+        with self._cond:
+            self._epoch = dataclasses.replace(self._epoch, clock_offset_s=self._epoch.clock_offset_s + delta_s)
+
+    def reboot(self) -> None:
+        """A simulated reboot: boot time restarts at 0 and the streams fall back to their defaults."""
+        with self._cond:
+            self._epoch = _Epoch(boot_script_s=self.script_time())
+        self._default_streams()
+
+    def pause_imu(self, paused: bool = True) -> None:
+        """Stop (or resume) IMU messages while the script and everything else go on."""
+        self._imu_paused = paused
+        if not paused:  # resume from now, not with a backlog of the silent time
+            now = self.script_time()
+            for msg_id, stream in list(self._streams.items()):
+                if msg_id != _MSG_GLOBAL_POSITION_INT:
+                    stream.next_t_s = now
+
+    def set_rate(self, message: str, rate_hz: float | None) -> None:
+        """Stream ``message`` at ``rate_hz`` (None stops it), as if a SET_MESSAGE_INTERVAL arrived."""
+        msg_id = self._msg_id(message)
+        if rate_hz is None:
+            self._streams.pop(msg_id, None)
+        else:
+            self._streams[msg_id] = _Stream(rate_hz, self.script_time())
+
+    def stream_rate(self, message: str) -> float | None:
+        stream = self._streams.get(self._msg_id(message))
+        return None if stream is None else stream.rate_hz
+
+    # --- sending ----------------------------------------------------------------------------------------
+
+    def send(self, msg: Any) -> None:
+        with self._send_lock:
+            self.conn.mav.send(msg)
+
+    def send_bytes(self, data: bytes) -> None:
+        """Raw bytes on the link (garbage, truncated or corrupted frames)."""
+        with self._send_lock:
+            self.conn.write(data)
+
+    def send_imu(
+        self,
+        acc_mps2: Array,
+        gyr_radps: Array,
+        mag_uT: Array | None,
+        vehicle_time_s: float,
+        message: str | None = None,
+    ) -> None:
+        """One IMU message with the given SI values and vehicle time (any values: NaN, zero, saturated)."""
+        mag = None if mag_uT is None else _vec(mag_uT)
+        sample = ImuSample(vehicle_time_s, _vec(acc_mps2), _vec(gyr_radps), mag, message or self.config.message)
+        self.send(self.encode(sample))
+
+    def encode(self, sample: ImuSample) -> Any:
+        """The MAVLink message of an SI sample in this vehicle's profile."""
+        fields = encode(sample, self._profile)
+        return getattr(mavlink2, f"MAVLink_{sample.message.lower()}_message")(**fields)
+
+    def _send_loop(self) -> None:
+        next_heartbeat = 0.0
+        while not self._stop.is_set():
+            mono = time.monotonic()
+            if mono >= next_heartbeat:
+                self._send_heartbeat()
+                next_heartbeat = mono + _HEARTBEAT_PERIOD_S
+            now = self.script_time(mono)
+            wake = now + _MAX_SLEEP_S * self.config.speed
+            for msg_id, stream in list(self._streams.items()):
+                if msg_id == _MSG_GLOBAL_POSITION_INT:
+                    if now >= stream.next_t_s:
+                        self._send_position(now)
+                        stream.next_t_s = now + 1.0 / stream.rate_hz
+                elif not self._imu_paused:
+                    self._send_imu_until(msg_id, stream, now)
+                wake = min(wake, stream.next_t_s)
+            delay = (wake - self.script_time()) / self.config.speed
+            if delay > 0:
+                self._stop.wait(min(delay, _MAX_SLEEP_S))
+
+    def _send_imu_until(self, msg_id: int, stream: _Stream, now_s: float) -> None:
+        sensors = dataclasses.replace(self.sensors, rate_hz=stream.rate_hz)
+        t = sensors.sample_times(stream.next_t_s, now_s, self._rng)
+        stream.next_t_s = max(stream.next_t_s, np.ceil(now_s * stream.rate_hz) / stream.rate_hz)
+        if not len(t):
+            return
+        acc, gyr, mag = sensors.measure(self.script, t, self._rng)
+        name = mavlink2.mavlink_map[msg_id].msgname
+        epoch = self._epoch
+        for i in range(len(t)):
+            vt = t[i] - epoch.boot_script_s + epoch.clock_offset_s
+            msg = self.encode(ImuSample(vt, _vec(acc[i]), _vec(gyr[i]), _vec(mag[i]), name))
+            self.send(msg)
+            sent = time.monotonic()
+            with self._cond:
+                self._sent_t_s.append(t[i])
+                self._sent_mono_s.append(sent)
+                self.imu_sent += 1
+
+    def _send_heartbeat(self) -> None:
+        autopilot = _AUTOPILOT.get(self.config.profile, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA)
+        self.send(
+            mavlink2.MAVLink_heartbeat_message(
+                mavlink2.MAV_TYPE_QUADROTOR,
+                autopilot,
+                mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                0,
+                mavlink2.MAV_STATE_ACTIVE,
+                3,
+            )
+        )
+
+    def _send_position(self, now_s: float) -> None:
+        truth = self.script.sample([now_s])
+        vel_cms = np.round(truth.vel_ned_mps[0] * 100).astype(int)
+        cfg = self.config
+        self.send(
+            mavlink2.MAVLink_global_position_int_message(
+                time_boot_ms(max(0.0, self.vehicle_time(now_s))),
+                round(cfg.home_lat_deg * 1e7),
+                round(cfg.home_lon_deg * 1e7),
+                round(cfg.home_alt_m * 1000),
+                0,
+                *(int(np.clip(v, -32768, 32767)) for v in vel_cms),
+                65535,
+            )
+        )
+
+    # --- receiving --------------------------------------------------------------------------------------
+
+    def _receive_loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                msg = self.conn.recv_match(blocking=True, timeout=0.05)
+            except OSError as exc:
+                if self._stop.is_set():
+                    return
+                log.debug("fake vehicle: receive error %s", exc)
+                continue
+            if msg is None:
+                continue
+            self._handle(msg, time.monotonic())
+
+    def _handle(self, msg: Any, mono: float) -> None:
+        kind = msg.get_type()
+        if kind == "ATTITUDE_QUATERNION":
+            q = (msg.q1, msg.q2, msg.q3, msg.q4)
+            with self._cond:
+                self.attitude_log.append((mono, msg.time_boot_ms / 1000.0, q, self._epoch, msg.get_srcSystem()))
+                self._cond.notify_all()
+        elif kind == "STATUSTEXT":
+            with self._cond:
+                self.statustexts.append(msg.text)
+                self._cond.notify_all()
+        elif kind == "HEARTBEAT":
+            key = (msg.get_srcSystem(), msg.get_srcComponent())
+            with self._cond:
+                self.heartbeats_from_peers[key] = self.heartbeats_from_peers.get(key, 0) + 1
+                self._cond.notify_all()
+        elif kind == "COMMAND_LONG" and msg.target_system in (0, self.config.system_id):
+            self._command(msg)
+
+    def _command(self, msg: Any) -> None:
+        result = mavlink2.MAV_RESULT_UNSUPPORTED
+        if msg.command == mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL:
+            result = self._set_interval(int(msg.param1), msg.param2, msg.param3)
+        with self._cond:
+            self.commands.append(msg)
+            self._cond.notify_all()
+        self.send(
+            mavlink2.MAVLink_command_ack_message(msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
+        )
+
+    def _set_interval(self, msg_id: int, interval_us: float, param3: float) -> int:
+        names = {self._msg_id(n): n for n in IMU_MESSAGES}
+        if msg_id not in names and msg_id != _MSG_GLOBAL_POSITION_INT:
+            return mavlink2.MAV_RESULT_DENIED
+        if self.config.deny_nonzero_param3 and param3 != 0:
+            return mavlink2.MAV_RESULT_DENIED
+        if interval_us < 0:
+            self._streams.pop(msg_id, None)
+        elif interval_us == 0:
+            default = self.sensors.rate_hz if msg_id != _MSG_GLOBAL_POSITION_INT else _POSITION_RATE_HZ
+            on = msg_id == _MSG_GLOBAL_POSITION_INT or (
+                self.config.stream_on_start and msg_id == self._msg_id(self.config.message)
+            )
+            self._set_stream(msg_id, default if on else None)
+        else:
+            self._set_stream(msg_id, 1e6 / interval_us)
+        return mavlink2.MAV_RESULT_ACCEPTED
+
+    def _set_stream(self, msg_id: int, rate_hz: float | None) -> None:
+        if rate_hz is None:
+            self._streams.pop(msg_id, None)
+            return
+        stream = self._streams.get(msg_id)
+        if stream is None:
+            self._streams[msg_id] = _Stream(rate_hz, self.script_time())
+        else:
+            stream.rate_hz = rate_hz
+
+    # --- waiting and scoring ----------------------------------------------------------------------------
+
+    def wait_until(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
+        """Block until ``predicate()`` (evaluated under the record lock) holds, or the time-out passes."""
+        with self._cond:
+            return self._cond.wait_for(predicate, timeout=timeout_s)
+
+    def wait_for_outputs(self, count: int, timeout_s: float) -> bool:
+        """Wait until ``count`` ATTITUDE_QUATERNION messages have arrived in total."""
+        return self.wait_until(lambda: len(self.attitude_log) >= count, timeout_s)
+
+    def outputs_since(self, index: int = 0) -> tuple[Array, Array, Array]:
+        """``(recv_mono_s, script_time_s, q)`` of outputs from ``index`` on."""
+        with self._cond:
+            rows = self.attitude_log[index:]
+        if not rows:
+            return np.empty(0), np.empty(0), np.empty((0, 4))
+        mono = np.array([r[0] for r in rows])
+        script_t = np.array([r[1] + r[3].boot_script_s - r[3].clock_offset_s for r in rows])
+        return mono, script_t, np.array([r[2] for r in rows], dtype=float)
+
+    def comparison(self, index: int = 0, since_script_s: float = -np.inf) -> Comparison:
+        mono, t, q = self.outputs_since(index)
+        keep = t >= since_script_s
+        with self._cond:
+            sent_t = np.frombuffer(self._sent_t_s, dtype=float).copy()
+            sent_mono = np.frombuffer(self._sent_mono_s, dtype=float).copy()
+        order = np.argsort(sent_t, kind="stable")
+        q_true = self.script.attitude(t[keep]) if keep.any() else np.empty((0, 4))
+        return compare(t[keep], q[keep], mono[keep], q_true, sent_t[order], sent_mono[order])
+
+    def score(self, index: int = 0, since_script_s: float = -np.inf) -> Score:
+        return score(self.comparison(index, since_script_s))
