@@ -1,0 +1,473 @@
+"""The MAVLink link the service talks to: one pymavlink connection, MAVLink 2, signing, reconnection.
+
+:class:`MavlinkLink` is deliberately thin: ``recv(timeout_s)`` returns the messages that arrived (each
+with its ``time.monotonic()`` arrival stamp), the ``send_*`` methods encode and send one message each,
+and everything protocol-shaped the service needs to ask (is this an autopilot heartbeat? an ACK of our
+interval request?) is a method here, so pymavlink stays behind this module.
+
+Connection strings (pymavlink's): ``udpin:HOST:PORT`` (listen; replies go to whoever sent last),
+``udpout:HOST:PORT``, ``tcp:HOST:PORT`` (client), ``tcpin:HOST:PORT`` (server, one client at a time),
+or a serial device ``/dev/ttyACM0`` (baud from the argument, or ``/dev/ttyACM0,921600``). Port 0 on
+``udpin``/``tcpin`` binds an ephemeral port (see :attr:`MavlinkLink.local_address`).
+
+A connection that fails while running (a TCP peer closing, a USB serial adapter unplugged) is closed
+and reopened with exponential back-off; the first open of a ``tcp:`` client is retried the same way,
+since the router it connects to may start after us. A local address that cannot be bound is a
+:class:`LinkError` at once: that is a configuration mistake, not a transient.
+"""
+
+from __future__ import annotations
+
+import errno
+import functools
+import logging
+import math
+import socket
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from mavattitude.errors import InputError, LinkError, SigningError
+from mavattitude.link.mavlink2 import force_mavlink2, mavlink2, mavutil
+from mavattitude.link.signing import signing_timestamp_now, verify_signature
+
+log = logging.getLogger(__name__)
+
+Message = Any  # a pymavlink MAVLink_message: field attributes, get_type(), get_srcSystem(), ...
+
+MAX_MESSAGES_PER_RECV = 64  # bound one recv() so a burst cannot starve heartbeats and the watchdog
+CONNECT_TIMEOUT_S = 0.5  # a TCP connect attempt; short, so a stop request is never held up for long
+SIGNING_CLOCK_UPDATE_S = 1.0
+STATUSTEXT_LEN = 50
+UNIT_TOLERANCE = 1e-6  # on |q|² - 1: far above float64 rounding of a normalised q, far below any real error
+NOT_AUTOPILOT_TYPES = frozenset(
+    {
+        mavlink2.MAV_TYPE_GCS,
+        mavlink2.MAV_TYPE_ONBOARD_CONTROLLER,
+        mavlink2.MAV_TYPE_GIMBAL,
+        mavlink2.MAV_TYPE_ADSB,
+        mavlink2.MAV_TYPE_CAMERA,
+    }
+)
+SEVERITY = {
+    "emergency": mavlink2.MAV_SEVERITY_EMERGENCY,
+    "error": mavlink2.MAV_SEVERITY_ERROR,
+    "warning": mavlink2.MAV_SEVERITY_WARNING,
+    "notice": mavlink2.MAV_SEVERITY_NOTICE,
+    "info": mavlink2.MAV_SEVERITY_INFO,
+}
+
+
+@dataclass(frozen=True)
+class Endpoint:
+    """A parsed connection string."""
+
+    kind: str  # udpin | udpout | tcp | tcpin | serial
+    address: str  # HOST:PORT, or the serial device
+    baud: int
+
+
+def parse_connect(connect: str, baud: int = 115200) -> Endpoint:
+    """Check a connection string and split it; a malformed one is a :class:`LinkError` naming the forms."""
+    kind, sep, rest = connect.partition(":")
+    if sep and kind in ("udpin", "udpout", "udp", "tcp", "tcpin"):
+        host, sep, port_text = rest.rpartition(":")
+        listening = kind in ("udpin", "udp", "tcpin")
+        if not sep or not host or not port_text.isdigit() or not (listening or int(port_text) > 0):
+            raise LinkError(f"connection string {connect!r}: expected {kind}:HOST:PORT")
+        if int(port_text) > 65535:
+            raise LinkError(f"connection string {connect!r}: port {port_text} is out of range 0-65535")
+        return Endpoint("udpin" if kind == "udp" else kind, f"{host}:{port_text}", baud)
+    if connect.startswith("/") or connect.upper().startswith("COM"):
+        device, sep, baud_text = connect.partition(",")
+        if sep and not baud_text.isdigit():
+            raise LinkError(f"connection string {connect!r}: expected DEVICE or DEVICE,BAUD")
+        return Endpoint("serial", device, int(baud_text) if sep else baud)
+    raise LinkError(
+        f"connection string {connect!r}: expected udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, "
+        "tcpin:HOST:PORT or a serial device such as /dev/ttyACM0[,BAUD]"
+    )
+
+
+@dataclass
+class LinkCounters:
+    """What the link saw and did, cumulative."""
+
+    received: int = 0  # well-formed messages handed to the caller
+    bad_data: int = 0  # garbage bytes, bad CRC, truncated or malformed frames
+    signature_rejected: int = 0  # unsigned or badly signed while signing is required
+    sent: int = 0
+    send_failed: int = 0  # the link was down or the write failed
+    disconnects: int = 0
+    reconnects: int = 0
+
+
+class _Disconnected(ConnectionError):
+    """The peer of a stream connection went away (EOF or reset)."""
+
+
+class _TcpClient(mavutil.mavtcp):
+    """pymavlink's TCP client with a bounded connect time and disconnects raised instead of printed."""
+
+    def do_connect(self) -> None:
+        self.port = socket.create_connection(self.destination_addr, timeout=CONNECT_TIMEOUT_S)
+        self.port.setblocking(False)
+        self.port.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        mavutil.set_close_on_exec(self.port.fileno())
+
+    def handle_eof(self) -> None:
+        raise _Disconnected("TCP peer closed the connection")
+
+    def handle_disconnect(self) -> None:
+        raise _Disconnected("TCP connection reset by peer")
+
+
+class _TcpServer(mavutil.mavtcpin):
+    """pymavlink's TCP server, which also notices a client's EOF (pymavlink spins on it)."""
+
+    def recv(self, n: int | None = None) -> bytes:
+        if self.port is None:
+            try:
+                self.port, _ = self.listen.accept()
+            except OSError:
+                return b""
+            self.port.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            self.port.setblocking(False)
+            mavutil.set_close_on_exec(self.port.fileno())
+            self.fd = self.port.fileno()
+        try:
+            data = self.port.recv(self.mav.bytes_needed() if n is None else n)
+        except OSError as exc:
+            if exc.errno in (errno.EAGAIN, errno.EWOULDBLOCK):
+                return b""
+            data = b""
+        if not data:  # EOF or error: wait for the next client
+            self.port.close()
+            self.port = None
+            self.fd = self.listen.fileno()
+            log.info("TCP client disconnected; listening again")
+        return data
+
+
+class _Udp(mavutil.mavudp):
+    """pymavlink's UDP socket, parsing each datagram on its own.
+
+    MAVLink over UDP puts whole frames in each datagram. pymavlink keeps the bytes of a truncated frame
+    and reads the next datagram as its continuation, so one truncated datagram also destroys the good
+    frame after it; here the incomplete rest of a datagram is dropped (and counted) when the next arrives.
+    """
+
+    on_truncated: Any = None  # called once per dropped incomplete frame
+
+    def recv_msg(self) -> Message | None:
+        msg = self.mav.parse_char(b"")  # complete frames still buffered from the last datagram
+        if msg is None:
+            data = self.recv()
+            if not data:
+                return None
+            if self.mav.buf_len() > 0:
+                self.mav.buf = bytearray()
+                self.mav.buf_index = 0
+                self.mav.expected_length = mavlink2.HEADER_LEN_V1 + 2
+                if self.on_truncated is not None:
+                    self.on_truncated()
+            msg = self.mav.parse_char(data)
+        if msg is not None:
+            self.post_message(msg)
+        return msg
+
+
+def _open_connection(endpoint: Endpoint, source_system: int, source_component: int) -> Any:
+    ids = {"source_system": source_system, "source_component": source_component}
+    if endpoint.kind == "tcp":
+        return _TcpClient(endpoint.address, retries=0, **ids)
+    if endpoint.kind == "tcpin":
+        return _TcpServer(endpoint.address, **ids)
+    if endpoint.kind == "serial":
+        return mavutil.mavserial(endpoint.address, baud=endpoint.baud, **ids)
+    return _Udp(endpoint.address, input=endpoint.kind == "udpin", **ids)
+
+
+class MavlinkLink:
+    """A MAVLink 2 connection with optional signing, reopened with back-off when it fails.
+
+    ``signing_key`` (32 bytes) signs every packet sent; with ``require_signing`` unsigned and badly
+    signed packets are dropped and counted (:attr:`counters` ``.signature_rejected``).
+    """
+
+    def __init__(
+        self,
+        connect: str,
+        *,
+        source_system: int,
+        source_component: int = mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER,
+        baud: int = 115200,
+        signing_key: bytes | None = None,
+        require_signing: bool = False,
+        reconnect_min_s: float = 0.1,
+        reconnect_max_s: float = 5.0,
+    ) -> None:
+        if not 1 <= source_system <= 254:
+            raise LinkError(f"source system id {source_system} is outside 1-254 (255 is for ground stations)")
+        if signing_key is not None and len(signing_key) != 32:
+            raise SigningError(f"a MAVLink 2 signing key is 32 bytes, not {len(signing_key)}")
+        if require_signing and signing_key is None:
+            raise SigningError("require_signing is on but no signing key is configured")
+        self.endpoint = parse_connect(connect, baud)
+        self.counters = LinkCounters()
+        self._source = (source_system, source_component)
+        self._signing_key = signing_key
+        self._require_signing = require_signing
+        self._signing: Any = None  # pymavlink's MAVLinkSigning, kept across reconnects
+        self._seq = 0
+        self._reconnect_range_s = (reconnect_min_s, reconnect_max_s)
+        self._backoff_s = reconnect_min_s
+        self._retry_at = 0.0
+        self._signing_clock_at = 0.0
+        self._conn: Any = None
+        try:
+            self._open()
+        except OSError as exc:
+            if self.endpoint.kind != "tcp":
+                raise LinkError(f"cannot open {connect}: {exc.strerror or exc}") from exc
+            log.warning("cannot connect to %s yet (%s); retrying with back-off", connect, exc)
+            self._schedule_retry()
+
+    # -- connection management ------------------------------------------------------------------------
+
+    def _open(self) -> None:
+        try:
+            conn = _open_connection(self.endpoint, *self._source)
+        except ValueError as exc:  # pymavlink's complaint about an address
+            raise LinkError(f"cannot open {self.endpoint.kind}:{self.endpoint.address}: {exc}") from exc
+        force_mavlink2(conn)
+        conn.mav.seq = self._seq
+        conn.on_truncated = self._count_truncated
+        if self._signing_key is not None:
+            self._install_signing(conn)
+        self._conn = conn
+
+    def _install_signing(self, conn: Any) -> None:
+        if self._signing is None:
+            conn.setup_signing(
+                self._signing_key,
+                sign_outgoing=True,
+                allow_unsigned_callback=lambda _mav, _msg_id: not self._require_signing,
+                initial_timestamp=signing_timestamp_now(),
+                link_id=0,
+            )
+            self._signing = conn.mav.signing
+        conn.mav.signing = self._signing
+        conn.mav.check_signature = functools.partial(verify_signature, self._signing)
+
+    def _schedule_retry(self) -> None:
+        self._retry_at = time.monotonic() + self._backoff_s
+        self._backoff_s = min(2.0 * self._backoff_s, self._reconnect_range_s[1])
+
+    def _drop(self, exc: BaseException) -> None:
+        """Close a failed connection and schedule its reopening."""
+        self.counters.disconnects += 1
+        log.warning("link %s:%s lost (%s); reopening in %.1f s", *self._where(), exc, self._backoff_s)
+        self._close_conn()
+        self._schedule_retry()
+
+    def _reopen(self, timeout_s: float) -> None:
+        wait_s = self._retry_at - time.monotonic()
+        if wait_s > 0.0:
+            time.sleep(min(wait_s, timeout_s))
+            return
+        try:
+            self._open()
+        except OSError as exc:
+            log.warning("link %s:%s: reopening failed (%s); next try in %.1f s", *self._where(), exc, self._backoff_s)
+            self._schedule_retry()
+            return
+        self.counters.reconnects += 1
+        self._backoff_s = self._reconnect_range_s[0]
+        log.info("link %s:%s open again", *self._where())
+
+    def _where(self) -> tuple[str, str]:
+        return self.endpoint.kind, self.endpoint.address
+
+    def _close_conn(self) -> None:
+        conn, self._conn = self._conn, None
+        if conn is None:
+            return
+        self._seq = conn.mav.seq
+        try:
+            conn.close()
+        except OSError as exc:
+            log.debug("closing the link: %s", exc)
+
+    @property
+    def is_open(self) -> bool:
+        return self._conn is not None
+
+    @property
+    def local_address(self) -> tuple[str, int] | None:
+        """The bound (host, port) of a udpin/tcpin link (useful with port 0), else None."""
+        if self._conn is None or self.endpoint.kind not in ("udpin", "tcpin"):
+            return None
+        sock = self._conn.listen if self.endpoint.kind == "tcpin" else self._conn.port
+        return sock.getsockname()[:2]
+
+    def set_source_system(self, system_id: int) -> None:
+        """Send as this system from now on (the vehicle's, once the service has locked onto it)."""
+        if not 1 <= system_id <= 254:
+            raise LinkError(f"source system id {system_id} is outside 1-254 (255 is for ground stations)")
+        self._source = (system_id, self._source[1])
+        if self._conn is not None:
+            self._conn.mav.srcSystem = system_id
+
+    @property
+    def source_system(self) -> int:
+        return self._source[0]
+
+    def close(self) -> None:
+        self._close_conn()
+
+    def __enter__(self) -> MavlinkLink:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    # -- receiving ------------------------------------------------------------------------------------
+
+    def recv(self, timeout_s: float) -> list[tuple[float, Message]]:
+        """Wait up to ``timeout_s`` for input; return ``(arrival time.monotonic(), message)`` pairs."""
+        conn = self._conn
+        if conn is None:
+            self._reopen(timeout_s)
+            return []
+        self._keep_signing_clock()
+        if not conn.select(max(timeout_s, 0.0)):
+            return []
+        received: list[tuple[float, Message]] = []
+        try:
+            while len(received) < MAX_MESSAGES_PER_RECV:
+                msg = conn.recv_msg()
+                if msg is None:
+                    break
+                if msg.get_type() == "BAD_DATA":
+                    self._count_bad(msg)
+                    continue
+                received.append((time.monotonic(), msg))
+        except OSError as exc:  # includes _Disconnected and serial.SerialException
+            self._drop(exc)
+        self.counters.received += len(received)
+        return received
+
+    def _count_truncated(self) -> None:
+        self.counters.bad_data += 1
+
+    def _count_bad(self, msg: Message) -> None:
+        if "signature" in str(getattr(msg, "reason", "")).lower():
+            self.counters.signature_rejected += 1
+        else:
+            self.counters.bad_data += 1
+
+    def _keep_signing_clock(self) -> None:
+        """Raise the signing timestamp to the wall clock now and then (MAVProxy does it every 10 s)."""
+        if self._signing is None:
+            return
+        now = time.monotonic()
+        if now - self._signing_clock_at >= SIGNING_CLOCK_UPDATE_S:
+            self._signing_clock_at = now
+            self._signing.timestamp = max(self._signing.timestamp, signing_timestamp_now())
+
+    @staticmethod
+    def is_autopilot_heartbeat(msg: Message) -> bool:
+        """A HEARTBEAT from a flight controller (not a GCS, companion, gimbal, camera or ADS-B unit)."""
+        return (
+            msg.get_type() == "HEARTBEAT"
+            and msg.autopilot != mavlink2.MAV_AUTOPILOT_INVALID
+            and msg.type not in NOT_AUTOPILOT_TYPES
+        )
+
+    @staticmethod
+    def interval_ack_result(msg: Message) -> str | None:
+        """For a COMMAND_ACK of SET_MESSAGE_INTERVAL, the result's name (``"ACCEPTED"``, ...); else None."""
+        if msg.get_type() != "COMMAND_ACK" or msg.command != mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL:
+            return None
+        entry = mavlink2.enums["MAV_RESULT"].get(msg.result)
+        return entry.name.removeprefix("MAV_RESULT_") if entry is not None else str(msg.result)
+
+    # -- sending --------------------------------------------------------------------------------------
+
+    def _send(self, msg: Message) -> bool:
+        conn = self._conn
+        if conn is None:
+            self.counters.send_failed += 1
+            return False
+        try:
+            conn.mav.send(msg)
+        except OSError as exc:
+            self.counters.send_failed += 1
+            self._drop(exc)
+            return False
+        self.counters.sent += 1
+        return True
+
+    def send_heartbeat(self) -> bool:
+        """Our HEARTBEAT: an onboard controller, not an autopilot."""
+        return self._send(
+            mavlink2.MAVLink_heartbeat_message(
+                mavlink2.MAV_TYPE_ONBOARD_CONTROLLER,
+                mavlink2.MAV_AUTOPILOT_INVALID,
+                0,
+                0,
+                mavlink2.MAV_STATE_ACTIVE,
+                3,
+            )
+        )
+
+    def request_message_interval(self, target: tuple[int, int], message_id: int, rate_hz: float) -> bool:
+        """MAV_CMD_SET_MESSAGE_INTERVAL for one message; param3 = 0 (ArduPilot refuses anything else)."""
+        interval_us = float(round(1e6 / rate_hz))
+        return self._send(
+            mavlink2.MAVLink_command_long_message(
+                target[0],
+                target[1],
+                mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL,
+                0,
+                float(message_id),
+                interval_us,
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+            )
+        )
+
+    def send_statustext(self, text: str, severity: str = "info") -> bool:
+        """One STATUSTEXT (ASCII, cut to the message's 50 characters; the log keeps the full text)."""
+        payload = text.encode("ascii", "replace")[:STATUSTEXT_LEN]
+        return self._send(mavlink2.MAVLink_statustext_message(SEVERITY[severity], payload, 0, 0))
+
+    def send_attitude_quaternion(self, time_boot_ms: int, q: Sequence[float], rates_radps: Sequence[float]) -> bool:
+        """ATTITUDE_QUATERNION: ``q`` = [w, x, y, z] body -> NED, body rates in rad/s, no offset.
+
+        The one gate of the output: a quaternion that is not finite and unit, or rates that are not
+        finite, raise :class:`InputError` and nothing is sent.
+        """
+        values = (*q, *rates_radps)
+        if not (all(math.isfinite(v) for v in values) and abs(math.fsum(v * v for v in q) - 1.0) < UNIT_TOLERANCE):
+            raise InputError(
+                f"refusing to send a non-finite or non-unit attitude: q={list(q)}, rates={list(rates_radps)}"
+            )
+        return self._send(
+            mavlink2.MAVLink_attitude_quaternion_message(
+                int(time_boot_ms) & 0xFFFFFFFF,
+                float(q[0]),
+                float(q[1]),
+                float(q[2]),
+                float(q[3]),
+                float(rates_radps[0]),
+                float(rates_radps[1]),
+                float(rates_radps[2]),
+                [0.0, 0.0, 0.0, 0.0],
+            )
+        )
