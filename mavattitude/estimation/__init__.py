@@ -1,1 +1,22 @@
-"""The estimation core: pure functions on numpy arrays, no I/O, no logging, no clock."""
+"""The estimation core: pure functions on numpy arrays, no I/O, no logging, no clock.
+
+``solve`` (one sample, plain-float fast path) and ``solve_batch`` (vectorised) implement the paper's
+IGN (Liu et al. 2014, Eq. 34–35 with the weights of Eq. 21), CGN (equal weights), a maximum-likelihood
+variant (matrix weights, reaches the Cramér–Rao bound) and TRIAD; see :mod:`.kernel` for the equations.
+"""
+
+from .batch import BatchResult, solve_batch
+from .covariance import cramer_rao_bound, predicted_covariance
+from .noise import NoiseModel
+from .solve import METHODS, SolveResult, solve
+
+__all__ = [
+    "METHODS",
+    "BatchResult",
+    "NoiseModel",
+    "SolveResult",
+    "cramer_rao_bound",
+    "predicted_covariance",
+    "solve",
+    "solve_batch",
+]

@@ -8,7 +8,11 @@
   ``A(q) = (w² − ρᵀρ) I + 2ρρᵀ − 2w[ρ×] = R(q)ᵀ`` maps NED → body: ``w_body = A v_ned``.
 - Error angles live in the body frame (Eq. 14, 28–30): ``q̂ = q_true ⊗ [1, δα/2]``.
 
-Every function is vectorised over leading axes: a quaternion argument is ``(..., 4)``, a vector ``(..., 3)``.
+Every array function is vectorised over leading axes: a quaternion argument is ``(..., 4)``, a vector
+``(..., 3)``. The ``*_parts`` functions are the same formulas on components (a quaternion as a 4-tuple,
+a vector as a 3-tuple, a matrix as a row-major 9-tuple) whose entries are plain floats *or* equal-shape
+arrays: the array functions delegate to them, and the estimation core calls them directly with floats on
+its per-sample path (no numpy call overhead) and with arrays on its batch path — one formula each.
 """
 
 from __future__ import annotations
@@ -27,21 +31,26 @@ def skew(v: ArrayLike) -> Array:
     return np.stack([np.stack([o, -z, y], -1), np.stack([z, o, -x], -1), np.stack([-y, x, o], -1)], -2)
 
 
+def _parts(a: ArrayLike) -> tuple:
+    a = np.asarray(a, dtype=float)
+    return tuple(a[..., k] for k in range(a.shape[-1]))
+
+
+def quat_multiply_parts(p: tuple, q: tuple) -> tuple:
+    """Hamilton product ``p ⊗ q`` on components."""
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    return (
+        pw * qw - px * qx - py * qy - pz * qz,
+        pw * qx + px * qw + py * qz - pz * qy,
+        pw * qy - px * qz + py * qw + pz * qx,
+        pw * qz + px * qy - py * qx + pz * qw,
+    )
+
+
 def quat_multiply(p: ArrayLike, q: ArrayLike) -> Array:
     """Hamilton product ``p ⊗ q``."""
-    p = np.asarray(p, dtype=float)
-    q = np.asarray(q, dtype=float)
-    pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
-    qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack(
-        [
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        ],
-        -1,
-    )
+    return np.stack(quat_multiply_parts(_parts(p), _parts(q)), -1)
 
 
 def quat_conjugate(q: ArrayLike) -> Array:
@@ -58,17 +67,28 @@ def quat_normalize(q: ArrayLike) -> Array:
     return np.where(q[..., :1] < 0.0, -q, q)
 
 
+def rotation_matrix_parts(q: tuple) -> tuple:
+    """``R(q)`` of a unit quaternion on components, row-major ``(r00, r01, ..., r22)``."""
+    w, x, y, z = q
+    return (
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    )  # fmt: skip
+
+
 def rotation_matrix(q: ArrayLike) -> Array:
     """``R(q)``: body → NED rotation matrix of a unit quaternion."""
-    q = np.asarray(q, dtype=float)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
+    r = rotation_matrix_parts(_parts(q))
+    return np.stack([np.stack(r[0:3], -1), np.stack(r[3:6], -1), np.stack(r[6:9], -1)], -2)
+
+
+def rotate_ned_to_body_parts(r: tuple, v: tuple) -> tuple:
+    """``A v = R(q)ᵀ v`` (Eq. 27) on components, given ``r = rotation_matrix_parts(q)``."""
+    return (
+        r[0] * v[0] + r[3] * v[1] + r[6] * v[2],
+        r[1] * v[0] + r[4] * v[1] + r[7] * v[2],
+        r[2] * v[0] + r[5] * v[1] + r[8] * v[2],
     )
 
 
@@ -87,6 +107,35 @@ def rotate_ned_to_body(q: ArrayLike, v_ned: ArrayLike) -> Array:
     return np.einsum("...ij,...j->...i", attitude_matrix(q), np.asarray(v_ned, dtype=float))
 
 
+def _shepperd_candidates(r: tuple) -> tuple[tuple, tuple]:
+    """Shepperd's pivots and four candidate (unnormalised) quaternions of a row-major 9-tuple matrix."""
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = r
+    trace = r00 + r11 + r22
+    # Antisymmetric (d*) and symmetric (s*) off-diagonal combinations.
+    dx, dy, dz = r21 - r12, r02 - r20, r10 - r01
+    sxy, sxz, syz = r01 + r10, r02 + r20, r12 + r21
+    candidates = (
+        (1 + trace, dx, dy, dz),
+        (dx, 1 + 2 * r00 - trace, sxy, sxz),
+        (dy, sxy, 1 + 2 * r11 - trace, syz),
+        (dz, sxz, syz, 1 + 2 * r22 - trace),
+    )
+    return (trace, r00, r11, r22), candidates
+
+
+def quat_from_rotation_parts(r: tuple) -> tuple[float, float, float, float]:
+    """Scalar (plain-float) twin of :func:`quat_from_rotation_matrix` on a row-major 9-tuple.
+
+    Same candidates; the largest pivot is picked with a branch instead of a gather.
+    """
+    pivots, candidates = _shepperd_candidates(r)
+    w, x, y, z = candidates[pivots.index(max(pivots))]
+    n = (w * w + x * x + y * y + z * z) ** -0.5
+    if w < 0.0:
+        n = -n
+    return w * n, x * n, y * n, z * n
+
+
 def quat_from_rotation_matrix(r: ArrayLike) -> Array:
     """Unit quaternion (``w ≥ 0``) of a body → NED rotation matrix (Shepperd's method, branch-free).
 
@@ -94,21 +143,9 @@ def quat_from_rotation_matrix(r: ArrayLike) -> Array:
     is accurate for every rotation, 180° included.
     """
     r = np.asarray(r, dtype=float)
-    r00, r11, r22 = r[..., 0, 0], r[..., 1, 1], r[..., 2, 2]
-    trace = r00 + r11 + r22
-    # Antisymmetric (d*) and symmetric (s*) off-diagonal combinations.
-    dx, dy, dz = r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]
-    sxy, sxz, syz = r[..., 0, 1] + r[..., 1, 0], r[..., 0, 2] + r[..., 2, 0], r[..., 1, 2] + r[..., 2, 1]
-    candidates = np.stack(
-        [
-            np.stack([1 + trace, dx, dy, dz], -1),
-            np.stack([dx, 1 + 2 * r00 - trace, sxy, sxz], -1),
-            np.stack([dy, sxy, 1 + 2 * r11 - trace, syz], -1),
-            np.stack([dz, sxz, syz, 1 + 2 * r22 - trace], -1),
-        ],
-        -2,
-    )
-    pivot = np.argmax(np.stack([trace, r00, r11, r22], -1), axis=-1)
+    pivots, candidates = _shepperd_candidates(tuple(r[..., i, j] for i in range(3) for j in range(3)))
+    candidates = np.stack([np.stack(c, -1) for c in candidates], -2)
+    pivot = np.argmax(np.stack(pivots, -1), axis=-1)
     q = np.take_along_axis(candidates, pivot[..., None, None], axis=-2)[..., 0, :]
     return quat_normalize(q)
 

@@ -1,0 +1,153 @@
+"""The vectorised solver over N samples: the per-sample path's equations (:mod:`.kernel`) on arrays.
+
+Every sample starts from TRIAD and iterates exactly as :func:`.solve.solve` does (a sample whose last
+correction met the tolerance is frozen, as the per-sample loop returns), so the two agree to rounding.
+Work is done in chunks that fit the CPU cache.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..errors import ConvergenceError, DegenerateGeometryError, InputError
+from . import kernel
+from .conventions import quat_from_rotation_matrix
+from .noise import NoiseModel
+from .solve import MAX_ITERATIONS, MIN_ANGLE_DEG, TOLERANCE_RAD, check_method, check_settings, geometry_message
+
+CHUNK = 4096
+
+
+@dataclass(frozen=True)
+class BatchResult:
+    """Per-sample outcome of :func:`solve_batch` with ``full_output=True``."""
+
+    q: NDArray[np.float64]  # (N, 4) [w, x, y, z], body → NED, w ≥ 0
+    iterations: NDArray[np.int64]  # (N,)
+    converged: NDArray[np.bool_]  # (N,)
+    loss: NDArray[np.float64]  # (N,)
+
+
+def solve_batch(
+    acc: ArrayLike,
+    mag: ArrayLike,
+    mag_ref: ArrayLike,
+    noise: NoiseModel,
+    method: str = "ign",
+    acc_ref: ArrayLike = (0.0, 0.0, -1.0),
+    *,
+    max_iterations: int = MAX_ITERATIONS,
+    tolerance: float = TOLERANCE_RAD,
+    min_angle_deg: float = MIN_ANGLE_DEG,
+    full_output: bool = False,
+) -> NDArray[np.float64] | BatchResult:
+    """Attitudes ``(N, 4)`` of N samples ``acc, mag (N, 3)``; ``mag_ref``/``acc_ref`` are ``(3,)`` or ``(N, 3)``.
+
+    Arguments as for :func:`.solve.solve`. Bad samples raise (naming the first one) rather than being
+    skipped. If a sample does not converge, ``full_output=False`` raises :class:`ConvergenceError`;
+    ``full_output=True`` returns a :class:`BatchResult` with per-sample flags instead.
+    """
+    check_method(method)
+    sin_min = check_settings(max_iterations, tolerance, min_angle_deg)
+    acc_a = _samples("acc", acc, None)
+    n = acc_a.shape[0]
+    mag_a = _samples("mag", mag, n)
+    refs = {name: _samples(name, v, n) for name, v in (("acc_ref", acc_ref), ("mag_ref", mag_ref))}
+    out = BatchResult(np.empty((n, 4)), np.empty(n, dtype=np.int64), np.empty(n, dtype=bool), np.empty(n))
+    for start in range(0, n, CHUNK):
+        sl = slice(start, min(start + CHUNK, n))
+        chunk = [_columns(a, sl) for a in (acc_a, mag_a, refs["acc_ref"], refs["mag_ref"])]
+        _solve_chunk(chunk, noise, method, max_iterations, tolerance, sin_min, min_angle_deg, start, out, sl)
+    if full_output:
+        return out
+    if not out.converged.all():
+        bad = np.flatnonzero(~out.converged)
+        raise ConvergenceError(
+            f"{bad.size} of {n} samples did not converge in {max_iterations} iterations (first: sample {bad[0]}); "
+            "pass full_output=True for per-sample flags"
+        )
+    return out.q
+
+
+def _samples(name: str, v: ArrayLike, n: int | None) -> NDArray[np.float64]:
+    try:
+        a = np.asarray(v, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be numeric") from None
+    if a.shape == (3,) and n is not None:
+        return a[None, :]
+    if a.ndim != 2 or a.shape[1] != 3 or (n is not None and a.shape[0] != n):
+        want = "(N, 3)" if n is None else f"({n}, 3) or (3,)"
+        raise InputError(f"{name} must have shape {want}, got {a.shape}")
+    return a
+
+
+def _columns(a: NDArray[np.float64], sl: slice) -> tuple:
+    if a.shape[0] == 1:  # one reference for all samples: plain floats broadcast
+        return tuple(float(e) for e in a[0])
+    return tuple(np.ascontiguousarray(a[sl].T))
+
+
+def _unit(name: str, raw: tuple, offset: int) -> tuple[tuple, object]:
+    n = kernel.norm(raw)
+    bad = ~np.asarray((n > 0.0) & (n < np.inf))  # also catches NaN
+    if np.any(bad):
+        first = offset + int(np.flatnonzero(np.atleast_1d(bad))[0])
+        raise InputError(f"{name} must be finite and non-zero: {int(np.sum(bad))} bad sample(s), first: sample {first}")
+    return kernel.scaled(raw, 1.0 / n), n
+
+
+def _check_geometry(what: str, s: object, sin_min: float, min_angle_deg: float, offset: int) -> None:
+    bad = np.atleast_1d(~(np.asarray(s) >= sin_min))
+    if np.any(bad):
+        i = int(np.flatnonzero(bad)[0])
+        raise DegenerateGeometryError(
+            f"sample {offset + i} (and {int(bad.sum()) - 1} more): "
+            + geometry_message(what, float(np.atleast_1d(s)[i]), min_angle_deg)
+        )
+
+
+def _solve_chunk(chunk, noise, method, max_iterations, tolerance, sin_min, min_angle_deg, offset, out, sl) -> None:
+    acc, mag, acc_ref, mag_ref = chunk
+    w_acc, n_acc = _unit("acc", acc, offset)
+    w_mag, n_mag = _unit("mag", mag, offset)
+    v_acc, _ = _unit("acc_ref", acc_ref, offset)
+    v_mag, _ = _unit("mag_ref", mag_ref, offset)
+    s_body = kernel.norm(kernel.cross(w_acc, w_mag))
+    _check_geometry("acc and mag", s_body, sin_min, min_angle_deg, offset)
+    s_ref = kernel.norm(kernel.cross(v_acc, v_mag))
+    _check_geometry("acc_ref and mag_ref", s_ref, sin_min, min_angle_deg, offset)
+
+    obs = kernel.observations(method, (w_mag, n_mag, v_mag, noise.mag_var), (w_acc, n_acc, v_acc, noise.accel_var))
+    r = np.stack(np.broadcast_arrays(*kernel.triad(w_acc, w_mag, v_acc, v_mag, s_body, s_ref)), -1)
+    q = tuple(quat_from_rotation_matrix(r.reshape(-1, 3, 3)).T)
+    ml = method == "ml"
+    size = q[0].shape[0]
+    iterations = np.zeros(size, dtype=np.int64)
+    loss = np.empty(size)
+    done = np.zeros(size, dtype=bool)
+    if method == "triad":
+        loss[:] = kernel.wahba_loss(q, obs, ml)
+        done[:] = True
+    step = kernel.matrix_weight_step if ml else kernel.scalar_weight_step
+    tol2 = tolerance * tolerance
+    for k in range(1, max_iterations + 1):
+        if done.all():
+            break
+        q_next, d2, step_loss = step(q, obs)
+        newly = ~done & (d2 <= tol2)  # as solve(): the sample returns q, and the loss at q
+        loss[newly] = step_loss[newly]
+        iterations[newly] = k
+        done |= newly
+        q = tuple(np.where(done, a, b) for a, b in zip(q, q_next, strict=True))
+    if not done.all():
+        loss[~done] = np.asarray(kernel.wahba_loss(q, obs, ml))[~done]
+        iterations[~done] = max_iterations
+    qa = np.stack(q, -1)
+    out.q[sl] = np.where(qa[:, :1] < 0.0, -qa, qa)
+    out.iterations[sl] = iterations
+    out.converged[sl] = done
+    out.loss[sl] = loss

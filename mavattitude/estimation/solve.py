@@ -1,0 +1,168 @@
+"""The per-sample solver: IGN (Section 4, steps 1–7), CGN, maximum likelihood and TRIAD.
+
+Plain Python floats throughout (numpy's per-call overhead would dominate a two-vector problem); the
+equations are those of :mod:`.kernel`, shared with the vectorised :mod:`.batch`.
+
+Steps of the paper's IGN: (1) start from TRIAD, or from the warm start ``q0`` when its Wahba loss is
+not above TRIAD's (a stale or flipped warm start would otherwise converge to a stationary point 180°
+away, NOTES.md); (2) normalise the vectors (Eq. 3–4); (3) weights from Eq. 9/21; (4)–(7) iterate
+Eq. 34–35 until the correction's angle is at most ``tolerance``, at most ``max_iterations`` times.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..errors import DegenerateGeometryError, InputError
+from . import kernel
+from .conventions import quat_from_rotation_parts
+from .covariance import predicted_covariance
+from .noise import NoiseModel
+
+METHODS = ("ign", "cgn", "ml", "triad")
+MAX_ITERATIONS = 10
+TOLERANCE_RAD = 1e-12
+MIN_ANGLE_DEG = 5.0
+
+
+@dataclass(eq=False, slots=True)
+class SolveResult:
+    """One attitude solution. ``covariance`` (rad², body error angles, 3×3) is computed on first access."""
+
+    q: NDArray[np.float64]  # [w, x, y, z], body FRD → NED, w ≥ 0
+    iterations: int
+    converged: bool
+    loss: float  # Wahba loss (Eq. 11) at q; the ML cost for "ml"; the paper-weighted loss for "triad"
+    method: str
+    noise: NoiseModel = field(repr=False)
+    _inputs: tuple = field(repr=False)  # (ŵ_acc, |acc|, ŵ_mag, |mag|): what the covariance needs
+    _covariance: NDArray[np.float64] | None = field(default=None, repr=False)
+
+    @property
+    def covariance(self) -> NDArray[np.float64]:
+        """Predicted error-angle covariance: the sandwich (ign, cgn), the CRB (ml), linearised TRIAD."""
+        if self._covariance is None:
+            w_acc, n_acc, w_mag, n_mag = self._inputs
+            acc, mag = kernel.scaled(w_acc, n_acc), kernel.scaled(w_mag, n_mag)
+            self._covariance = predicted_covariance(acc, mag, self.noise, self.method)
+        return self._covariance
+
+
+def check_method(method: str) -> None:
+    if method not in METHODS:
+        raise InputError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+
+
+def check_settings(max_iterations: int, tolerance: float, min_angle_deg: float) -> float:
+    """Validate the iteration bounds; return ``sin(min_angle)``, the collinearity threshold."""
+    if not (isinstance(max_iterations, int) and max_iterations >= 1):
+        raise InputError(f"max_iterations must be an integer ≥ 1, got {max_iterations!r}")
+    if not (math.isfinite(tolerance) and tolerance > 0.0):
+        raise InputError(f"tolerance must be a finite angle > 0 rad, got {tolerance!r}")
+    if not (0.0 < min_angle_deg < 90.0):
+        raise InputError(f"min_angle_deg must be in (0, 90) degrees, got {min_angle_deg!r}")
+    return math.sin(math.radians(min_angle_deg))
+
+
+def geometry_message(what: str, sin_angle: float, min_angle_deg: float) -> str:
+    angle = math.degrees(math.asin(min(max(sin_angle, 0.0), 1.0)))
+    return (
+        f"{what} are {angle:.2f}° from collinear (minimum {min_angle_deg:g}°): "
+        "the rotation about their common direction is unobservable"
+    )
+
+
+def _unit(name: str, v: ArrayLike) -> tuple[tuple[float, float, float], float]:
+    """``(ŵ, |Ŵ|)`` of a 3-vector given as an array or a sequence (Eq. 3–4)."""
+    try:
+        x, y, z = v.tolist() if type(v) is np.ndarray else v  # type: ignore[union-attr]
+        x, y, z = float(x), float(y), float(z)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a 3-vector of numbers, got {v!r}") from None
+    n = (x * x + y * y + z * z) ** 0.5
+    if not 0.0 < n < math.inf:  # also false for NaN
+        raise InputError(f"{name} must be finite and non-zero, got {(x, y, z)}")
+    k = 1.0 / n
+    return (x * k, y * k, z * k), n
+
+
+def solve(
+    acc: ArrayLike,
+    mag: ArrayLike,
+    mag_ref: ArrayLike,
+    noise: NoiseModel,
+    method: str = "ign",
+    acc_ref: ArrayLike = (0.0, 0.0, -1.0),
+    q0: ArrayLike | None = None,
+    *,
+    max_iterations: int = MAX_ITERATIONS,
+    tolerance: float = TOLERANCE_RAD,
+    min_angle_deg: float = MIN_ANGLE_DEG,
+) -> SolveResult:
+    """Attitude from one accelerometer and one magnetometer sample.
+
+    ``acc``, ``mag``: body FRD, any units (the accelerometer reads specific force, ``−g`` on z when
+    level). ``mag_ref``, ``acc_ref``: the same quantities in NED (only their directions matter).
+    ``q0``: warm start ``[w, x, y, z]`` or None. ``tolerance``: the angle (rad) of the last Gauss–Newton
+    correction that counts as converged. Raises :class:`InputError` for unusable numbers and
+    :class:`DegenerateGeometryError` when either pair is within ``min_angle_deg`` of collinear.
+    """
+    check_method(method)
+    sin_min = check_settings(max_iterations, tolerance, min_angle_deg)
+    w_acc, n_acc = _unit("acc", acc)
+    w_mag, n_mag = _unit("mag", mag)
+    v_acc, _ = _unit("acc_ref", acc_ref)
+    v_mag, _ = _unit("mag_ref", mag_ref)
+    s_body = kernel.norm(kernel.cross(w_acc, w_mag))
+    if not s_body >= sin_min:
+        raise DegenerateGeometryError(geometry_message("acc and mag", s_body, min_angle_deg))
+    s_ref = kernel.norm(kernel.cross(v_acc, v_mag))
+    if not s_ref >= sin_min:
+        raise DegenerateGeometryError(geometry_message("acc_ref and mag_ref", s_ref, min_angle_deg))
+
+    inputs = (w_acc, n_acc, w_mag, n_mag)
+    obs = kernel.observations(method, (w_mag, n_mag, v_mag, noise.mag_var), (w_acc, n_acc, v_acc, noise.accel_var))
+    q = quat_from_rotation_parts(kernel.triad(w_acc, w_mag, v_acc, v_mag, s_body, s_ref))
+    ml = method == "ml"
+    if method == "triad":
+        return _result(q, 0, True, kernel.wahba_loss(q, obs, ml), method, noise, inputs)
+    if q0 is not None:
+        warm = _warm_start(q0)
+        if kernel.wahba_loss(warm, obs, ml) <= kernel.wahba_loss(q, obs, ml):
+            q = warm
+
+    step = kernel.matrix_weight_step if ml else kernel.scalar_weight_step
+    tol2 = tolerance * tolerance
+    for k in range(1, max_iterations + 1):
+        q_next, d2, loss = step(q, obs)
+        if d2 <= tol2:  # the correction is below tolerance: q is the answer, loss is at q
+            return _result(q, k, True, loss, method, noise, inputs)
+        q = q_next
+    return _result(q, max_iterations, False, kernel.wahba_loss(q, obs, ml), method, noise, inputs)
+
+
+def _warm_start(q0: ArrayLike) -> tuple[float, float, float, float]:
+    if type(q0) is np.ndarray:
+        q0 = q0.tolist()
+    try:
+        w, x, y, z = (float(e) for e in q0)  # type: ignore[union-attr]
+    except (TypeError, ValueError):
+        raise InputError(f"q0 must be a quaternion [w, x, y, z], got {q0!r}") from None
+    n = (w * w + x * x + y * y + z * z) ** 0.5
+    if not 0.0 < n < math.inf:
+        raise InputError(f"q0 must be finite and non-zero, got {(w, x, y, z)}")
+    return w / n, x / n, y / n, z / n
+
+
+def _result(
+    q: Sequence[float], iterations: int, converged: bool, loss: float, method: str, noise: NoiseModel, inputs: tuple
+) -> SolveResult:
+    qa = np.array(q)
+    if qa[0] < 0.0:
+        qa = -qa
+    return SolveResult(qa, iterations, converged, float(loss), method, noise, inputs)
