@@ -1,0 +1,55 @@
+"""The vehicle's clock as seen through its IMU messages: wrap, reboot, duplicates and reordering.
+
+Message times come from the autopilot (``time_usec``, ``time_boot_ms``), never from our own clock. The
+clock keeps them increasing: a uint32 millisecond field that wraps (after ≈ 49.7 days) is unwrapped; a
+time that goes back by more than ``reorder_window_s`` is a reboot (the caller resets what depends on
+time); a repeated time is a duplicate and a time slightly behind the newest is a reordered datagram, both
+dropped. Gaps are the front end's business (it knows the input time-out).
+"""
+
+from __future__ import annotations
+
+import enum
+
+
+class ClockEvent(enum.Enum):
+    OK = "ok"
+    WRAP = "wrap"  # time field wrapped; the unwrapped time is returned
+    REBOOT = "reboot"  # time restarted; the returned time starts a new epoch
+    DUPLICATE = "duplicate"  # same time as the newest sample: dropped
+    OUT_OF_ORDER = "out_of_order"  # slightly behind the newest sample: dropped
+
+
+class VehicleClock:
+    """Unwraps and checks message times; one per input stream."""
+
+    def __init__(self, reorder_window_s: float = 1.0) -> None:
+        self.reorder_window_s = reorder_window_s
+        self._offset_s = 0.0
+        self._last_raw_s: float | None = None
+
+    def reset(self) -> None:
+        self._offset_s = 0.0
+        self._last_raw_s = None
+
+    def update(self, raw_time_s: float, wrap_period_s: float | None) -> tuple[float | None, ClockEvent]:
+        """The message time on the unwrapped vehicle clock, or ``None`` when the sample must be dropped."""
+        last = self._last_raw_s
+        if last is None:
+            self._last_raw_s = raw_time_s
+            return raw_time_s + self._offset_s, ClockEvent.OK
+        if raw_time_s > last:
+            self._last_raw_s = raw_time_s
+            return raw_time_s + self._offset_s, ClockEvent.OK
+        if raw_time_s == last:
+            return None, ClockEvent.DUPLICATE
+        back_s = last - raw_time_s
+        if wrap_period_s is not None and back_s > 0.5 * wrap_period_s:
+            self._offset_s += wrap_period_s
+            self._last_raw_s = raw_time_s
+            return raw_time_s + self._offset_s, ClockEvent.WRAP
+        if back_s <= self.reorder_window_s:
+            return None, ClockEvent.OUT_OF_ORDER
+        self._offset_s = 0.0
+        self._last_raw_s = raw_time_s
+        return raw_time_s, ClockEvent.REBOOT

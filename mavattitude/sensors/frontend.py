@@ -1,0 +1,705 @@
+"""The front end: decoded IMU samples → screened, calibrated, body-frame, low-passed 50 Hz samples.
+
+Per input sample (:meth:`FrontEnd.push`, plain floats: the per-message cost is what the service pays):
+
+1. vehicle clock (:mod:`.clock`): wrap unwrapped, duplicates and reordered datagrams dropped, a reboot
+   restarts everything;
+2. screening of the raw sample: a non-finite or saturated (integer limit or sensor full scale)
+   accelerometer or gyroscope drops the sample; a non-finite or saturated magnetometer drops the
+   magnetometer reading only; each counted by reason;
+3. calibration and mounting (:mod:`.calibration`, :mod:`.mounting`) as one affine map per sensor;
+4. the 2nd-order Butterworth low-pass (:mod:`.lowpass`) per axis, designed for the measured input rate
+   (mean of the last ``rate_window`` intervals; re-designed when it moves by more than ``rate_tolerance``,
+   restarting at the steady state of the last output), started at the steady state of the first sample.
+   Accelerometer and gyroscope share the IMU's times; the magnetometer runs on its own times (it may be
+   slower: PX4's ~87 Hz beside a 250 Hz IMU);
+5. resampling at every tick ``k / output_rate_hz`` of the vehicle clock: the tick's value is the linear
+   interpolation of the filtered stream between the two input samples around it. A gap longer than
+   ``input_timeout_s`` restarts the filter and the ticks (never bridged), counted and flagged ``RESET``.
+   The magnetometer at a tick is interpolated when samples on both sides are in, else held from the last
+   one (``MAG_HELD``) for at most ``input_timeout_s``, else absent (``NO_MAG``, ``mag_uT`` is ``None``);
+6. screening of the tick: ``| |a| − g | > acc_norm_tolerance · g`` (``ACC_NORM``) or
+   ``| |B| − B₀ | > mag_norm_tolerance · B₀`` (``MAG_NORM``, once the expected ``B₀`` is known) are
+   flagged, counted and down-weighted: ``acc_std_scale`` / ``mag_std_scale`` (× the σ of the noise model)
+   become ``suspect_std_scale``.
+
+With ``filter_enabled`` false, steps 4–5 are skipped: every accepted input sample is one output.
+
+:func:`process_batch` is the same computation vectorised over arrays (offline replay); fed the same
+samples, it gives the same ticks and flags, and values equal to rounding (~1e-12).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import Counter, deque
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from enum import IntFlag
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mavattitude.sensors.calibration import Calibration, sensor_affines
+from mavattitude.sensors.clock import ClockEvent, VehicleClock
+from mavattitude.sensors.lowpass import Biquad, butter2, filter_batch
+from mavattitude.sensors.mounting import mounting_matrix
+from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2, ImuSample, wrap_period_s
+
+log = logging.getLogger(__name__)
+
+Array = NDArray[np.float64]
+Vec3 = tuple[float, float, float]
+
+
+class SampleFlag(IntFlag):
+    """What the front end noticed about an output sample."""
+
+    RESET = 1  # first output after the start, a gap longer than input_timeout_s, or a reboot
+    ACC_NORM = 2  # |a| far from g: down-weighted
+    MAG_NORM = 4  # |B| far from the expected magnitude: down-weighted
+    MAG_HELD = 8  # magnetometer held from its last sample, not interpolated
+    NO_MAG = 16  # no magnetometer within input_timeout_s: mag_uT is None
+
+
+@dataclass(frozen=True)
+class FrontEndSettings:
+    """Everything the front end needs; :meth:`from_config` reads the project config."""
+
+    mounting: Any = "NONE"  # ArduPilot rotation name or a 3×3 board → body matrix
+    calibration: Any = field(default_factory=Calibration)
+    filter_enabled: bool = True
+    cutoff_hz: float = 10.0
+    output_rate_hz: float = 50.0
+    input_timeout_s: float = 0.5
+    gravity_mps2: float = STANDARD_GRAVITY_MPS2
+    expected_field_uT: float | None = None  # |B₀| for screening; None until known
+    acc_norm_tolerance: float = 0.1  # fraction of g
+    mag_norm_tolerance: float = 0.15  # fraction of |B₀|
+    suspect_std_scale: float = 10.0  # σ multiplier of a flagged vector
+    acc_full_scale_mps2: float = 16.0 * STANDARD_GRAVITY_MPS2
+    gyr_full_scale_radps: float = math.radians(2000.0)
+    mag_full_scale_uT: float = 800.0
+    rate_window: int = 32  # input intervals averaged to measure the rate
+    rate_tolerance: float = 0.1  # relative rate change that re-designs the filter
+    reorder_window_s: float = 1.0  # a time further back than this is a reboot
+
+    @classmethod
+    def from_config(cls, config: Any, **overrides: Any) -> FrontEndSettings:
+        """From the project's :class:`~mavattitude.config.Config` (read by attribute, not imported)."""
+        values = {
+            "mounting": config.mounting.rotation,
+            "calibration": config.calibration,
+            "filter_enabled": config.filter.enabled,
+            "cutoff_hz": config.filter.cutoff_hz,
+            "output_rate_hz": config.filter.output_rate_hz,
+            "input_timeout_s": config.input.input_timeout_s,
+        }
+        return cls(**{**values, **overrides})
+
+
+@dataclass(frozen=True, slots=True)
+class ProcessedSample:
+    """One output sample: body frame (FRD), calibrated, filtered, at a tick of the vehicle clock."""
+
+    time_s: float
+    acc_mps2: Vec3
+    mag_uT: Vec3 | None
+    gyr_radps: Vec3
+    flags: SampleFlag
+    acc_std_scale: float = 1.0
+    mag_std_scale: float = 1.0
+
+
+@dataclass
+class FrontEndCounters:
+    """What the front end did, for the service's periodic log line."""
+
+    received: int = 0
+    accepted: int = 0
+    emitted: int = 0
+    rejected: Counter[str] = field(default_factory=Counter)  # whole input samples dropped, by reason
+    mag_rejected: Counter[str] = field(default_factory=Counter)  # magnetometer readings dropped, by reason
+    flagged: Counter[str] = field(default_factory=Counter)  # output samples flagged, by flag name
+    gap_resets: int = 0
+    mag_gap_resets: int = 0
+    reboots: int = 0
+    wraps: int = 0
+    redesigns: int = 0
+
+    def summary(self) -> str:
+        """One log-friendly line."""
+        parts = [f"received={self.received}", f"accepted={self.accepted}", f"emitted={self.emitted}"]
+        for name, counter in (("rejected", self.rejected), ("mag_rejected", self.mag_rejected)):
+            parts.append(f"{name}={{{', '.join(f'{k}: {v}' for k, v in sorted(counter.items()))}}}")
+        parts.append(f"flagged={{{', '.join(f'{k}: {v}' for k, v in sorted(self.flagged.items()))}}}")
+        parts += [f"gap_resets={self.gap_resets}", f"reboots={self.reboots}", f"redesigns={self.redesigns}"]
+        return " ".join(parts)
+
+
+def first_tick(t_s: float, rate_hz: float) -> int:
+    """The smallest ``k`` with ``k / rate_hz >= t_s``."""
+    k = math.ceil(t_s * rate_hz)
+    while (k - 1) / rate_hz >= t_s:
+        k -= 1
+    while k / rate_hz < t_s:
+        k += 1
+    return k
+
+
+def last_tick(t_s: float, rate_hz: float) -> int:
+    """The largest ``k`` with ``k / rate_hz <= t_s``."""
+    k = math.floor(t_s * rate_hz)
+    while (k + 1) / rate_hz <= t_s:
+        k += 1
+    while k / rate_hz > t_s:
+        k -= 1
+    return k
+
+
+CONTINUED, STARTED, GAP = 0, 1, 2
+
+
+class _Stream:
+    """Low-pass of ``n`` channels over irregular times: rate measurement, (re)design, gap restart."""
+
+    __slots__ = (
+        "coef",
+        "cutoff_hz",
+        "fs_hz",
+        "n",
+        "segment",
+        "t_last",
+        "t_prev",
+        "timeout_s",
+        "times",
+        "tolerance",
+        "y_last",
+        "y_prev",
+        "z1",
+        "z2",
+    )
+
+    def __init__(self, n: int, cutoff_hz: float | None, timeout_s: float, window: int, tolerance: float) -> None:
+        self.n = n
+        self.cutoff_hz = cutoff_hz
+        self.timeout_s = timeout_s
+        self.tolerance = tolerance
+        self.times: deque[float] = deque(maxlen=window + 1)
+        self.segment = 0
+        self.restart()
+
+    def restart(self) -> None:
+        self.times.clear()
+        self.t_last: float | None = None
+        self.y_last: list[float] = []
+        self.t_prev: float | None = None  # the sample before the last, in the same segment
+        self.y_prev: list[float] = []
+        self.coef: Biquad | None = None
+        self.fs_hz = 0.0
+
+    def design(self, fs_hz: float) -> None:
+        assert self.cutoff_hz is not None
+        bq = butter2(self.cutoff_hz, fs_hz)
+        self.coef, self.fs_hz = bq, fs_hz
+        states = [bq.steady_state(v) for v in self.y_last]
+        self.z1 = [s[0] for s in states]
+        self.z2 = [s[1] for s in states]
+
+    def push(self, t: float, x: Sequence[float]) -> tuple[int, bool]:
+        """Filter one sample; returns (CONTINUED | STARTED | GAP, re-designed)."""
+        status = CONTINUED
+        if self.t_last is None or t - self.t_last > self.timeout_s:
+            status = STARTED if self.t_last is None else GAP
+            self.restart()
+            self.segment += 1
+            self.times.append(t)
+            self.t_last, self.y_last = t, list(x)
+            return status, False
+        times = self.times
+        times.append(t)
+        self.t_prev, self.y_prev = self.t_last, self.y_last
+        self.t_last = t
+        if self.cutoff_hz is None:
+            self.y_last = list(x)
+            return status, False
+        m = len(times) - 1
+        fs = m / (t - times[0])
+        redesigned = False
+        if self.coef is None:
+            self.design(fs)
+        elif abs(fs - self.fs_hz) > self.tolerance * self.fs_hz:
+            self.design(fs)
+            redesigned = True
+        bq = self.coef
+        assert bq is not None
+        b0, b1, b2, a1, a2 = bq.b0, bq.b1, bq.b2, bq.a1, bq.a2
+        z1, z2 = self.z1, self.z2
+        y = [0.0] * self.n
+        for i in range(self.n):
+            xi = x[i]
+            yi = b0 * xi + z1[i]
+            z1[i] = b1 * xi - a1 * yi + z2[i]
+            z2[i] = b2 * xi - a2 * yi
+            y[i] = yi
+        self.y_last = y
+        return status, redesigned
+
+
+def _finite(v: Sequence[float]) -> bool:
+    return math.isfinite(v[0]) and math.isfinite(v[1]) and math.isfinite(v[2])
+
+
+def _over(v: Sequence[float], limit: float) -> bool:
+    return abs(v[0]) >= limit or abs(v[1]) >= limit or abs(v[2]) >= limit
+
+
+def _affine_rows(a: Array, c: Array) -> tuple[tuple[float, ...], ...]:
+    return tuple((*(float(v) for v in row), float(ci)) for row, ci in zip(a, c, strict=True))
+
+
+class FrontEnd:
+    """The streaming front end: :meth:`push` one :class:`ImuSample`, get the 0+ output ticks it completes."""
+
+    def __init__(self, settings: FrontEndSettings | None = None) -> None:
+        self.settings = s = settings or FrontEndSettings()
+        self.counters = FrontEndCounters()
+        self.expected_field_uT = s.expected_field_uT
+        affines = sensor_affines(s.calibration, mounting_matrix(s.mounting))
+        self._acc = _affine_rows(*affines["acc"])
+        self._gyr = _affine_rows(*affines["gyr"])
+        self._mag_cal = _affine_rows(*affines["mag"])
+        cutoff = s.cutoff_hz if s.filter_enabled else None
+        self._clock = VehicleClock(s.reorder_window_s)
+        self._imu = _Stream(6, cutoff, s.input_timeout_s, s.rate_window, s.rate_tolerance)
+        self._mag = _Stream(3, cutoff, s.input_timeout_s, s.rate_window, s.rate_tolerance)
+        self._next_k = 0
+        self._pending_reset = False
+
+    def set_expected_field_uT(self, magnitude_uT: float | None) -> None:
+        """|B₀| of the magnetic reference (when it becomes known or changes), for the |B| screening."""
+        self.expected_field_uT = magnitude_uT
+
+    def push(self, sample: ImuSample) -> list[ProcessedSample]:
+        c = self.counters
+        c.received += 1
+        t, event = self._clock.update(sample.time_s, wrap_period_s(sample.message))
+        if t is None:
+            c.rejected[event.value] += 1
+            return []
+        if event is ClockEvent.REBOOT:
+            c.reboots += 1
+            log.warning("vehicle clock went back from the newest sample to %.3f s: reboot, front end restarted", t)
+            self._imu.restart()
+            self._mag.restart()
+        elif event is ClockEvent.WRAP:
+            c.wraps += 1
+        s = self.settings
+        acc, gyr, mag = sample.acc_mps2, sample.gyr_radps, sample.mag_uT
+        reason = None
+        if not (_finite(acc) and _finite(gyr)):
+            reason = "nonfinite"
+        elif "acc" in sample.saturated or _over(acc, s.acc_full_scale_mps2):
+            reason = "saturated_acc"
+        elif "gyr" in sample.saturated or _over(gyr, s.gyr_full_scale_radps):
+            reason = "saturated_gyr"
+        if reason is not None:
+            c.rejected[reason] += 1
+            return []
+        c.accepted += 1
+        if mag is not None:
+            if not _finite(mag):
+                c.mag_rejected["nonfinite"] += 1
+            elif "mag" in sample.saturated or _over(mag, s.mag_full_scale_uT):
+                c.mag_rejected["saturated"] += 1
+            else:
+                status, redesigned = self._mag.push(t, _apply(self._mag_cal, mag))
+                c.mag_gap_resets += status == GAP
+                c.redesigns += redesigned
+        a, g = _apply(self._acc, acc), _apply(self._gyr, gyr)
+        status, redesigned = self._imu.push(t, (*a, *g))
+        c.redesigns += redesigned
+        if status != CONTINUED:
+            if status == GAP:
+                c.gap_resets += 1
+                log.warning("input gap longer than %.3g s before %.3f s: filter restarted", s.input_timeout_s, t)
+            self._pending_reset = True
+            self._next_k = first_tick(t, s.output_rate_hz) if s.filter_enabled else 0
+        return self._emit(t)
+
+    def _emit(self, t: float) -> list[ProcessedSample]:
+        s, imu = self.settings, self._imu
+        out: list[ProcessedSample] = []
+        if not s.filter_enabled:
+            out.append(self._tick(t, imu.y_last))
+            return out
+        rate = s.output_rate_hz
+        k = self._next_k
+        while k / rate <= t:
+            tk = k / rate
+            exact = imu.t_prev is None or tk == t
+            y = imu.y_last if exact else _lerp(imu.t_prev, imu.y_prev, t, imu.y_last, tk)
+            out.append(self._tick(tk, y))
+            k += 1
+        self._next_k = k
+        return out
+
+    def _tick(self, tk: float, y: Sequence[float]) -> ProcessedSample:
+        s, c = self.settings, self.counters
+        flags = SampleFlag(0)
+        if self._pending_reset:
+            flags |= SampleFlag.RESET
+            self._pending_reset = False
+        acc = (y[0], y[1], y[2])
+        mag, mag_flag = self._mag_at(tk)
+        flags |= mag_flag
+        acc_scale = mag_scale = 1.0
+        g = s.gravity_mps2
+        if abs(_norm(acc) - g) > s.acc_norm_tolerance * g:
+            flags |= SampleFlag.ACC_NORM
+            acc_scale = s.suspect_std_scale
+        b0 = self.expected_field_uT
+        if mag is not None and b0 is not None and abs(_norm(mag) - b0) > s.mag_norm_tolerance * b0:
+            flags |= SampleFlag.MAG_NORM
+            mag_scale = s.suspect_std_scale
+        c.emitted += 1
+        if flags & _COUNTED:
+            for flag in _COUNTED_FLAGS:
+                if flags & flag:
+                    c.flagged[flag.name or ""] += 1
+        return ProcessedSample(tk, acc, mag, (y[3], y[4], y[5]), flags, acc_scale, mag_scale)
+
+    def _mag_at(self, tk: float) -> tuple[Vec3 | None, SampleFlag]:
+        m = self._mag
+        if m.t_last is None:
+            return None, SampleFlag.NO_MAG
+        if m.t_last >= tk:
+            if m.t_prev is not None and m.t_prev < tk:
+                return _vec(_lerp(m.t_prev, m.y_prev, m.t_last, m.y_last, tk)), SampleFlag(0)
+            return _vec(m.y_last), SampleFlag.MAG_HELD
+        if tk - m.t_last <= self.settings.input_timeout_s:
+            return _vec(m.y_last), SampleFlag.MAG_HELD
+        return None, SampleFlag.NO_MAG
+
+
+_COUNTED_FLAGS = (SampleFlag.RESET, SampleFlag.ACC_NORM, SampleFlag.MAG_NORM, SampleFlag.NO_MAG)
+_COUNTED = SampleFlag.RESET | SampleFlag.ACC_NORM | SampleFlag.MAG_NORM | SampleFlag.NO_MAG
+
+
+def _apply(rows: tuple[tuple[float, ...], ...], v: Sequence[float]) -> Vec3:
+    """``A v − c`` with rows ``(A_i0, A_i1, A_i2, c_i)``."""
+    x, y, z = v[0], v[1], v[2]
+    r0, r1, r2 = rows
+    return (
+        r0[0] * x + r0[1] * y + r0[2] * z - r0[3],
+        r1[0] * x + r1[1] * y + r1[2] * z - r1[3],
+        r2[0] * x + r2[1] * y + r2[2] * z - r2[3],
+    )
+
+
+def _lerp(t0: float, y0: Sequence[float], t1: float, y1: Sequence[float], t: float) -> list[float]:
+    frac = (t - t0) / (t1 - t0)
+    return [a + (b - a) * frac for a, b in zip(y0, y1, strict=True)]
+
+
+def _norm(v: Sequence[float]) -> float:
+    return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+
+
+def _norm_rows(a: Array) -> Array:
+    """Row norms with the same operations, in the same order, as :func:`_norm`."""
+    return np.sqrt(a[:, 0] * a[:, 0] + a[:, 1] * a[:, 1] + a[:, 2] * a[:, 2])
+
+
+def _vec(y: Sequence[float]) -> Vec3:
+    return (y[0], y[1], y[2])
+
+
+# --- the batch path ------------------------------------------------------------------------------------
+
+
+@dataclass
+class BatchOutput:
+    """The output ticks of :func:`process_batch` as arrays; ``mag_uT`` rows are NaN where absent."""
+
+    time_s: Array
+    acc_mps2: Array
+    mag_uT: Array
+    gyr_radps: Array
+    flags: NDArray[np.int64]
+    acc_std_scale: Array
+    mag_std_scale: Array
+    counters: FrontEndCounters
+
+    def __len__(self) -> int:
+        return len(self.time_s)
+
+    def samples(self) -> list[ProcessedSample]:
+        """The same ticks as :class:`ProcessedSample` objects (what :meth:`FrontEnd.push` returns)."""
+        out = []
+        for i in range(len(self.time_s)):
+            mag = None if np.isnan(self.mag_uT[i, 0]) else _vec(self.mag_uT[i].tolist())
+            out.append(
+                ProcessedSample(
+                    float(self.time_s[i]),
+                    _vec(self.acc_mps2[i].tolist()),
+                    mag,
+                    _vec(self.gyr_radps[i].tolist()),
+                    SampleFlag(int(self.flags[i])),
+                    float(self.acc_std_scale[i]),
+                    float(self.mag_std_scale[i]),
+                )
+            )
+        return out
+
+
+def batch_inputs(samples: Sequence[ImuSample]) -> dict[str, Any]:
+    """Keyword arguments of :func:`process_batch` for a list of decoded samples (one message type)."""
+    n = len(samples)
+    mag = np.full((n, 3), np.nan)
+    mag_new = np.zeros(n, dtype=bool)
+    for i, sample in enumerate(samples):
+        if sample.mag_uT is not None:
+            mag[i] = sample.mag_uT
+            mag_new[i] = True
+    messages = {sample.message for sample in samples}
+    return {
+        "time_s": np.array([sample.time_s for sample in samples], dtype=float),
+        "acc_mps2": np.array([sample.acc_mps2 for sample in samples], dtype=float).reshape(n, 3),
+        "gyr_radps": np.array([sample.gyr_radps for sample in samples], dtype=float).reshape(n, 3),
+        "mag_uT": mag,
+        "mag_new": mag_new,
+        "saturated": {
+            sensor: np.array([sensor in sample.saturated for sample in samples], dtype=bool)
+            for sensor in ("acc", "gyr", "mag")
+        },
+        "wrap_period_s": wrap_period_s(messages.pop()) if len(messages) == 1 else None,
+    }
+
+
+def process_batch(
+    settings: FrontEndSettings,
+    time_s: Array,
+    acc_mps2: Array,
+    gyr_radps: Array,
+    mag_uT: Array | None = None,
+    *,
+    mag_new: NDArray[np.bool_] | None = None,
+    saturated: dict[str, NDArray[np.bool_]] | None = None,
+    wrap_period_s: float | None = None,
+    expected_field_uT: float | None = None,
+) -> BatchOutput:
+    """The front end over whole arrays (sensor/board frame, SI): what :meth:`FrontEnd.push` gives, sample
+    by sample, for the same input. ``mag_new`` marks rows with a new magnetometer reading (default: rows
+    where ``mag_uT`` is given); ``saturated`` maps ``"acc"``/``"gyr"``/``"mag"`` to rows at an integer limit.
+    """
+    s = settings
+    t = np.asarray(time_s, dtype=float)
+    n = len(t)
+    acc = np.asarray(acc_mps2, dtype=float).reshape(n, 3)
+    gyr = np.asarray(gyr_radps, dtype=float).reshape(n, 3)
+    mag = np.full((n, 3), np.nan) if mag_uT is None else np.asarray(mag_uT, dtype=float).reshape(n, 3)
+    if mag_new is None:
+        mag_new = np.zeros(n, dtype=bool) if mag_uT is None else np.ones(n, dtype=bool)
+    sat = {k: np.zeros(n, dtype=bool) for k in ("acc", "gyr", "mag")} | dict(saturated or {})
+    c = FrontEndCounters(received=n)
+    t, kept, epoch = _batch_clock(t, wrap_period_s, s.reorder_window_s, c)
+
+    ok_fin = np.isfinite(acc).all(axis=1) & np.isfinite(gyr).all(axis=1)
+    with np.errstate(invalid="ignore"):
+        sat_acc = sat["acc"] | (np.abs(acc) >= s.acc_full_scale_mps2).any(axis=1)
+        sat_gyr = sat["gyr"] | (np.abs(gyr) >= s.gyr_full_scale_radps).any(axis=1)
+        mag_sat = sat["mag"] | (np.abs(mag) >= s.mag_full_scale_uT).any(axis=1)
+    rejects = (
+        ("nonfinite", kept & ~ok_fin),
+        ("saturated_acc", kept & ok_fin & sat_acc),
+        ("saturated_gyr", kept & ok_fin & ~sat_acc & sat_gyr),
+    )
+    for reason, mask in rejects:
+        if mask.any():
+            c.rejected[reason] += int(mask.sum())
+    accepted = kept & ok_fin & ~sat_acc & ~sat_gyr
+    c.accepted = int(accepted.sum())
+    mag_fin = np.isfinite(mag).all(axis=1)
+    mag_in = accepted & mag_new
+    for reason, mask in (("nonfinite", mag_in & ~mag_fin), ("saturated", mag_in & mag_fin & mag_sat)):
+        if mask.any():
+            c.mag_rejected[reason] += int(mask.sum())
+    mag_ok = mag_in & mag_fin & ~mag_sat
+
+    affines = sensor_affines(s.calibration, mounting_matrix(s.mounting))
+    imu_body = np.hstack([_apply_batch(affines["acc"], acc[accepted]), _apply_batch(affines["gyr"], gyr[accepted])])
+    mag_body = _apply_batch(affines["mag"], mag[mag_ok])
+    t_imu, t_mag = t[accepted], t[mag_ok]
+    epoch_imu, epoch_mag = epoch[accepted], epoch[mag_ok]
+    b0 = expected_field_uT if expected_field_uT is not None else s.expected_field_uT
+
+    pieces = []
+    for e in np.unique(epoch_imu):
+        ii, mm = epoch_imu == e, epoch_mag == e
+        pieces.append(_batch_epoch(s, t_imu[ii], imu_body[ii], t_mag[mm], mag_body[mm], c))
+    out = _concat(pieces, c)
+    _screen_batch(s, out, b0)
+    c.emitted = len(out)
+    for flag in _COUNTED_FLAGS:
+        count = int(np.count_nonzero(out.flags & flag))
+        if count:
+            c.flagged[flag.name or ""] += count
+    return out
+
+
+def _apply_batch(affine: tuple[Array, Array], v: Array) -> Array:
+    a, c = affine
+    return v @ a.T - c
+
+
+def _batch_clock(
+    t: Array, wrap_s: float | None, reorder_window_s: float, c: FrontEndCounters
+) -> tuple[Array, NDArray[np.bool_], NDArray[np.int64]]:
+    """Unwrapped times, the rows the clock keeps, and each row's boot epoch."""
+    n = len(t)
+    if n < 2 or np.all(np.diff(t) > 0.0):
+        return t, np.ones(n, dtype=bool), np.zeros(n, dtype=np.int64)
+    # irregular times are rare: the streaming clock, sample by sample, is then the reference
+    clock = VehicleClock(reorder_window_s)
+    out, kept, epoch = np.empty(n), np.zeros(n, dtype=bool), np.zeros(n, dtype=np.int64)
+    e = 0
+    for i, raw in enumerate(t.tolist()):
+        ti, event = clock.update(raw, wrap_s)
+        if ti is None:
+            c.rejected[event.value] += 1
+            continue
+        if event is ClockEvent.REBOOT:
+            c.reboots += 1
+            e += 1
+        elif event is ClockEvent.WRAP:
+            c.wraps += 1
+        out[i], kept[i], epoch[i] = ti, True, e
+    return out, kept, epoch
+
+
+def _segments(t: Array, timeout_s: float) -> list[tuple[int, int]]:
+    starts = [0, *(np.flatnonzero(np.diff(t) > timeout_s) + 1).tolist()]
+    return list(zip(starts, [*starts[1:], len(t)], strict=True))
+
+
+def _filter_batch_stream(
+    s: FrontEndSettings, t: Array, x: Array, c: FrontEndCounters
+) -> tuple[Array, NDArray[np.int64]]:
+    """Filtered values and segment ids of one stream (IMU or magnetometer) within one boot epoch."""
+    y = x.copy()
+    seg = np.zeros(len(t), dtype=np.int64)
+    for number, (a, b) in enumerate(_segments(t, s.input_timeout_s)):
+        seg[a:b] = number
+        if not s.filter_enabled or b - a < 2:
+            continue
+        ts = t[a:b]
+        i = np.arange(1, b - a)
+        m = np.minimum(i, s.rate_window)
+        fs = m / (ts[i] - ts[i - m])  # fs[k] is the rate measured at sample k + 1
+        start = 1
+        while start < b - a:
+            fs_d = fs[start - 1]
+            moved = np.abs(fs[start:] - fs_d) > s.rate_tolerance * fs_d
+            stop = start + 1 + int(np.argmax(moved)) if moved.any() else b - a
+            c.redesigns += start > 1
+            bq = butter2(s.cutoff_hz, fs_d)
+            y[a + start : a + stop] = filter_batch(bq, x[a + start : a + stop], y[a + start - 1])
+            start = stop
+    return y, seg
+
+
+def _batch_epoch(
+    s: FrontEndSettings, t: Array, imu: Array, tm: Array, mag: Array, c: FrontEndCounters
+) -> tuple[Array, Array, Array, NDArray[np.int64]]:
+    """Ticks of one boot epoch: (times, IMU values (·, 6), magnetometer (·, 3) NaN-padded, flags)."""
+    y, _ = _filter_batch_stream(s, t, imu, c)
+    ym, segm = _filter_batch_stream(s, tm, mag, c)
+    segments = _segments(t, s.input_timeout_s)
+    c.gap_resets += len(segments) - 1
+    c.mag_gap_resets += max(0, len(_segments(tm, s.input_timeout_s)) - 1) if len(tm) else 0
+    r = s.output_rate_hz
+    times, values, idx_all, flags = [], [], [], []
+    for a, b in segments:
+        ts, ys = t[a:b], y[a:b]
+        if s.filter_enabled:
+            ks = np.arange(first_tick(float(ts[0]), r), last_tick(float(ts[-1]), r) + 1)
+            tk = ks / r
+        else:
+            tk = ts.copy()
+        if len(tk) == 0:
+            continue
+        idx = np.searchsorted(ts, tk, side="left")
+        exact = ts[idx] == tk
+        prev = np.maximum(idx - 1, 0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            frac = (tk - ts[prev]) / (ts[idx] - ts[prev])
+        val = np.where(exact[:, None], ys[idx], ys[prev] + (ys[idx] - ys[prev]) * frac[:, None])
+        f = np.zeros(len(tk), dtype=np.int64)
+        f[0] = SampleFlag.RESET
+        times.append(tk)
+        values.append(val)
+        idx_all.append(a + idx)
+        flags.append(f)
+    if not times:
+        return np.empty(0), np.empty((0, 6)), np.empty((0, 3)), np.empty(0, dtype=np.int64)
+    tk, val, idx, f = (np.concatenate(v) for v in (times, values, idx_all, flags))
+    mag_out = _mag_at_batch(s, tk, t[idx], tm, ym, segm, f)
+    return tk, val, mag_out, f
+
+
+def _mag_at_batch(
+    s: FrontEndSettings,
+    tk: Array,
+    t_emit: Array,
+    tm: Array,
+    ym: Array,
+    segm: NDArray[np.int64],
+    flags: NDArray[np.int64],
+) -> Array:
+    """The magnetometer at each tick from the samples in by the time the tick is emitted (``t_emit``)."""
+    out = np.full((len(tk), 3), np.nan)
+    if len(tm) == 0:
+        flags |= SampleFlag.NO_MAG
+        return out
+    jl = np.searchsorted(tm, t_emit, side="right") - 1
+    none = jl < 0
+    jl = np.maximum(jl, 0)
+    jp = np.maximum(jl - 1, 0)
+    after = tm[jl] >= tk
+    interp = after & (jl >= 1) & (segm[jp] == segm[jl]) & (tm[jp] < tk)
+    held = (after & ~interp) | (~after & (tk - tm[jl] <= s.input_timeout_s))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frac = (tk - tm[jp]) / (tm[jl] - tm[jp])
+    lerp = ym[jp] + (ym[jl] - ym[jp]) * frac[:, None]
+    use_interp, use_held = interp & ~none, held & ~none & ~interp
+    out[use_interp] = lerp[use_interp]
+    out[use_held] = ym[jl][use_held]
+    flags[use_held] |= SampleFlag.MAG_HELD
+    flags[~(use_interp | use_held)] |= SampleFlag.NO_MAG
+    return out
+
+
+def _concat(pieces: list[tuple[Array, Array, Array, NDArray[np.int64]]], c: FrontEndCounters) -> BatchOutput:
+    if pieces:
+        tk, val, mag, flags = (np.concatenate(v) for v in zip(*pieces, strict=True))
+    else:
+        tk, val, mag, flags = np.empty(0), np.empty((0, 6)), np.empty((0, 3)), np.empty(0, dtype=np.int64)
+    ones = np.ones(len(tk))
+    return BatchOutput(tk, val[:, :3], mag, val[:, 3:], flags, ones, ones.copy(), c)
+
+
+def _screen_batch(s: FrontEndSettings, out: BatchOutput, b0: float | None) -> None:
+    a = out.acc_mps2
+    g = s.gravity_mps2
+    acc_bad = np.abs(_norm_rows(a) - g) > s.acc_norm_tolerance * g
+    out.flags[acc_bad] |= SampleFlag.ACC_NORM
+    out.acc_std_scale[acc_bad] = s.suspect_std_scale
+    if b0 is not None:
+        m = out.mag_uT
+        with np.errstate(invalid="ignore"):
+            mag_bad = np.abs(_norm_rows(m) - b0) > s.mag_norm_tolerance * b0
+        out.flags[mag_bad] |= SampleFlag.MAG_NORM
+        out.mag_std_scale[mag_bad] = s.suspect_std_scale

@@ -1,0 +1,150 @@
+"""The Earth's magnetic field in NED (µT): the solver's magnetometer reference.
+
+From the config: two angles (declination ``D``, inclination ``I``, optional intensity ``F``):
+``B = F [cos I cos D, cos I sin D, sin I]`` (without ``F`` a unit vector: the direction only, and no
+|B| screening); or a vector ``field_ned_uT``. ``auto``: the World Magnetic Model at the vehicle's
+position, through ``pygeomag`` (pure Python, WMM2025 coefficients valid 2025–2030, kept current with each
+WMM release by its maintainer; no compiled dependency on a companion computer). It is recomputed when the
+vehicle moves more than ``recompute_distance_km``; until a position arrives the reference is *waiting*
+and nothing is guessed.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import logging
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from mavattitude.errors import ConfigError, SensorError
+
+log = logging.getLogger(__name__)
+
+Vec3 = tuple[float, float, float]
+EARTH_RADIUS_KM = 6371.0088
+WMM_COEFFICIENTS = "wmm/WMM_2025.COF"
+
+
+@dataclass(frozen=True)
+class MagReference:
+    """The reference field, or ``field_ned_uT is None`` while waiting for a position."""
+
+    field_ned_uT: Vec3 | None
+    intensity_uT: float | None  # |B₀| for screening; None when only the direction is known
+    source: str  # "config", "wmm" or "waiting"
+
+    @property
+    def waiting(self) -> bool:
+        return self.field_ned_uT is None
+
+
+WAITING = MagReference(None, None, "waiting")
+
+
+def field_from_angles(declination_deg: float, inclination_deg: float, intensity_uT: float = 1.0) -> Vec3:
+    """NED field from declination (east of true north), inclination (down from horizontal) and intensity."""
+    d, i = math.radians(declination_deg), math.radians(inclination_deg)
+    h = intensity_uT * math.cos(i)
+    return (h * math.cos(d), h * math.sin(d), intensity_uT * math.sin(i))
+
+
+def decimal_year(when: dt.date) -> float:
+    start = dt.date(when.year, 1, 1)
+    days = (dt.date(when.year + 1, 1, 1) - start).days
+    return when.year + (when - start).days / days
+
+
+def wmm_field_ned_uT(lat_deg: float, lon_deg: float, alt_m: float, when: dt.date) -> Vec3:
+    """The WMM2025 main field at a position and date, NED, µT (pygeomag gives nT, altitude in km)."""
+    from pygeomag import GeoMag  # imported on first use: only `auto` needs it
+
+    try:
+        result = _geomag(GeoMag).calculate(glat=lat_deg, glon=lon_deg, alt=alt_m / 1000.0, time=decimal_year(when))
+    except Exception as exc:  # pygeomag raises plain exceptions for dates outside the model
+        raise SensorError(f"World Magnetic Model failed at {lat_deg:.5f}°, {lon_deg:.5f}° on {when}: {exc}") from exc
+    return (result.x / 1000.0, result.y / 1000.0, result.z / 1000.0)
+
+
+_GEOMAG: Any = None
+
+
+def _geomag(cls: Any) -> Any:
+    """One model instance (reading the coefficient file is the slow part)."""
+    global _GEOMAG
+    if _GEOMAG is None:
+        _GEOMAG = cls(coefficients_file=WMM_COEFFICIENTS, high_resolution=False)
+    return _GEOMAG
+
+
+def distance_km(lat1_deg: float, lon1_deg: float, lat2_deg: float, lon2_deg: float) -> float:
+    """Great-circle distance (haversine)."""
+    p1, p2 = math.radians(lat1_deg), math.radians(lat2_deg)
+    dp, dl = p2 - p1, math.radians(lon2_deg - lon1_deg)
+    a = math.sin(dp / 2) ** 2 + math.cos(p1) * math.cos(p2) * math.sin(dl / 2) ** 2
+    return 2.0 * EARTH_RADIUS_KM * math.asin(min(1.0, math.sqrt(a)))
+
+
+class MagneticReference:
+    """The reference for the service: fixed from the config, or from WMM as positions arrive."""
+
+    def __init__(
+        self,
+        mode: str = "auto",
+        *,
+        declination_deg: float | None = None,
+        inclination_deg: float | None = None,
+        intensity_uT: float | None = None,
+        field_ned_uT: Vec3 | None = None,
+        recompute_distance_km: float = 5.0,
+    ) -> None:
+        self.mode = mode
+        self.recompute_distance_km = recompute_distance_km
+        self._at: tuple[float, float] | None = None
+        if mode == "auto":
+            self.reference = WAITING
+        elif mode == "angles":
+            if declination_deg is None or inclination_deg is None:
+                raise ConfigError("magnetic reference: give declination_deg and inclination_deg")
+            vec = field_from_angles(declination_deg, inclination_deg, intensity_uT or 1.0)
+            self.reference = MagReference(vec, intensity_uT, "config")
+        elif mode == "vector":
+            if field_ned_uT is None or math.hypot(*field_ned_uT) == 0.0:
+                raise ConfigError("magnetic reference: field_ned_uT must be a non-zero vector")
+            vec = (float(field_ned_uT[0]), float(field_ned_uT[1]), float(field_ned_uT[2]))
+            self.reference = MagReference(vec, math.hypot(*vec), "config")
+        else:
+            raise ConfigError(f"magnetic reference mode {mode!r}: expected auto, angles or vector")
+
+    @classmethod
+    def from_config(cls, magnetic: Any, recompute_distance_km: float = 5.0) -> MagneticReference:
+        """From the config's ``reference.magnetic`` (mode, declination_deg, ... read by attribute)."""
+        return cls(
+            magnetic.mode,
+            declination_deg=magnetic.declination_deg,
+            inclination_deg=magnetic.inclination_deg,
+            intensity_uT=magnetic.intensity_uT,
+            field_ned_uT=magnetic.field_ned_uT,
+            recompute_distance_km=recompute_distance_km,
+        )
+
+    @property
+    def waiting(self) -> bool:
+        return self.reference.waiting
+
+    def update_position(self, lat_deg: float, lon_deg: float, alt_m: float, when: dt.date | None = None) -> bool:
+        """Feed a position (``auto`` only); True when the reference changed."""
+        if self.mode != "auto":
+            return False
+        if self._at is not None and distance_km(*self._at, lat_deg, lon_deg) <= self.recompute_distance_km:
+            return False
+        vec = wmm_field_ned_uT(lat_deg, lon_deg, alt_m, when or dt.datetime.now(dt.timezone.utc).date())
+        self._at = (lat_deg, lon_deg)
+        self.reference = MagReference(vec, math.hypot(*vec), "wmm")
+        log.info(
+            "magnetic reference from WMM2025 at %.4f°, %.4f°: N %.2f E %.2f D %.2f µT",
+            lat_deg,
+            lon_deg,
+            *vec,
+        )
+        return True

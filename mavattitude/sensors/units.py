@@ -1,0 +1,287 @@
+"""MAVLink IMU messages ⇄ SI samples: the project's only MAVLink unit conversions.
+
+A *unit profile* says, for each IMU message an autopilot sends, how many m/s², rad/s and µT one field unit
+is. :func:`decode` turns a message (a pymavlink message, or any object with the MAVLink field attributes and
+``get_type()``) into an :class:`ImuSample` in the sensor/board frame with the vehicle's sample time;
+:func:`encode` is its exact inverse (up to the message's integer or float32 quantisation) and is what the
+fake vehicle sends. :func:`decode_position` reads the vehicle's position for the magnetic reference and
+:func:`time_boot_ms` turns a vehicle-clock time back into MAVLink's wrapping millisecond field.
+
+Units, checked against the senders:
+- ArduPilot RAW_IMU and SCALED_IMU/2/3 (``GCS_Common.cpp``): acceleration in mG (``1000 / GRAVITY_MSS``,
+  g = 9.80665), gyroscope in mrad/s, magnetometer in mgauss. RAW_IMU is already calibrated and in the body
+  frame there, identical to SCALED_IMU. Its HIGHRES_IMU magnetometer is 10⁶ too large: the plausibility
+  bound on |B| refuses it.
+- PX4 HIGHRES_IMU: m/s², rad/s, gauss, ``fields_updated`` bits 6–8 set when the magnetometer is new; PX4
+  SCALED_IMU as ArduPilot's.
+- ADIS16405 counts in RAW_IMU: 14-bit two's complement (upper register bits, the ND/EA flags, are
+  ignored), accelerometer 3.33 mg/LSB, gyroscope 0.05 °/s/LSB, magnetometer 0.5 mgauss/LSB.
+1 gauss = 100 µT; 1 mG = 9.80665e-3 m/s².
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from mavattitude.errors import SensorError
+
+Vec3 = tuple[float, float, float]
+
+STANDARD_GRAVITY_MPS2 = 9.80665  # the g of "mG" in MAVLink and of ArduPilot's GRAVITY_MSS
+MG_MPS2 = STANDARD_GRAVITY_MPS2 * 1e-3
+MILLIGAUSS_UT = 0.1
+GAUSS_UT = 100.0
+
+#: A magnetometer reading above this is not a magnetic field a vehicle can fly in (the Earth's is ≤ 66 µT,
+#: magnetometers saturate at a few thousand µT): the sender's units are wrong, so the sample is refused.
+MAX_PLAUSIBLE_FIELD_UT = 2000.0
+
+INT16_MIN, INT16_MAX = -32768, 32767
+
+#: The time field of each IMU message, its size in seconds, and the period after which it wraps.
+TIME_FIELDS: dict[str, tuple[str, float, float | None]] = {
+    "RAW_IMU": ("time_usec", 1e-6, None),
+    "HIGHRES_IMU": ("time_usec", 1e-6, None),
+    "SCALED_IMU": ("time_boot_ms", 1e-3, 2.0**32 * 1e-3),
+    "SCALED_IMU2": ("time_boot_ms", 1e-3, 2.0**32 * 1e-3),
+    "SCALED_IMU3": ("time_boot_ms", 1e-3, 2.0**32 * 1e-3),
+}
+MESSAGES = tuple(TIME_FIELDS)
+INTEGER_MESSAGES = frozenset({"RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3"})
+
+_ACC = ("xacc", "yacc", "zacc")
+_GYR = ("xgyro", "ygyro", "zgyro")
+_MAG = ("xmag", "ymag", "zmag")
+HIGHRES_ACC_GYRO_UPDATED = 0x3F  # fields_updated bits 0–5
+HIGHRES_MAG_UPDATED = 0x1C0  # fields_updated bits 6–8
+
+#: The fields of each message that the IMU fields do not cover, with the values :func:`encode` sends.
+_OTHER_FIELDS: dict[str, dict[str, int | float]] = {
+    "RAW_IMU": {"id": 0, "temperature": 0},
+    "SCALED_IMU": {"temperature": 0},
+    "SCALED_IMU2": {"temperature": 0},
+    "SCALED_IMU3": {"temperature": 0},
+    "HIGHRES_IMU": {"abs_pressure": 0.0, "diff_pressure": 0.0, "pressure_alt": 0.0, "temperature": 0.0, "id": 0},
+}
+
+
+@dataclass(frozen=True, slots=True)
+class ImuSample:
+    """One IMU reading in SI units, sensor/board frame, at ``time_s`` on the vehicle's clock.
+
+    ``mag_uT`` is ``None`` when the message carries no new magnetometer reading (HIGHRES_IMU
+    ``fields_updated``, or an all-zero field: no compass). ``saturated`` names the sensors (``"acc"``,
+    ``"gyr"``, ``"mag"``) whose raw value sat at its integer limit, so the front end can screen them.
+    """
+
+    time_s: float
+    acc_mps2: Vec3
+    gyr_radps: Vec3
+    mag_uT: Vec3 | None
+    message: str
+    saturated: frozenset[str] = field(default=frozenset())
+
+
+@dataclass(frozen=True)
+class MessageScale:
+    """SI units per field unit of one message; ``count_bits`` for raw two's-complement counts of that width."""
+
+    acc_mps2: float
+    gyr_radps: float
+    mag_uT: float
+    count_bits: int | None = None
+
+
+@dataclass(frozen=True)
+class UnitProfile:
+    """The messages one kind of sender emits and the units of each."""
+
+    name: str
+    messages: Mapping[str, MessageScale]
+
+    def scale(self, message: str) -> MessageScale:
+        try:
+            return self.messages[message]
+        except KeyError:
+            raise SensorError(
+                f"profile {self.name!r} does not read {message}; it reads {', '.join(self.messages)}"
+            ) from None
+
+
+_SCALED = MessageScale(acc_mps2=MG_MPS2, gyr_radps=1e-3, mag_uT=MILLIGAUSS_UT)
+_HIGHRES = MessageScale(acc_mps2=1.0, gyr_radps=1.0, mag_uT=GAUSS_UT)
+_SCALED_FAMILY = {"SCALED_IMU": _SCALED, "SCALED_IMU2": _SCALED, "SCALED_IMU3": _SCALED}
+
+PROFILES: dict[str, UnitProfile] = {
+    "ardupilot": UnitProfile("ardupilot", {"RAW_IMU": _SCALED, **_SCALED_FAMILY, "HIGHRES_IMU": _HIGHRES}),
+    "px4": UnitProfile("px4", {"HIGHRES_IMU": _HIGHRES, **_SCALED_FAMILY}),
+    "adis16405": UnitProfile(
+        "adis16405",
+        {
+            "RAW_IMU": MessageScale(
+                acc_mps2=3.33 * MG_MPS2,
+                gyr_radps=math.radians(0.05),
+                mag_uT=0.5 * MILLIGAUSS_UT,
+                count_bits=14,
+            )
+        },
+    ),
+}
+
+
+def custom_profile(
+    accel_mps2_per_lsb: float,
+    gyro_radps_per_lsb: float,
+    mag_uT_per_lsb: float,
+    messages: tuple[str, ...] = MESSAGES,
+) -> UnitProfile:
+    """A profile with one scale per sensor for every message (``input.custom`` in the config)."""
+    for name, value in (
+        ("accel_mps2_per_lsb", accel_mps2_per_lsb),
+        ("gyro_radps_per_lsb", gyro_radps_per_lsb),
+        ("mag_uT_per_lsb", mag_uT_per_lsb),
+    ):
+        if not (math.isfinite(value) and value > 0.0):
+            raise SensorError(f"custom profile: {name} must be a positive number, got {value!r}")
+    scale = MessageScale(accel_mps2_per_lsb, gyro_radps_per_lsb, mag_uT_per_lsb)
+    return UnitProfile("custom", {m: scale for m in messages})
+
+
+def get_profile(name: str, custom: Any = None) -> UnitProfile:
+    """The named profile; ``custom`` needs an object with ``accel_mps2_per_lsb``, ``gyro_radps_per_lsb``,
+    ``mag_uT_per_lsb`` (the config's ``input.custom``)."""
+    if name == "custom":
+        if custom is None:
+            raise SensorError("profile 'custom' needs input.custom scales")
+        return custom_profile(custom.accel_mps2_per_lsb, custom.gyro_radps_per_lsb, custom.mag_uT_per_lsb)
+    try:
+        return PROFILES[name]
+    except KeyError:
+        raise SensorError(f"unknown unit profile {name!r}; known: {', '.join([*PROFILES, 'custom'])}") from None
+
+
+def _sign_extend(value: int, bits: int) -> int:
+    value &= (1 << bits) - 1
+    return value - (1 << bits) if value >> (bits - 1) else value
+
+
+def decode(msg: Any, profile: UnitProfile) -> ImuSample:
+    """One IMU message → :class:`ImuSample` (SI, board frame, time from the message).
+
+    Raises :class:`SensorError` for a message the profile does not read and for an implausible field
+    magnitude (wrong units at the sender, e.g. ArduPilot's HIGHRES_IMU magnetometer).
+    """
+    kind = msg.get_type()
+    scale = profile.scale(kind)
+    time_field, time_unit_s, _ = TIME_FIELDS[kind]
+    raw = [getattr(msg, name) for name in (*_ACC, *_GYR, *_MAG)]
+    saturated: set[str] = set()
+    if scale.count_bits is not None:
+        bits = scale.count_bits
+        raw = [_sign_extend(int(v), bits) for v in raw]
+        lo, hi = -(1 << (bits - 1)), (1 << (bits - 1)) - 1
+    else:
+        lo, hi = INT16_MIN, INT16_MAX
+    if kind in INTEGER_MESSAGES:
+        for sensor, part in (("acc", raw[0:3]), ("gyr", raw[3:6]), ("mag", raw[6:9])):
+            if min(part) <= lo or max(part) >= hi:
+                saturated.add(sensor)
+    sa, sg, sm = scale.acc_mps2, scale.gyr_radps, scale.mag_uT
+    acc = (raw[0] * sa, raw[1] * sa, raw[2] * sa)
+    gyr = (raw[3] * sg, raw[4] * sg, raw[5] * sg)
+    mag: Vec3 | None = (raw[6] * sm, raw[7] * sm, raw[8] * sm)
+    if kind == "HIGHRES_IMU":
+        if not msg.fields_updated & HIGHRES_MAG_UPDATED:
+            mag = None
+    elif raw[6] == 0 and raw[7] == 0 and raw[8] == 0:
+        mag = None  # an integer message with no compass reads exactly zero
+    if mag is not None:
+        norm = math.sqrt(mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2])
+        if norm > MAX_PLAUSIBLE_FIELD_UT:
+            hint = (
+                " (ArduPilot's HIGHRES_IMU magnetometer is known to be 10⁶ too large: read RAW_IMU or SCALED_IMU)"
+                if profile.name == "ardupilot" and kind == "HIGHRES_IMU"
+                else ""
+            )
+            raise SensorError(
+                f"{kind} magnetometer |B| = {norm:.4g} µT is implausible (> {MAX_PLAUSIBLE_FIELD_UT:g} µT) "
+                f"with profile {profile.name!r}{hint}"
+            )
+    return ImuSample(
+        time_s=getattr(msg, time_field) * time_unit_s,
+        acc_mps2=acc,
+        gyr_radps=gyr,
+        mag_uT=mag,
+        message=kind,
+        saturated=frozenset(saturated),
+    )
+
+
+def encode(sample: ImuSample, profile: UnitProfile, message: str | None = None) -> dict[str, int | float]:
+    """The inverse of :func:`decode`: every field of ``message`` (default ``sample.message``) as a dict,
+    ready for pymavlink's ``<message>_send(**fields)``.
+
+    Integer fields are rounded and clipped to their range (a clipped value decodes as saturated);
+    ``time_boot_ms`` wraps at 2³² ms as on the vehicle. A ``None`` magnetometer is sent as zeros, or, in
+    HIGHRES_IMU, with the magnetometer bits of ``fields_updated`` clear.
+    """
+    kind = message or sample.message
+    scale = profile.scale(kind)
+    time_field, time_unit_s, wrap_s = TIME_FIELDS[kind]
+    ticks = round(sample.time_s / time_unit_s)
+    fields: dict[str, int | float] = {time_field: ticks % round(wrap_s / time_unit_s) if wrap_s else ticks}
+    mag = sample.mag_uT if sample.mag_uT is not None else (0.0, 0.0, 0.0)
+    values = [v / scale.acc_mps2 for v in sample.acc_mps2]
+    values += [v / scale.gyr_radps for v in sample.gyr_radps]
+    values += [v / scale.mag_uT for v in mag]
+    if kind in INTEGER_MESSAGES:
+        if scale.count_bits is None:
+            lo, hi = INT16_MIN, INT16_MAX
+        else:
+            lo, hi = -(1 << (scale.count_bits - 1)), (1 << (scale.count_bits - 1)) - 1
+        values = [min(hi, max(lo, round(v))) for v in values]
+    fields.update(zip((*_ACC, *_GYR, *_MAG), values, strict=True))
+    fields.update(_OTHER_FIELDS[kind])
+    if kind == "HIGHRES_IMU":
+        updated = HIGHRES_ACC_GYRO_UPDATED | (HIGHRES_MAG_UPDATED if sample.mag_uT is not None else 0)
+        fields["fields_updated"] = updated
+    return fields
+
+
+def wrap_period_s(message: str) -> float | None:
+    """The period after which the message's time field wraps (``None``: never in practice)."""
+    return TIME_FIELDS[message][2]
+
+
+def time_boot_ms(time_s: float) -> int:
+    """A vehicle-clock time as MAVLink's ``time_boot_ms`` (uint32, wraps at 2³² ms ≈ 49.7 days)."""
+    return round(time_s * 1e3) % (1 << 32)
+
+
+@dataclass(frozen=True)
+class Position:
+    """A geodetic position: latitude and longitude in degrees, altitude above mean sea level in metres."""
+
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+
+
+GPS_FIX_3D = 3
+
+
+def decode_position(msg: Any) -> Position | None:
+    """GLOBAL_POSITION_INT, or GPS_RAW_INT with a 3D fix or better, → :class:`Position`; ``None`` otherwise.
+
+    Both carry degrees × 10⁷ and millimetres. A GLOBAL_POSITION_INT at exactly 0°, 0° is what an autopilot
+    without a position sends, so it counts as no position.
+    """
+    kind = msg.get_type()
+    if kind == "GPS_RAW_INT" and msg.fix_type < GPS_FIX_3D:
+        return None
+    if kind not in ("GPS_RAW_INT", "GLOBAL_POSITION_INT") or (msg.lat == 0 and msg.lon == 0):
+        return None
+    return Position(lat_deg=msg.lat * 1e-7, lon_deg=msg.lon * 1e-7, alt_m=msg.alt * 1e-3)
