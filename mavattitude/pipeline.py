@@ -1,0 +1,308 @@
+"""The streaming attitude pipeline that the service, ``solve``, ``replay`` and the validation share.
+
+``AttitudePipeline(config).push(sample)`` takes one decoded :class:`~mavattitude.sensors.units.ImuSample`
+and returns the attitude outputs it completes (zero or more: the 50 Hz ticks)::
+
+    ImuSample ─► FrontEnd (clock, screen, calibrate + mount, low-pass, resample) ─► estimator ─► AttitudeOutput
+
+The estimator is a small strategy chosen by ``estimator.method``:
+
+- :class:`SnapshotEstimator` (``ign``, ``cgn``, ``ml``, ``triad``): one Wahba solve per front-end tick,
+  warm-started from the previous answer (from TRIAD after a reset), the noise σ scaled up on the vectors the
+  front end flagged as suspect;
+- :class:`FusedEstimator` (``fused``): the gyro-aided filter of :mod:`mavattitude.estimation.fused`, fed
+  every calibrated input sample (the front end's low-pass and resampling off: the filter integrates the gyro
+  at the input rate and makes its own output ticks).
+
+A sample the solver cannot use (degenerate geometry, bad numbers) is counted by exception type, logged at
+debug level and not emitted; so is a tick without a magnetometer reading, or before the magnetic reference
+is known (``reference.magnetic: auto`` waits for :meth:`AttitudePipeline.set_position`). A quaternion that
+is not finite and unit is never output: it is counted as ``invalid_quaternion`` and the warm start dropped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from collections import Counter
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from mavattitude.config import Config
+from mavattitude.errors import ConfigError, InputError, MavAttitudeError
+from mavattitude.estimation import NoiseModel, solve
+from mavattitude.estimation.conventions import Array
+from mavattitude.sensors.frontend import FrontEnd, FrontEndCounters, FrontEndSettings, ProcessedSample, SampleFlag
+from mavattitude.sensors.units import ImuSample
+
+log = logging.getLogger(__name__)
+
+# A quaternion whose norm is further than this from 1 is a numerical failure, not an attitude.
+UNIT_TOLERANCE = 1e-6
+_NAN3 = np.full(3, np.nan)
+
+
+@dataclass(frozen=True)
+class AttitudeOutput:
+    """One attitude: at ``time_s`` (vehicle clock), ``q`` = ``[w, x, y, z]`` body FRD → NED, unit, finite.
+
+    ``rates_radps``: body rates from the calibrated gyro (NaN if the input had none). ``covariance``: the
+    predicted 3×3 body-frame error-angle covariance (rad²), computed on first access. ``flags``: names of
+    what the front end or the estimator noticed (``RESET``, ``ACC_NORM``, ``MAG_NORM``, ``MAG_HELD``,
+    ``NOT_CONVERGED``, ``MAG_DISTURBED``).
+    """
+
+    time_s: float
+    q: Array
+    rates_radps: Array
+    iterations: int
+    converged: bool
+    flags: frozenset[str] = frozenset()
+    covariance_source: Callable[[], Array] | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def covariance(self) -> Array:
+        if self.covariance_source is None:
+            raise InputError("this output carries no covariance")
+        return self.covariance_source()
+
+
+@dataclass
+class PipelineCounters:
+    """What the pipeline did, for the service's periodic log line and the offline summaries."""
+
+    frontend: FrontEndCounters
+    ticks: int = 0  # front-end outputs handed to the estimator
+    emitted: int = 0
+    rejected: Counter[str] = field(default_factory=Counter)  # ticks not emitted, by reason
+    iterations: int = 0  # summed over emitted outputs
+    not_converged: int = 0
+
+    @property
+    def mean_iterations(self) -> float:
+        return self.iterations / self.emitted if self.emitted else math.nan
+
+    def summary(self) -> str:
+        rejected = ", ".join(f"{k}: {v}" for k, v in sorted(self.rejected.items()))
+        return (
+            f"received={self.frontend.received} emitted={self.emitted} "
+            f"rejected={{{rejected}}} input_rejected={{{_fmt(self.frontend.rejected)}}} "
+            f"mean_iterations={self.mean_iterations:.2f} not_converged={self.not_converged}"
+        )
+
+
+def _fmt(counter: Counter[str]) -> str:
+    return ", ".join(f"{k}: {v}" for k, v in sorted(counter.items()))
+
+
+class Estimator(Protocol):
+    """The solver step: front-end samples in, attitudes out (not yet checked: the pipeline does that)."""
+
+    #: Whether the front end should low-pass and resample for this estimator (``filter.enabled`` permitting).
+    wants_filtered: bool
+
+    def estimate(self, sample: ProcessedSample, mag_ref_ned_uT: Array) -> list[AttitudeOutput]: ...
+
+    def reset(self) -> None: ...
+
+
+def _noise_model(config: Config) -> NoiseModel:
+    return NoiseModel(accel_std=config.noise.accel_std_mps2, mag_std=config.noise.mag_std_uT)
+
+
+class SnapshotEstimator:
+    """One accelerometer + magnetometer solve per tick, warm-started from the previous answer."""
+
+    wants_filtered = True
+
+    def __init__(self, config: Config) -> None:
+        e = config.estimator
+        self.method = e.method
+        self.options = {"max_iterations": e.max_iterations, "tolerance": e.tolerance, "min_angle_deg": e.min_angle_deg}
+        self.noise = _noise_model(config)
+        self._scaled: dict[tuple[float, float], NoiseModel] = {(1.0, 1.0): self.noise}
+        self._q0: Array | None = None
+
+    def reset(self) -> None:
+        self._q0 = None
+
+    def _noise_for(self, acc_scale: float, mag_scale: float) -> NoiseModel:
+        """The noise model with the front end's down-weighting (few distinct scales: cached)."""
+        key = (acc_scale, mag_scale)
+        if key not in self._scaled:
+            n = self.noise
+            self._scaled[key] = NoiseModel(
+                accel_std=tuple(s * acc_scale for s in n.accel_std), mag_std=tuple(s * mag_scale for s in n.mag_std)
+            )
+        return self._scaled[key]
+
+    def estimate(self, sample: ProcessedSample, mag_ref_ned_uT: Array) -> list[AttitudeOutput]:
+        if sample.flags & SampleFlag.RESET:
+            self._q0 = None  # after a gap the previous answer is no better a start than TRIAD
+        noise = self._noise_for(sample.acc_std_scale, sample.mag_std_scale)
+        r = solve(sample.acc_mps2, sample.mag_uT, mag_ref_ned_uT, noise, self.method, q0=self._q0, **self.options)
+        self._q0 = r.q
+        flags = _flag_names(sample.flags) | ({"NOT_CONVERGED"} if not r.converged else set())
+        rates = np.array(sample.gyr_radps, dtype=float)
+        return [AttitudeOutput(sample.time_s, r.q, rates, r.iterations, r.converged, frozenset(flags), _lazy(r))]
+
+
+def _lazy(result: Any) -> Callable[[], Array]:
+    return lambda: result.covariance
+
+
+class FusedEstimator:
+    """The gyro-aided filter (helper G's :class:`~mavattitude.estimation.fused.FusedFilter`)."""
+
+    wants_filtered = False
+
+    def __init__(self, config: Config) -> None:
+        from mavattitude.estimation.fused import FusedSettings
+
+        self.settings = dataclasses.replace(
+            FusedSettings(),
+            output_rate_hz=config.filter.output_rate_hz,
+            max_gap_s=config.input.input_timeout_s,
+        )
+        self._filter: Any = None
+        self._mag_ref: Array | None = None
+
+    def reset(self) -> None:
+        self._filter = None
+
+    def estimate(self, sample: ProcessedSample, mag_ref_ned_uT: Array) -> list[AttitudeOutput]:
+        from mavattitude.estimation.fused import FusedFilter
+
+        if self._filter is None or self._mag_ref is None or not np.array_equal(self._mag_ref, mag_ref_ned_uT):
+            self._filter = FusedFilter(self.settings, mag_ref_ned_uT)
+            self._mag_ref = np.array(mag_ref_ned_uT, dtype=float)
+        estimates = self._filter.push(sample.time_s, sample.gyr_radps, sample.acc_mps2, sample.mag_uT)
+        front = _flag_names(sample.flags & ~SampleFlag.RESET)
+        return [
+            AttitudeOutput(
+                e.time_s,
+                e.q,
+                e.rates_radps,
+                0,
+                True,
+                frozenset(front | ({"MAG_DISTURBED"} if e.mag_disturbed else set())),
+                _constant(e.covariance),
+            )
+            for e in estimates
+        ]
+
+
+def _constant(value: Array) -> Callable[[], Array]:
+    return lambda: value
+
+
+def _flag_names(flags: SampleFlag) -> set[str]:
+    return {f.name for f in SampleFlag if f & flags and f.name}
+
+
+#: ``estimator.method`` → the estimator that runs it.
+ESTIMATORS: dict[str, Callable[[Config], Estimator]] = {
+    "ign": SnapshotEstimator,
+    "cgn": SnapshotEstimator,
+    "ml": SnapshotEstimator,
+    "triad": SnapshotEstimator,
+    "fused": FusedEstimator,
+}
+
+
+class AttitudePipeline:
+    """Front end + estimator, one sample at a time; see the module docstring."""
+
+    def __init__(self, config: Config) -> None:
+        self.config = config
+        try:
+            self.estimator: Estimator = ESTIMATORS[config.estimator.method](config)
+        except KeyError:
+            raise ConfigError(f"estimator.method: no estimator for {config.estimator.method!r}") from None
+        filtered = config.filter.enabled and self.estimator.wants_filtered
+        try:
+            self.frontend = FrontEnd(FrontEndSettings.from_config(config, filter_enabled=filtered))
+        except MavAttitudeError as exc:
+            raise ConfigError(f"front end: {exc}") from exc
+        self.counters = PipelineCounters(self.frontend.counters)
+        self.mag_ref_ned_uT: Array | None = None
+        self.last_error: MavAttitudeError | None = None
+        self.set_magnetic_reference(*fixed_reference(config))
+
+    @property
+    def waiting_for_reference(self) -> bool:
+        """True while ``reference.magnetic: auto`` has no position yet: nothing is emitted."""
+        return self.mag_ref_ned_uT is None
+
+    def set_magnetic_reference(self, field_ned_uT: Iterable[float] | None, magnitude_known: bool = True) -> None:
+        """The NED field (µT) the solver aligns to (``None``: unknown, nothing is emitted). With
+        ``magnitude_known`` its norm also screens |B| in the front end; without, only its direction is used."""
+        if field_ned_uT is None:
+            self.mag_ref_ned_uT = None
+            self.frontend.set_expected_field_uT(None)
+            return
+        ref = np.array(list(field_ned_uT), dtype=float)
+        if ref.shape != (3,) or not np.all(np.isfinite(ref)) or not np.any(ref):
+            raise InputError(f"magnetic reference must be a finite, non-zero NED vector, got {ref!r}")
+        self.mag_ref_ned_uT = ref
+        self.frontend.set_expected_field_uT(float(np.linalg.norm(ref)) if magnitude_known else None)
+
+    def push(self, sample: ImuSample) -> list[AttitudeOutput]:
+        out: list[AttitudeOutput] = []
+        for tick in self.frontend.push(sample):
+            self.counters.ticks += 1
+            out += self._estimate(tick)
+        return out
+
+    def _estimate(self, tick: ProcessedSample) -> list[AttitudeOutput]:
+        c = self.counters
+        if tick.flags & SampleFlag.RESET:
+            self.estimator.reset()
+        if self.mag_ref_ned_uT is None:
+            c.rejected["no_reference"] += 1
+            return []
+        if tick.mag_uT is None and self.estimator.wants_filtered:
+            c.rejected["no_mag"] += 1
+            return []
+        try:
+            outputs = self.estimator.estimate(tick, self.mag_ref_ned_uT)
+        except MavAttitudeError as exc:
+            c.rejected[type(exc).__name__] += 1
+            self.last_error = exc
+            log.debug("t=%.3f s: not solved: %s", tick.time_s, exc)
+            return []
+        return [o for o in outputs if self._valid(o)]
+
+    def _valid(self, output: AttitudeOutput) -> bool:
+        c = self.counters
+        q = output.q
+        if not (np.all(np.isfinite(q)) and abs(float(np.linalg.norm(q)) - 1.0) <= UNIT_TOLERANCE):
+            c.rejected["invalid_quaternion"] += 1
+            self.estimator.reset()
+            log.warning("t=%.3f s: estimator returned a non-unit or non-finite quaternion %s", output.time_s, q)
+            return False
+        c.emitted += 1
+        c.iterations += output.iterations
+        c.not_converged += not output.converged
+        return True
+
+
+def fixed_reference(config: Config) -> tuple[Array | None, bool]:
+    """The configured NED field in µT and whether its magnitude is known; ``None`` for ``auto``."""
+    m = config.reference.magnetic
+    if m.mode == "vector":
+        return np.array(m.field_ned_uT, dtype=float), True
+    if m.mode == "angles":
+        intensity = 1.0 if m.intensity_uT is None else m.intensity_uT
+        return field_from_angles(m.declination_deg, m.inclination_deg, intensity), m.intensity_uT is not None
+    return None, False
+
+
+def field_from_angles(declination_deg: float, inclination_deg: float, intensity_uT: float) -> Array:
+    """NED field of a declination (east of north) and inclination (down), both in degrees."""
+    d, i = math.radians(declination_deg), math.radians(inclination_deg)
+    return intensity_uT * np.array([math.cos(i) * math.cos(d), math.cos(i) * math.sin(d), math.sin(i)])
