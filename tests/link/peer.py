@@ -86,5 +86,14 @@ class UdpPeer:
                     return msg
         raise AssertionError(f"no {msg_type} within {timeout_s} s")
 
+    def find_or_wait(
+        self, msg_type: str, timeout_s: float = 3.0, condition: Callable[[Any], bool] = lambda m: True
+    ) -> Any:
+        """Like :meth:`wait_for`, but a matching message already received counts too."""
+        for msg in self.received:
+            if msg.get_type() == msg_type and condition(msg):
+                return msg
+        return self.wait_for(msg_type, timeout_s, condition)
+
     def close(self) -> None:
         self.sock.close()

@@ -1,0 +1,376 @@
+"""The daemon loop of ``mavattitude run``: MAVLink link ↔ attitude pipeline.
+
+One thread, one loop: wait (bounded) for input on the link, handle every message that arrived, then
+run whatever periodic work is due (heartbeat, rate requests, input watchdog, counters, sd_notify). The
+input message goes decode → pipeline → ATTITUDE_QUATERNION in the same pass that received it, so the
+latency from arrival to send is the processing time alone; nothing waits for a timer.
+
+What it does on the link:
+- locks onto the autopilot: ``link.vehicle_system_id``, or with 0 the first autopilot HEARTBEAT; the
+  (system, component) of that heartbeat is the only source listened to, every other message is
+  ignored and counted;
+- sends its own HEARTBEAT at 1 Hz as the vehicle's system id (an onboard controller, component
+  ``link.component_id``). Until it has locked on in automatic mode it has no id to use and sends as
+  system 1 (never 255), so that a ``udpout`` peer learns where we are and starts talking;
+- asks for the input with MAV_CMD_SET_MESSAGE_INTERVAL on locking and every ``request_repeat_s``
+  (unless ``request_messages`` is off) and logs the COMMAND_ACK result whenever it changes;
+- emits ATTITUDE_QUATERNION per pipeline output, stamped with the vehicle time of the sample;
+- input silent for longer than ``input_timeout_s``: says so once (log + STATUSTEXT); the output
+  stops by itself, since outputs only come from input, and resumes with the next good sample;
+- STATUSTEXT on start (once locked on) and, rate-limited, on degenerate geometry;
+- every ``stats_interval_s`` one ``counters:`` log line of ``key=value`` numbers (and the same as the
+  systemd STATUS); a final one when it stops.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from mavattitude import __version__
+from mavattitude.config import Config
+from mavattitude.errors import InputError, LinkError, MavAttitudeError, SensorError
+from mavattitude.link import MavlinkLink, load_signing_key, message_id
+from mavattitude.sensors import units
+from mavattitude.systemd_notify import SystemdNotifier, default_notifier
+
+log = logging.getLogger(__name__)
+
+HEARTBEAT_PERIOD_S = 1.0
+TICK_S = 0.05  # periodic work runs at least this often; also the longest wait on the link
+UNLOCKED_SYSTEM_ID = 1  # our system id before locking onto an autopilot in automatic mode
+ACK_TIMEOUT_S = 2.0
+REJECT_REASONS = ("decode", "pipeline_error", "invalid_output")
+DEGENERATE = "DegenerateGeometryError"  # the pipeline's reject reason for collinear acc and mag
+POSITION_MESSAGE = "GLOBAL_POSITION_INT"
+POSITION_RATE_HZ = 1.0
+MAX_LATENCY_SAMPLES = 100_000  # per counters window: bounds memory if stats_interval_s is long
+
+
+@dataclass
+class ServiceCounters:
+    """What the service has seen and done since it started.
+
+    ``mean_iterations`` and the latencies are refreshed at each counters line (latency: over the window
+    since the previous line); ``rejected`` holds the service's own reasons, and the line adds the
+    pipeline's (input samples the front end dropped, ticks the solver could not use) by name.
+    """
+
+    received: int = 0  # input messages from the autopilot
+    emitted: int = 0  # ATTITUDE_QUATERNION sent
+    ignored: int = 0  # messages from other systems or components, or before locking on
+    rejected: dict[str, int] = field(default_factory=lambda: dict.fromkeys(REJECT_REASONS, 0))
+    input_lost: int = 0  # times the input went silent for longer than input_timeout_s
+    interval_requests: int = 0
+    acks: dict[str, int] = field(default_factory=dict)  # SET_MESSAGE_INTERVAL results by name
+    ack_timeouts: int = 0
+    positions: int = 0  # vehicle positions handed to the pipeline (magnetic reference ``auto``)
+    mean_iterations: float = float("nan")
+    latency_p50_ms: float = float("nan")  # arrival of the input datagram -> ATTITUDE_QUATERNION sent
+    latency_p99_ms: float = float("nan")
+
+
+class _RateLimiter:
+    """Allows one event per key every ``interval_s``; counts what it held back."""
+
+    def __init__(self, interval_s: float, clock: Callable[[], float]) -> None:
+        self.interval_s = interval_s
+        self._clock = clock
+        self._last: dict[str, float] = {}
+        self.suppressed: dict[str, int] = {}
+
+    def allow(self, key: str) -> bool:
+        now = self._clock()
+        last = self._last.get(key)
+        if last is not None and now - last < self.interval_s:
+            self.suppressed[key] = self.suppressed.get(key, 0) + 1
+            return False
+        self._last[key] = now
+        return True
+
+    def take_suppressed(self, key: str) -> int:
+        return self.suppressed.pop(key, 0)
+
+
+def open_link(config: Config) -> MavlinkLink:
+    """The link the config describes (signing key read and checked here)."""
+    signing = config.link.signing
+    return MavlinkLink(
+        config.link.connect,
+        source_system=config.link.vehicle_system_id or UNLOCKED_SYSTEM_ID,
+        source_component=config.link.component_id,
+        signing_key=load_signing_key(signing.key_file) if signing.key_file else None,
+        require_signing=signing.require_signing,
+    )
+
+
+class AttitudeService:
+    """The loop: ``AttitudeService(config, link, pipeline).run(stop_event)`` returns the final counters."""
+
+    def __init__(
+        self,
+        config: Config,
+        link: MavlinkLink,
+        pipeline: Any,
+        notifier: SystemdNotifier | None = None,
+    ) -> None:
+        self.config = config
+        self.link = link
+        self.pipeline = pipeline
+        self.notifier = notifier if notifier is not None else default_notifier()
+        self.counters = ServiceCounters()
+        self.vehicle: tuple[int, int] | None = None
+        self._input_name = config.input.message
+        input_id = message_id(config.input.message)
+        if input_id is None:
+            raise LinkError(f"the MAVLink dialect has no message {config.input.message}")
+        self._input_id = input_id
+        self._profile = units.get_profile(config.input.profile, config.input.custom)
+        self._wants_position = config.reference.magnetic.mode == "auto"
+        self._position_id = message_id(POSITION_MESSAGE)
+        self._limiter = _RateLimiter(config.output.statustext_interval_s, time.monotonic)
+        self._latencies_s: list[float] = []
+        self._last_input: float | None = None
+        self._input_lost = False
+        self._ready = False
+        self._last_ack: str | None = None
+        self._ack_due: float | None = None
+        now = time.monotonic()
+        self._next_tick = now
+        self._next_heartbeat = now
+        self._next_request = float("inf")
+        self._next_stats = now + config.output.stats_interval_s
+        watchdog_s = self.notifier.watchdog_interval_s
+        self._watchdog_period = watchdog_s / 4 if watchdog_s else None
+        self._next_watchdog = now
+
+    # -- the loop -------------------------------------------------------------------------------------
+
+    def run(self, stop: threading.Event) -> ServiceCounters:
+        """Serve until ``stop`` is set (within ``TICK_S``); return the counters."""
+        log.info(
+            "mavattitude %s: link %s, input %s (%s profile), vehicle %s",
+            __version__,
+            self.config.link.connect,
+            self._input_name,
+            self.config.input.profile,
+            self.config.link.vehicle_system_id or "auto (first autopilot heartbeat)",
+        )
+        try:
+            while not stop.is_set():
+                wait_s = min(max(self._next_tick - time.monotonic(), 0.0), TICK_S)
+                for t_rx, msg in self.link.recv(wait_s):
+                    self._handle(msg, t_rx)
+                now = time.monotonic()
+                if now >= self._next_tick:
+                    self._periodic(now)
+        finally:
+            self.notifier.stopping()
+            self._log_counters("counters (final)")
+        return self.counters
+
+    def _handle(self, msg: Any, t_rx: float) -> None:
+        source = (msg.get_srcSystem(), msg.get_srcComponent())
+        if source != self.vehicle:
+            if self.vehicle is None and self._is_our_autopilot(msg):
+                self._lock_on(source)
+            else:
+                self.counters.ignored += 1
+            return
+        kind = msg.get_type()
+        if kind == self._input_name:
+            self._on_input(msg, t_rx)
+        elif kind == "COMMAND_ACK":
+            self._on_ack(msg)
+        elif kind == POSITION_MESSAGE and self._wants_position:
+            self._on_position(msg)
+
+    def _periodic(self, now: float) -> None:
+        self._next_tick = now + TICK_S
+        if now >= self._next_heartbeat:
+            self._next_heartbeat = now + HEARTBEAT_PERIOD_S
+            self.link.send_heartbeat()
+        if now >= self._next_request:
+            self._request_input(now)
+        if self._ack_due is not None and now >= self._ack_due:
+            self._ack_due = None
+            self.counters.ack_timeouts += 1
+            log.warning("no COMMAND_ACK for SET_MESSAGE_INTERVAL within %.0f s", ACK_TIMEOUT_S)
+        if not self._input_lost and self._last_input is not None:
+            silent_s = now - self._last_input
+            if silent_s > self.config.input.input_timeout_s:
+                self._on_input_lost(silent_s)
+        if now >= self._next_stats:
+            self._next_stats = now + self.config.output.stats_interval_s
+            self._log_counters("counters")
+        if self._watchdog_period is not None and now >= self._next_watchdog:
+            self._next_watchdog = now + self._watchdog_period
+            self.notifier.watchdog()
+
+    # -- the autopilot --------------------------------------------------------------------------------
+
+    def _is_our_autopilot(self, msg: Any) -> bool:
+        wanted = self.config.link.vehicle_system_id
+        return (
+            self.link.is_autopilot_heartbeat(msg) and msg.get_srcSystem() != 255 and wanted in (0, msg.get_srcSystem())
+        )
+
+    def _lock_on(self, source: tuple[int, int]) -> None:
+        self.vehicle = source
+        self.link.set_source_system(source[0])
+        log.info("locked onto the autopilot: system %d, component %d", *source)
+        self._statustext("start", f"mavattitude {__version__} on, {self._input_name} -> ATTITUDE_QUATERNION", "info")
+        if self.config.link.request_messages:
+            self._next_request = time.monotonic()
+        self._next_heartbeat = time.monotonic()  # announce ourselves under the vehicle's id at once
+
+    def _request_input(self, now: float) -> None:
+        assert self.vehicle is not None
+        self._next_request = now + self.config.link.request_repeat_s
+        if self.link.request_message_interval(self.vehicle, self._input_id, self.config.link.request_rate_hz):
+            self.counters.interval_requests += 1
+            if self._ack_due is None:
+                self._ack_due = now + ACK_TIMEOUT_S
+        if self._wants_position and self._position_id is not None:
+            self.link.request_message_interval(self.vehicle, self._position_id, POSITION_RATE_HZ)
+
+    def _on_ack(self, msg: Any) -> None:
+        result = self.link.interval_ack_result(msg)
+        if result is None:
+            return
+        self._ack_due = None
+        self.counters.acks[result] = self.counters.acks.get(result, 0) + 1
+        if result == self._last_ack:
+            return
+        self._last_ack = result
+        rate = self.config.link.request_rate_hz
+        if result == "ACCEPTED":
+            log.info("autopilot accepted %s at %g Hz", self._input_name, rate)
+        else:
+            log.warning(
+                "autopilot answered SET_MESSAGE_INTERVAL(%s, %g Hz) with %s; if it streams the message by "
+                "itself, set link.request_messages: false",
+                self._input_name,
+                rate,
+                result,
+            )
+
+    # -- input and output -----------------------------------------------------------------------------
+
+    def _on_input(self, msg: Any, t_rx: float) -> None:
+        self.counters.received += 1
+        try:
+            sample = units.decode(msg, self._profile)
+        except SensorError as exc:
+            self._reject("decode", exc)
+            return
+        self._last_input = t_rx
+        if self._input_lost:
+            self._input_lost = False
+            log.info("input %s is back", self._input_name)
+        rejected = self.pipeline.counters.rejected
+        degenerate_before = rejected[DEGENERATE]
+        try:
+            outputs = self.pipeline.push(sample)
+        except MavAttitudeError as exc:  # the pipeline counts what it refuses; anything it raises is kept alive
+            self._reject("pipeline_error", exc)
+            return
+        if rejected[DEGENERATE] != degenerate_before:
+            self._statustext("degenerate", "mavattitude: acc and mag near collinear, no attitude", "warning")
+        for out in outputs:
+            self._emit(out, t_rx)
+
+    def _on_position(self, msg: Any) -> None:
+        position = units.decode_position(msg)
+        if position is not None:
+            self.counters.positions += 1
+            self.pipeline.set_position(position)
+
+    def _emit(self, out: Any, t_rx: float) -> None:
+        try:
+            sent = self.link.send_attitude_quaternion(units.time_boot_ms(out.time_s), out.q, out.rates_radps)
+        except InputError as exc:
+            self._reject("invalid_output", exc)
+            return
+        if not sent:
+            return
+        latency_s = time.monotonic() - t_rx
+        self.counters.emitted += 1
+        if len(self._latencies_s) < MAX_LATENCY_SAMPLES:
+            self._latencies_s.append(latency_s)
+        if not self._ready:
+            self._ready = True
+            self.notifier.ready(status="first attitude sent")
+
+    def _on_input_lost(self, silent_s: float) -> None:
+        self._input_lost = True
+        self.counters.input_lost += 1
+        text = f"mavattitude: no {self._input_name} for {silent_s:.1f} s, output stopped"
+        log.warning("%s", text)
+        self._statustext("input_lost", text, "warning", log_it=False)
+
+    def _reject(self, reason: str, exc: Exception) -> None:
+        self.counters.rejected[reason] = self.counters.rejected.get(reason, 0) + 1
+        if self._limiter.allow(f"log:{reason}"):
+            held = self._limiter.take_suppressed(f"log:{reason}")
+            log.warning("rejected (%s): %s%s", reason, exc, f" (+{held} more since the last report)" if held else "")
+
+    def _statustext(self, key: str, text: str, severity: str, log_it: bool = True) -> None:
+        if log_it:
+            log.info("%s", text)
+        if self.config.output.statustext and self._limiter.allow(f"statustext:{key}"):
+            self.link.send_statustext(text, severity)
+
+    # -- counters -------------------------------------------------------------------------------------
+
+    def _log_counters(self, label: str) -> None:
+        if self._latencies_s:
+            p50, p99 = np.percentile(np.asarray(self._latencies_s), [50.0, 99.0]) * 1e3
+            self.counters.latency_p50_ms, self.counters.latency_p99_ms = float(p50), float(p99)
+            self._latencies_s.clear()
+        self.counters.mean_iterations = self.pipeline.counters.mean_iterations
+        line = counters_line(self.counters, self.link.counters, self.pipeline.counters)
+        log.info("%s: %s", label, line)
+        self.notifier.status(line)
+
+
+def counters_line(counters: ServiceCounters, link_counters: Any, pipeline_counters: Any) -> str:
+    """``key=value`` numbers, one line: what the e2e tests and an operator read.
+
+    ``rejected.REASON`` sums the service's reasons, the front end's dropped input samples and the
+    solver's refused ticks; ``mag_rejected.REASON`` counts magnetometer readings the front end dropped.
+    """
+    c = counters
+    frontend = pipeline_counters.frontend
+    rejected = Counter(c.rejected) + Counter(frontend.rejected) + Counter(pipeline_counters.rejected)
+    pairs: list[tuple[str, float]] = [
+        ("received", c.received),
+        ("emitted", c.emitted),
+        ("ignored", c.ignored),
+        *((f"rejected.{k}", rejected[k]) for k in sorted({*c.rejected, *rejected})),
+        *((f"mag_rejected.{k}", v) for k, v in sorted(frontend.mag_rejected.items())),
+        ("gap_resets", frontend.gap_resets),
+        ("reboots", frontend.reboots),
+        ("not_converged", pipeline_counters.not_converged),
+        ("mean_iterations", c.mean_iterations),
+        ("latency_p50_ms", c.latency_p50_ms),
+        ("latency_p99_ms", c.latency_p99_ms),
+        ("input_lost", c.input_lost),
+        ("positions", c.positions),
+        ("interval_requests", c.interval_requests),
+        *((f"acks.{k.lower()}", v) for k, v in sorted(c.acks.items())),
+        ("ack_timeouts", c.ack_timeouts),
+        ("bad_data", link_counters.bad_data),
+        ("signature_rejected", link_counters.signature_rejected),
+        ("sent", link_counters.sent),
+        ("send_failed", link_counters.send_failed),
+        ("reconnects", link_counters.reconnects),
+    ]
+    return " ".join(f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}" for k, v in pairs)

@@ -1,0 +1,314 @@
+"""The service loop against a scripted autopilot over real UDP on 127.0.0.1 (pymavlink on both sides).
+
+The service runs in a thread with a stop event; the test plays the autopilot with :class:`UdpPeer`.
+Input is noise-free RAW_IMU encoded by the project's own unit conversion, so the only attitude error
+is the message's integer quantisation (1 mG, 1 mgauss).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from mavattitude.config import Config, load_config
+from mavattitude.estimation.conventions import angle_between, quat_from_euler, rotate_ned_to_body
+from mavattitude.link import LinkCounters, MavlinkLink
+from mavattitude.pipeline import AttitudePipeline
+from mavattitude.sensors import units
+from mavattitude.service import AttitudeService, ServiceCounters, counters_line
+from mavattitude.systemd_notify import SystemdNotifier
+from tests.link.peer import UdpPeer
+
+WAIT_S = 3.0  # bound on every wait (loopback replies take milliseconds)
+G_NED_MPS2 = np.array([0.0, 0.0, -9.80665])  # specific force at rest: −g along down
+DECLINATION_DEG, INCLINATION_DEG, FIELD_UT = 3.0, 60.0, 50.0
+Q_TRUE = quat_from_euler(math.radians(10.0), math.radians(-20.0), math.radians(135.0))
+GYRO_RADPS = (0.01, -0.02, 0.03)
+SAMPLE_PERIOD_S = 0.005  # 200 Hz on the vehicle clock
+# RAW_IMU quantisation: 1 mG of ~1000 mG and 1 mgauss of ~500 mgauss -> ~2e-3 rad; 0.5° leaves margin
+ANGLE_TOLERANCE_RAD = math.radians(0.5)
+
+
+def mag_ned_uT() -> np.ndarray:
+    dec, inc = math.radians(DECLINATION_DEG), math.radians(INCLINATION_DEG)
+    return FIELD_UT * np.array([math.cos(inc) * math.cos(dec), math.cos(inc) * math.sin(dec), math.sin(inc)])
+
+
+def make_config(**overrides: object) -> Config:
+    base = {
+        "link.connect": "udpin:127.0.0.1:0",
+        "link.request_repeat_s": 0.5,
+        "input.input_timeout_s": 0.3,
+        "output.stats_interval_s": 0.2,
+        "output.statustext_interval_s": 60.0,
+        "reference.magnetic": {"declination_deg": DECLINATION_DEG, "inclination_deg": INCLINATION_DEG},
+    }
+    return load_config(None, {**base, **overrides}, env={})
+
+
+class Autopilot(UdpPeer):
+    """The test's vehicle: heartbeats, RAW_IMU at a static attitude, COMMAND_ACK."""
+
+    profile = units.get_profile("ardupilot")
+
+    def __init__(self, system: int = 1, component: int = 1) -> None:
+        super().__init__(system=system, component=component)
+        self.time_s = 100.0
+
+    def raw_imu(self, acc_mps2=None, mag_uT=None) -> object:
+        acc = rotate_ned_to_body(Q_TRUE, G_NED_MPS2) if acc_mps2 is None else acc_mps2
+        mag = rotate_ned_to_body(Q_TRUE, mag_ned_uT()) if mag_uT is None else mag_uT
+        sample = units.ImuSample(self.time_s, tuple(acc), GYRO_RADPS, tuple(mag), "RAW_IMU")
+        self.time_s += SAMPLE_PERIOD_S
+        return mavlink2.MAVLink_raw_imu_message(**units.encode(sample, self.profile))
+
+    def stream(self, count: int, **kwargs) -> None:
+        for _ in range(count):
+            self.send(self.raw_imu(**kwargs))
+
+
+class Running:
+    """The service on its own thread, stopped and joined at the end."""
+
+    def __init__(self, config: Config) -> None:
+        self.config = config
+        self.link = MavlinkLink(
+            config.link.connect,
+            source_system=config.link.vehicle_system_id or 1,
+            source_component=config.link.component_id,
+        )
+        self.service = AttitudeService(config, self.link, AttitudePipeline(config), SystemdNotifier(environ={}))
+        self.stop = threading.Event()
+        self.result: ServiceCounters | None = None
+        self.thread = threading.Thread(target=self._run, name="service", daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        self.result = self.service.run(self.stop)
+
+    def finish(self) -> ServiceCounters:
+        self.stop.set()
+        self.thread.join(timeout=1.0)  # the promise: out within a second of the stop request
+        assert not self.thread.is_alive(), "the service did not stop within 1 s"
+        self.link.close()
+        assert self.result is not None
+        return self.result
+
+
+@pytest.fixture
+def served() -> Iterator[tuple[Running, Autopilot]]:
+    running = Running(make_config())
+    vehicle = Autopilot()
+    vehicle.target = running.link.local_address
+    yield running, vehicle
+    if running.thread.is_alive():
+        running.finish()
+    vehicle.close()
+
+
+def wait_until(vehicle: UdpPeer, predicate, timeout_s: float = WAIT_S) -> None:
+    """Wait for the service's state to meet ``predicate``, blocking on the vehicle's socket meanwhile
+    (the service's heartbeats and outputs wake it; what it receives is kept in ``vehicle.received``)."""
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        assert time.monotonic() < deadline, "condition not met in time"
+        vehicle.poll(0.02)
+
+
+def lock_on(vehicle: Autopilot) -> None:
+    vehicle.send(vehicle.heartbeat())
+    vehicle.wait_for("HEARTBEAT", condition=lambda m: m.get_srcComponent() == 191)
+
+
+def test_locks_on_requests_the_input_and_reads_the_ack(served):
+    running, vehicle = served
+    vehicle.send(vehicle.heartbeat())
+    hb = vehicle.wait_for("HEARTBEAT")
+    assert (hb.get_srcSystem(), hb.get_srcComponent()) == (1, 191)
+    assert hb.type == mavlink2.MAV_TYPE_ONBOARD_CONTROLLER and hb.autopilot == mavlink2.MAV_AUTOPILOT_INVALID
+    cmd = vehicle.wait_for("COMMAND_LONG")
+    assert cmd.command == mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL
+    assert (cmd.target_system, cmd.target_component) == (1, 1)
+    assert (cmd.param1, cmd.param2, cmd.param3) == (mavlink2.MAVLINK_MSG_ID_RAW_IMU, 1e6 / 200.0, 0.0)
+    vehicle.send(mavlink2.MAVLink_command_ack_message(cmd.command, mavlink2.MAV_RESULT_ACCEPTED))
+    start = vehicle.find_or_wait("STATUSTEXT", condition=lambda m: "mavattitude" in m.text)
+    assert start.severity == mavlink2.MAV_SEVERITY_INFO
+    # re-asserted every request_repeat_s (0.5 s here)
+    vehicle.wait_for("COMMAND_LONG", timeout_s=2.0)
+    wait_until(vehicle, lambda: running.service.counters.acks.get("ACCEPTED") == 1)
+    counters = running.finish()
+    assert counters.interval_requests >= 2
+    assert counters.ack_timeouts == 0
+
+
+def test_emits_attitude_quaternion_for_the_vehicle_time(served):
+    running, vehicle = served
+    lock_on(vehicle)
+    first_sample_s = vehicle.time_s
+    vehicle.stream(200)  # 1 s of vehicle time at 200 Hz
+    outputs = []
+    deadline = time.monotonic() + WAIT_S
+    while len(outputs) < 40 and time.monotonic() < deadline:
+        outputs += [m for m in vehicle.poll(0.1) if m.get_type() == "ATTITUDE_QUATERNION"]
+    # 1 s resampled at 50 Hz, less the filter's start-up: at least 40 outputs
+    assert len(outputs) >= 40
+    for aq in outputs:
+        assert aq.get_srcSystem() == 1 and aq.get_srcComponent() == 191
+        q = np.array([aq.q1, aq.q2, aq.q3, aq.q4])
+        assert abs(np.linalg.norm(q) - 1.0) < 1e-6  # float32 rounding of a unit quaternion
+        assert angle_between(q, Q_TRUE) < ANGLE_TOLERANCE_RAD
+        assert [aq.rollspeed, aq.pitchspeed, aq.yawspeed] == pytest.approx(GYRO_RADPS, abs=2e-3)  # 1 mrad/s LSB
+        assert list(aq.repr_offset_q) == [0.0, 0.0, 0.0, 0.0]
+        assert first_sample_s * 1e3 <= aq.time_boot_ms <= vehicle.time_s * 1e3
+    times = [aq.time_boot_ms for aq in outputs]
+    assert times == sorted(times) and set(np.diff(times)) == {20}  # 50 Hz on the vehicle clock
+    counters = running.finish()
+    assert counters.received == 200 and counters.emitted >= 40
+    assert counters.latency_p99_ms < 100.0  # loopback in one process on a shared CPU: a loose sanity bound
+    assert 1 <= counters.mean_iterations <= running.config.estimator.max_iterations
+
+
+def test_other_systems_and_components_are_ignored_and_counted(served):
+    running, vehicle = served
+    lock_on(vehicle)
+    stranger = Autopilot(system=2)
+    camera = Autopilot(system=1, component=100)
+    for peer in (stranger, camera):
+        peer.target = vehicle.target
+        peer.send(peer.heartbeat())
+        peer.stream(50)
+    wait_until(vehicle, lambda: running.service.counters.ignored >= 102)
+    counters = running.finish()
+    assert counters.ignored == 102 and counters.received == 0 and counters.emitted == 0
+    stranger.close()
+    camera.close()
+
+
+def test_input_loss_is_reported_once_and_output_resumes(served):
+    running, vehicle = served
+    lock_on(vehicle)
+    vehicle.stream(100)
+    vehicle.wait_for("ATTITUDE_QUATERNION")
+    lost = vehicle.wait_for("STATUSTEXT", condition=lambda m: "output stopped" in m.text)
+    assert lost.severity == mavlink2.MAV_SEVERITY_WARNING
+    # two more heartbeats (1 Hz) of silence: still said only once
+    for _ in range(2):
+        vehicle.wait_for("HEARTBEAT")
+    assert running.service.counters.input_lost == 1
+    vehicle.time_s += 5.0
+    vehicle.stream(100)
+    vehicle.wait_for("ATTITUDE_QUATERNION", condition=lambda m: m.time_boot_ms >= (vehicle.time_s - 0.5) * 1e3)
+    counters = running.finish()
+    assert counters.input_lost == 1
+    assert sum(1 for m in vehicle.received if m.get_type() == "STATUSTEXT" and "output stopped" in m.text) == 1
+
+
+def test_implausible_magnetometer_is_rejected_and_counted(served):
+    running, vehicle = served
+    lock_on(vehicle)
+    vehicle.stream(5, mag_uT=(3000.0, 0.0, 0.0))  # beyond any real field: wrong units at the sender
+    wait_until(vehicle, lambda: running.service.counters.rejected["decode"] == 5)
+    counters = running.finish()
+    assert counters.emitted == 0 and counters.received == 5
+
+
+def test_degenerate_geometry_rejected_and_said_once(served):
+    running, vehicle = served
+    lock_on(vehicle)
+    along_gravity = rotate_ned_to_body(Q_TRUE, [0.0, 0.0, 1.0])
+    vehicle.stream(200, mag_uT=-40.0 * along_gravity)  # mag parallel to acc: no heading
+    wait_until(vehicle, lambda: running.service.pipeline.counters.rejected["DegenerateGeometryError"] > 0)
+    warn = vehicle.wait_for("STATUSTEXT", condition=lambda m: "collinear" in m.text)
+    assert warn.severity == mavlink2.MAV_SEVERITY_WARNING
+    counters = running.finish()
+    assert counters.emitted == 0
+    assert sum(1 for m in vehicle.received if m.get_type() == "STATUSTEXT" and "collinear" in m.text) == 1
+
+
+def test_configured_system_id_and_no_requests():
+    running = Running(make_config(**{"link.vehicle_system_id": 5, "link.request_messages": False}))
+    other = Autopilot(system=1)
+    wanted = Autopilot(system=5)
+    for peer in (other, wanted):
+        peer.target = running.link.local_address
+    other.send(other.heartbeat())
+    hb = other.wait_for("HEARTBEAT")
+    assert hb.get_srcSystem() == 5  # our id is the configured vehicle's from the start
+    wanted.send(wanted.heartbeat())
+    wait_until(wanted, lambda: running.service.vehicle == (5, 1))
+    wanted.stream(100)
+    wanted.wait_for("ATTITUDE_QUATERNION")
+    counters = running.finish()
+    assert counters.interval_requests == 0 and counters.ignored >= 1
+    assert not any(m.get_type() == "COMMAND_LONG" for m in wanted.received + other.received)
+    other.close()
+    wanted.close()
+
+
+def test_counters_line_logged_periodically_and_at_the_end(served, caplog):
+    running, vehicle = served
+    caplog.set_level(logging.INFO, logger="mavattitude.service")
+    lock_on(vehicle)
+    vehicle.stream(100)
+    vehicle.wait_for("ATTITUDE_QUATERNION")
+    wait_until(vehicle, lambda: any(r.getMessage().startswith("counters: ") for r in caplog.records))
+    running.finish()
+    final = [r.getMessage() for r in caplog.records if r.getMessage().startswith("counters (final): ")]
+    assert len(final) == 1
+    pairs = dict(item.split("=") for item in final[0].split(": ", 1)[1].split())
+    assert int(pairs["received"]) == 100
+    assert int(pairs["emitted"]) == running.result.emitted > 0
+    assert float(pairs["latency_p99_ms"]) >= float(pairs["latency_p50_ms"]) > 0.0
+    assert {"rejected.decode", "ignored", "mean_iterations", "bad_data", "signature_rejected"} <= pairs.keys()
+
+
+def test_counters_line_is_numbers_only():
+    pipeline_counters = AttitudePipeline(make_config()).counters
+    pipeline_counters.rejected["DegenerateGeometryError"] = 4
+    pipeline_counters.frontend.rejected["nan"] = 5
+    service_counters = ServiceCounters(acks={"DENIED": 2})
+    service_counters.rejected["decode"] = 1
+    line = counters_line(service_counters, LinkCounters(bad_data=3), pipeline_counters)
+    pairs = dict(item.split("=") for item in line.split())
+    assert pairs["acks.denied"] == "2" and pairs["bad_data"] == "3" and pairs["rejected.decode"] == "1"
+    assert pairs["rejected.DegenerateGeometryError"] == "4" and pairs["rejected.nan"] == "5"
+    assert pairs["mean_iterations"] == "nan"  # nothing emitted yet
+    assert all(math.isnan(float(v)) or float(v) >= 0 for v in pairs.values())
+
+
+def test_run_command_exits_zero_on_sigterm_with_final_counters(tmp_path):
+    vehicle = Autopilot()
+    cmd = [sys.executable, "-m", "mavattitude", "run", "--connect", f"udpout:127.0.0.1:{vehicle.address[1]}"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        vehicle.wait_for("HEARTBEAT", timeout_s=15.0)  # start-up imports numpy and pymavlink: allow for it
+        stopped_at = time.monotonic()
+        proc.terminate()
+        _, err = proc.communicate(timeout=5.0)
+        elapsed_s = time.monotonic() - stopped_at
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        vehicle.close()
+    assert proc.returncode == 0, err
+    assert elapsed_s < 1.0
+    assert "counters (final): received=0" in err
+
+
+def test_world_readable_key_refused_with_one_line(tmp_path):
+    key = tmp_path / "key"
+    key.write_bytes(bytes(32))
+    key.chmod(0o644)
+    cmd = [sys.executable, "-m", "mavattitude", "run", "--connect", "udpin:127.0.0.1:0", "--signing-key", str(key)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=30)
+    assert proc.returncode == 2
+    assert "world-readable" in proc.stderr and "Traceback" not in proc.stderr
