@@ -269,12 +269,13 @@ class FakeVehicle:
         for i in range(len(t)):
             vt = t[i] - epoch.boot_script_s + epoch.clock_offset_s
             msg = self.encode(ImuSample(vt, _vec(acc[i]), _vec(gyr[i]), _vec(mag[i]), name))
-            self.send(msg)
-            sent = time.monotonic()
+            # Logged before the send, so the log never lags the datagram (latency is then an upper bound
+            # by the pack + sendto time, a few µs).
             with self._cond:
                 self._sent_t_s.append(t[i])
-                self._sent_mono_s.append(sent)
+                self._sent_mono_s.append(time.monotonic())
                 self.imu_sent += 1
+            self.send(msg)
 
     def _send_heartbeat(self) -> None:
         autopilot = _AUTOPILOT.get(self.config.profile, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA)

@@ -1,0 +1,68 @@
+"""`mavattitude demo`: the service and the fake vehicle on loopback, with a live error table.
+
+Starts the fake vehicle on an ephemeral UDP port of 127.0.0.1, then `mavattitude run` as a subprocess
+connected to it (exactly as it runs on a companion computer), and prints once a second how far the
+ATTITUDE_QUATERNION the service sends is from the truth. Finite (``--duration``) and Ctrl-C safe: both
+processes are stopped and the whole run is scored at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import time
+
+from mavattitude.commands.simulate import add_vehicle_arguments, vehicle_from_args
+from mavattitude.config import METHODS
+from mavattitude.errors import MavAttitudeError
+from mavattitude.sim.daemon import ServiceProcess, config_for
+from mavattitude.sim.scoring import Score
+from mavattitude.sim.vehicle import FakeVehicle
+
+NAME = "demo"
+HELP = "run the service against the fake vehicle on loopback and print a live attitude error table"
+
+log = logging.getLogger(__name__)
+
+_START_TIMEOUT_S = 20.0
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_vehicle_arguments(parser, default_duration_s=20.0)
+    parser.add_argument(
+        "--method", default="ign", choices=METHODS, help="the service's estimator (default ign, the paper's)"
+    )
+    parser.add_argument("--interval", type=float, default=1.0, metavar="S", help="table row period, s (default 1)")
+
+
+def run(args: argparse.Namespace) -> int:
+    if not args.interval > 0:
+        raise MavAttitudeError(f"--interval must be positive, got {args.interval}")
+    with vehicle_from_args(args, "udpin:127.0.0.1:0", stream_on_start=False) as vehicle:
+        config = config_for(vehicle, estimator={"method": args.method})
+        with ServiceProcess(config, log_level="WARNING") as service:
+            print(f"fake vehicle on udp 127.0.0.1:{vehicle.port}, service pid {service.pid}, script {args.script}")
+            try:
+                _table(vehicle, service, args.duration, args.interval)
+            except KeyboardInterrupt:
+                print("interrupted")
+            code = service.stop()
+    print(f"service exit code {code}; whole run:")
+    print(Score.header())
+    print(vehicle.score().row())
+    return 0
+
+
+def _table(vehicle: FakeVehicle, service: ServiceProcess, duration_s: float, interval_s: float) -> None:
+    if not vehicle.wait_for_outputs(1, _START_TIMEOUT_S):
+        raise MavAttitudeError("the service sent no attitude in time; its log:\n" + service.log_tail())
+    print("     t " + Score.header().replace("\n", "\n       "))
+    start = len(vehicle.attitude_log)
+    while vehicle.script_time() < duration_s:
+        if not service.running:
+            raise MavAttitudeError("the service stopped; its log:\n" + service.log_tail())
+        time.sleep(interval_s)  # the table's pace, not a synchronisation
+        index = len(vehicle.attitude_log)
+        if index > start:
+            print(f"{vehicle.script_time():6.1f} {vehicle.score(start).row()}", flush=True)
+        start = index

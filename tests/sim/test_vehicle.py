@@ -1,0 +1,95 @@
+"""The fake vehicle as a MAVLink peer: real pymavlink over real UDP on 127.0.0.1."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from mavattitude.estimation.conventions import quat_multiply
+from mavattitude.link.mavlink2 import force_mavlink2, mavlink2, mavutil
+from mavattitude.sensors.units import decode, get_profile
+from mavattitude.sim import scenarios
+from mavattitude.sim.vehicle import FakeVehicle, VehicleConfig
+
+TIMEOUT_S = 5.0
+
+
+@pytest.fixture
+def vehicle() -> Iterator[FakeVehicle]:
+    config = VehicleConfig("udpin:127.0.0.1:0", seed=3)
+    with FakeVehicle(scenarios.paper_static(600.0), scenarios.paper_sensors(100.0), config) as v:
+        yield v
+
+
+@pytest.fixture
+def gcs(vehicle: FakeVehicle) -> Iterator[object]:
+    conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{vehicle.port}", source_system=1, source_component=191)
+    force_mavlink2(conn)
+    conn.mav.heartbeat_send(mavlink2.MAV_TYPE_ONBOARD_CONTROLLER, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+    yield conn
+    conn.close()
+
+
+def _recv(conn: object, kind: str) -> object:
+    msg = conn.recv_match(type=kind, blocking=True, timeout=TIMEOUT_S)  # type: ignore[attr-defined]
+    assert msg is not None, f"no {kind} within {TIMEOUT_S} s"
+    return msg
+
+
+def _set_interval(conn: object, msg_id: int, interval_us: float, param3: float = 0.0) -> int:
+    conn.mav.command_long_send(1, 1, mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, 0, msg_id, interval_us, param3, 0, 0, 0, 0)  # type: ignore[attr-defined]
+    ack = _recv(conn, "COMMAND_ACK")
+    assert ack.command == mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL
+    return int(ack.result)
+
+
+def test_silent_until_asked_then_streams_the_truth(vehicle: FakeVehicle, gcs: object) -> None:
+    heartbeat = _recv(gcs, "HEARTBEAT")
+    assert heartbeat.autopilot == mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA and heartbeat.get_srcComponent() == 1
+    # Between two heartbeats (≥ 1 s) a silent ArduPilot sends positions but no IMU.
+    seen = set()
+    while True:
+        msg = _recv(gcs, None)  # type: ignore[arg-type]
+        if msg.get_type() == "HEARTBEAT":
+            break
+        seen.add(msg.get_type())
+    assert "RAW_IMU" not in seen and "GLOBAL_POSITION_INT" in seen
+    # ArduPilot denies param3 ≠ 0; then accepts and streams at the asked rate.
+    assert _set_interval(gcs, mavlink2.MAVLINK_MSG_ID_RAW_IMU, 10_000, param3=1) == mavlink2.MAV_RESULT_DENIED
+    assert _set_interval(gcs, mavlink2.MAVLINK_MSG_ID_RAW_IMU, 10_000) == mavlink2.MAV_RESULT_ACCEPTED
+    assert vehicle.stream_rate("RAW_IMU") == pytest.approx(100.0)
+    profile = get_profile("ardupilot")
+    samples = [decode(_recv(gcs, "RAW_IMU"), profile) for _ in range(200)]
+    acc = np.array([s.acc_mps2 for s in samples])
+    mag = np.array([s.mag_uT for s in samples])
+    truth = vehicle.script.sample([1.0])
+    # Mean of 200 samples: noise σ/√200 plus quantisation (1 mG = 0.0098 m/s², 1 mgauss = 0.1 µT).
+    np.testing.assert_allclose(acc.mean(0), truth.specific_force_mps2[0], atol=0.01)
+    np.testing.assert_allclose(mag.mean(0), truth.mag_uT[0], atol=0.1)
+    t = np.array([s.time_s for s in samples])
+    assert np.all(np.diff(t) > 0) and np.median(np.diff(t)) == pytest.approx(0.01, abs=1e-3)
+    # −1 stops the stream; an unknown message is denied.
+    assert _set_interval(gcs, mavlink2.MAVLINK_MSG_ID_RAW_IMU, -1) == mavlink2.MAV_RESULT_ACCEPTED
+    assert vehicle.stream_rate("RAW_IMU") is None
+    assert _set_interval(gcs, mavlink2.MAVLINK_MSG_ID_PARAM_VALUE, 1000) == mavlink2.MAV_RESULT_DENIED
+
+
+def test_records_and_scores_attitude_it_receives(vehicle: FakeVehicle, gcs: object) -> None:
+    _recv(gcs, "HEARTBEAT")
+    vehicle.set_rate("RAW_IMU", 100.0)
+    sample = decode(_recv(gcs, "RAW_IMU"), get_profile("ardupilot"))
+    q = scenarios.PAPER_Q
+    tilted = np.array([np.cos(0.01), np.sin(0.01), 0.0, 0.0])  # 1.146° about body x
+    for k in range(10):
+        q_sent = quat_multiply(q, tilted) if k % 2 else q
+        gcs.mav.attitude_quaternion_send(round(sample.time_s * 1000) - 200 + 20 * k, *q_sent, 0, 0, 0, [0, 0, 0, 0])  # type: ignore[attr-defined]
+    assert vehicle.wait_for_outputs(10, TIMEOUT_S)
+    score = vehicle.score()
+    assert score.count == 10 and score.broken == 0
+    assert score.angle_max_deg == pytest.approx(np.degrees(0.02), rel=1e-4)
+    assert score.angle_rms_deg == pytest.approx(np.degrees(0.02) / np.sqrt(2), rel=1e-4)
+    assert score.output_rate_hz == pytest.approx(50.0, rel=1e-6)
+    # Outputs describe times already sent: the enabling IMU went out before the output arrived.
+    assert 0.0 < score.latency_p50_ms < 1000.0
