@@ -16,13 +16,15 @@ The estimator is a small strategy chosen by ``estimator.method``:
 
 A sample the solver cannot use (degenerate geometry, bad numbers) is counted by exception type, logged at
 debug level and not emitted; so is a tick without a magnetometer reading, or before the magnetic reference
-is known (``reference.magnetic: auto`` waits for :meth:`AttitudePipeline.set_position`). A quaternion that
+is known (``reference.magnetic: auto`` waits for :meth:`AttitudePipeline.set_position`, which looks the
+field up in the World Magnetic Model through :mod:`mavattitude.sensors.magref`). A quaternion that
 is not finite and unit is never output: it is counted as ``invalid_quaternion`` and the warm start dropped.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import datetime as dt
 import logging
 import math
 from collections import Counter
@@ -37,6 +39,7 @@ from mavattitude.errors import ConfigError, InputError, MavAttitudeError
 from mavattitude.estimation import NoiseModel, solve
 from mavattitude.estimation.conventions import Array
 from mavattitude.sensors.frontend import FrontEnd, FrontEndCounters, FrontEndSettings, ProcessedSample, SampleFlag
+from mavattitude.sensors.magref import MagneticReference
 from mavattitude.sensors.units import ImuSample
 
 log = logging.getLogger(__name__)
@@ -231,12 +234,25 @@ class AttitudePipeline:
         self.counters = PipelineCounters(self.frontend.counters)
         self.mag_ref_ned_uT: Array | None = None
         self.last_error: MavAttitudeError | None = None
-        self.set_magnetic_reference(*fixed_reference(config))
+        self.magref = MagneticReference.from_config(config.reference.magnetic)
+        self._apply_reference()
 
     @property
     def waiting_for_reference(self) -> bool:
         """True while ``reference.magnetic: auto`` has no position yet: nothing is emitted."""
         return self.mag_ref_ned_uT is None
+
+    def set_position(self, lat_deg: float, lon_deg: float, alt_m: float, when: dt.date | None = None) -> bool:
+        """A vehicle position (``reference.magnetic: auto``): the WMM field there on ``when`` (default today)
+        becomes the reference, recomputed after a move of a few km. True when the reference changed."""
+        changed = self.magref.update_position(lat_deg, lon_deg, alt_m, when)
+        if changed:
+            self._apply_reference()
+        return changed
+
+    def _apply_reference(self) -> None:
+        ref = self.magref.reference
+        self.set_magnetic_reference(ref.field_ned_uT, magnitude_known=ref.intensity_uT is not None)
 
     def set_magnetic_reference(self, field_ned_uT: Iterable[float] | None, magnitude_known: bool = True) -> None:
         """The NED field (µT) the solver aligns to (``None``: unknown, nothing is emitted). With
@@ -289,20 +305,3 @@ class AttitudePipeline:
         c.iterations += output.iterations
         c.not_converged += not output.converged
         return True
-
-
-def fixed_reference(config: Config) -> tuple[Array | None, bool]:
-    """The configured NED field in µT and whether its magnitude is known; ``None`` for ``auto``."""
-    m = config.reference.magnetic
-    if m.mode == "vector":
-        return np.array(m.field_ned_uT, dtype=float), True
-    if m.mode == "angles":
-        intensity = 1.0 if m.intensity_uT is None else m.intensity_uT
-        return field_from_angles(m.declination_deg, m.inclination_deg, intensity), m.intensity_uT is not None
-    return None, False
-
-
-def field_from_angles(declination_deg: float, inclination_deg: float, intensity_uT: float) -> Array:
-    """NED field of a declination (east of north) and inclination (down), both in degrees."""
-    d, i = math.radians(declination_deg), math.radians(inclination_deg)
-    return intensity_uT * np.array([math.cos(i) * math.cos(d), math.cos(i) * math.sin(d), math.sin(i)])

@@ -1,0 +1,201 @@
+"""The streaming pipeline: front end → estimator, warm starts, rejected samples, checked outputs."""
+
+from __future__ import annotations
+
+import datetime as dt
+
+import numpy as np
+import pytest
+
+from mavattitude import pipeline as pipeline_module
+from mavattitude.config import from_dict
+from mavattitude.errors import ConfigError
+from mavattitude.estimation import solve as real_solve
+from mavattitude.estimation.conventions import angle_between, quat_from_euler, rotate_ned_to_body
+from mavattitude.pipeline import AttitudePipeline
+from mavattitude.sensors.magref import field_from_angles, wmm_field_ned_uT
+from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2, ImuSample
+
+G = STANDARD_GRAVITY_MPS2
+FIELD_NED_UT = np.array(field_from_angles(2.0, 60.0, 50.0))
+Q_TRUE = quat_from_euler(np.radians(10.0), np.radians(-20.0), np.radians(135.0))
+ACC_STD, MAG_STD = 0.05, 0.5  # the config's default σ, used to draw the noise below
+MAX_ERR_DEG = 1.6  # 4σ of the filtered heading error (test_static_attitude_at_the_output_rate)
+ANGLES = {"reference": {"magnetic": {"declination_deg": 2.0, "inclination_deg": 60.0, "intensity_uT": 50.0}}}
+
+
+def static_samples(
+    n: int = 400,
+    rate_hz: float = 200.0,
+    q: np.ndarray = Q_TRUE,
+    field_ned_uT: np.ndarray = FIELD_NED_UT,
+    board_from_body: np.ndarray | None = None,
+    seed: int = 1,
+    t0_s: float = 10.0,
+) -> list[ImuSample]:
+    """A vehicle at rest at attitude ``q``: specific force −g (up), the field, seeded white noise."""
+    rng = np.random.default_rng(seed)
+    acc = rotate_ned_to_body(q, [0.0, 0.0, -G]) + rng.normal(0.0, ACC_STD, (n, 3))
+    mag = rotate_ned_to_body(q, field_ned_uT) + rng.normal(0.0, MAG_STD, (n, 3))
+    gyr = rng.normal(0.0, 1e-3, (n, 3))
+    if board_from_body is not None:
+        acc, mag, gyr = acc @ board_from_body.T, mag @ board_from_body.T, gyr @ board_from_body.T
+    return [ImuSample(t0_s + i / rate_hz, tuple(acc[i]), tuple(gyr[i]), tuple(mag[i]), "RAW_IMU") for i in range(n)]
+
+
+def run(p: AttitudePipeline, samples: list[ImuSample]) -> list:
+    return [o for s in samples for o in p.push(s)]
+
+
+def test_static_attitude_at_the_output_rate():
+    p = AttitudePipeline(from_dict(ANGLES))
+    out = run(p, static_samples())
+    # 2 s of input at 200 Hz → the 50 Hz ticks from 10.00 s to 11.98 s.
+    assert len(out) == 100
+    assert np.allclose(np.diff([o.time_s for o in out]), 0.02)
+    settled_deg = np.degrees(angle_between(np.array([o.q for o in out[10:]]), Q_TRUE))
+    # Per raw sample the heading σ is σ_m/(B cos I) = 0.5/25 rad = 1.15° (tilt: σ_a/g = 0.3°). The 10 Hz
+    # Butterworth passes 11.1 Hz of noise bandwidth out of 100 Hz: σ × 0.33 ≈ 0.40°. The first ticks still
+    # carry the first raw sample (the filter starts at its steady state), hence out[10:].
+    assert np.sqrt(np.mean(settled_deg**2)) < 0.5
+    assert settled_deg.max() < MAX_ERR_DEG
+    assert all(o.converged for o in out)
+    assert all(np.allclose(o.rates_radps, 0.0, atol=3e-3) for o in out)  # gyro noise σ 1e-3 rad/s
+    assert p.counters.emitted == 100 and not p.counters.rejected
+    assert "RESET" in out[0].flags and "RESET" not in out[1].flags
+
+
+def test_covariance_is_the_solvers_3x3_prediction():
+    out = run(AttitudePipeline(from_dict(ANGLES)), static_samples(n=40))
+    cov = out[-1].covariance
+    assert cov.shape == (3, 3)
+    assert np.allclose(cov, cov.T)
+    assert np.all(np.linalg.eigvalsh(cov) > 0)
+    # Its size follows the noise model: the tilt σ is of order σ_a/g (unfiltered per-sample σ).
+    assert 0.1 * ACC_STD / G < np.sqrt(cov[0, 0]) < 10 * ACC_STD / G
+
+
+def test_each_solve_is_warm_started_from_the_previous_answer(monkeypatch):
+    starts = []
+
+    def recording_solve(*args, q0=None, **kwargs):
+        starts.append(None if q0 is None else np.array(q0))
+        return real_solve(*args, q0=q0, **kwargs)
+
+    monkeypatch.setattr(pipeline_module, "solve", recording_solve)
+    out = run(AttitudePipeline(from_dict(ANGLES)), static_samples(n=100))
+    assert starts[0] is None  # the first tick starts from TRIAD
+    assert len(starts) == len(out)
+    for previous, start in zip(out[:-1], starts[1:], strict=True):
+        assert np.array_equal(start, previous.q)
+
+
+def test_a_gap_resets_the_warm_start(monkeypatch):
+    starts = []
+
+    def recording_solve(*args, q0=None, **kwargs):
+        starts.append(q0)
+        return real_solve(*args, q0=q0, **kwargs)
+
+    monkeypatch.setattr(pipeline_module, "solve", recording_solve)
+    p = AttitudePipeline(from_dict(ANGLES))
+    first = run(p, static_samples(n=40, t0_s=10.0))
+    second = run(p, static_samples(n=40, t0_s=11.0))  # 0.8 s gap > input_timeout_s 0.5 s
+    assert "RESET" in second[0].flags
+    assert starts[len(first)] is None
+    assert p.frontend.counters.gap_resets == 1
+
+
+def test_degenerate_samples_are_counted_not_emitted():
+    p = AttitudePipeline(from_dict(ANGLES))
+    # Field along gravity (inclination 90°) while the reference is at 60°: the measured vectors are collinear.
+    vertical = np.array([0.0, 0.0, 50.0])
+    bad = run(p, static_samples(n=40, field_ned_uT=vertical))
+    assert bad == []
+    assert p.counters.rejected["DegenerateGeometryError"] == p.counters.ticks > 0
+    assert "from collinear" in str(p.last_error)
+    good = run(p, static_samples(n=40, t0_s=10.2))
+    assert len(good) > 0
+    assert np.degrees(angle_between(good[-1].q, Q_TRUE)) < MAX_ERR_DEG
+
+
+class _Broken:
+    def __init__(self, q):
+        self.q, self.iterations, self.converged, self.covariance = np.asarray(q), 1, True, np.eye(3)
+
+
+@pytest.mark.parametrize("bad_q", [[np.nan, 0, 0, 0], [1.0, 0.01, 0, 0], [np.inf, 0, 0, 0]])
+def test_a_non_finite_or_non_unit_quaternion_is_never_output(monkeypatch, bad_q):
+    starts = []
+
+    def broken_solve(*args, q0=None, **kwargs):
+        starts.append(q0)
+        return _Broken(bad_q)
+
+    monkeypatch.setattr(pipeline_module, "solve", broken_solve)
+    p = AttitudePipeline(from_dict(ANGLES))
+    assert run(p, static_samples(n=40)) == []
+    assert p.counters.rejected["invalid_quaternion"] == p.counters.ticks > 0
+    assert all(q0 is None for q0 in starts)  # a bad answer is never a warm start
+
+
+def test_auto_reference_waits_for_a_position_then_uses_the_world_magnetic_model():
+    p = AttitudePipeline(from_dict({}))  # reference.magnetic: auto
+    assert p.waiting_for_reference
+    when = dt.date(2026, 6, 1)
+    lat, lon, alt = 48.14, 11.58, 520.0
+    wmm = np.array(wmm_field_ned_uT(lat, lon, alt, when))
+    samples = static_samples(n=200, field_ned_uT=wmm)
+    assert run(p, samples[:100]) == []
+    assert p.counters.rejected["no_reference"] > 0
+    assert p.set_position(lat, lon, alt, when)
+    assert not p.waiting_for_reference
+    out = run(p, samples[100:])
+    assert len(out) > 0
+    assert np.degrees(angle_between(out[-1].q, Q_TRUE)) < MAX_ERR_DEG
+    assert np.isclose(p.frontend.expected_field_uT, np.linalg.norm(wmm))  # |B| screening on
+    assert not p.set_position(lat + 0.001, lon, alt, when)  # ~100 m: not recomputed
+
+
+def test_without_the_filter_every_input_sample_is_solved():
+    p = AttitudePipeline(from_dict({**ANGLES, "filter": {"enabled": False}}))
+    samples = static_samples(n=30, rate_hz=100.0)
+    out = run(p, samples)
+    assert [o.time_s for o in out] == [s.time_s for s in samples]
+    # Unfiltered: per-sample heading σ ≈ 1.1° (static test), so 5° is > 4σ.
+    assert np.degrees(angle_between(np.array([o.q for o in out]), Q_TRUE)).max() < 5.0
+
+
+def test_mounting_from_the_config_reaches_the_front_end():
+    yaw_90 = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # body = Rz(90°) board
+    samples = static_samples(n=100, board_from_body=yaw_90.T)
+    mounted = run(AttitudePipeline(from_dict({**ANGLES, "mounting": {"rotation": "YAW_90"}})), samples)
+    unmounted = run(AttitudePipeline(from_dict(ANGLES)), samples)
+    assert np.degrees(angle_between(mounted[-1].q, Q_TRUE)) < MAX_ERR_DEG
+    assert np.degrees(angle_between(unmounted[-1].q, Q_TRUE)) > 45.0
+
+
+def test_an_unknown_mounting_name_is_a_config_error():
+    with pytest.raises(ConfigError, match="unknown mounting rotation 'YAW_91'"):
+        AttitudePipeline(from_dict({"mounting": {"rotation": "YAW_91"}}))
+
+
+@pytest.mark.parametrize("method", ["cgn", "ml", "triad"])
+def test_every_snapshot_method_runs(method):
+    out = run(AttitudePipeline(from_dict({**ANGLES, "estimator": {"method": method}})), static_samples(n=100))
+    assert len(out) == 25
+    assert np.degrees(angle_between(out[-1].q, Q_TRUE)) < MAX_ERR_DEG
+    if method == "triad":
+        assert all(o.iterations == 0 for o in out)
+
+
+def test_the_fused_filter_plugs_in():
+    p = AttitudePipeline(from_dict({**ANGLES, "estimator": {"method": "fused"}}))
+    out = run(p, static_samples(n=400))
+    assert len(out) > 50
+    assert np.allclose(np.diff([o.time_s for o in out]), 0.02)  # the filter's own 50 Hz ticks
+    q = np.array([o.q for o in out])
+    assert np.allclose(np.linalg.norm(q, axis=1), 1.0)
+    # At rest the filter is no worse than the snapshot bound.
+    assert np.degrees(angle_between(q[-1], Q_TRUE)) < MAX_ERR_DEG
+    assert out[-1].covariance.shape == (3, 3)
