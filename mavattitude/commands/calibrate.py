@@ -1,0 +1,201 @@
+"""`mavattitude calibrate mag INPUT -o OUT.yaml`: hard- and soft-iron calibration by ellipsoid fit.
+
+INPUT is a CSV (``.csv`` or ``.csv.gz`` with columns ``mag_x_uT, mag_y_uT, mag_z_uT``; rows with a
+``mag_new`` column of 0 are repeats and skipped), a telemetry log (``.tlog``), or a pymavlink connection
+string (``udpin:0.0.0.0:14550``, ``tcp:HOST:PORT``, ``/dev/ttyACM0``) to collect live while the vehicle is
+turned by hand. The result is the ``calibration: mag:`` block of the config.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import gzip
+import logging
+import sys
+import time
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+import yaml
+
+from mavattitude.errors import CalibrationError, DataFileError, SensorError
+from mavattitude.sensors import magfit, units
+from mavattitude.sensors.calibration import mag_block
+
+NAME = "calibrate"
+HELP = "fit the magnetometer's hard- and soft-iron calibration (ellipsoid fit) and write its YAML block"
+
+log = logging.getLogger(__name__)
+
+MAG_COLUMNS = ("mag_x_uT", "mag_y_uT", "mag_z_uT")
+LIVE_MIN_SAMPLES = 500  # live collection stops once coverage is met with at least this many samples
+PROGRESS_EVERY = 100
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("sensor", choices=["mag"], help="the sensor to calibrate (mag: magnetometer)")
+    parser.add_argument(
+        "input",
+        metavar="INPUT",
+        help="a CSV (.csv/.csv.gz, columns mag_x_uT, mag_y_uT, mag_z_uT in µT, sensor frame), a .tlog, "
+        "or a connection string (udpin:0.0.0.0:14550, tcp:HOST:PORT, /dev/ttyACM0) to collect live",
+    )
+    parser.add_argument("-o", "--output", required=True, metavar="OUT.yaml", help="YAML file to write")
+    parser.add_argument(
+        "--profile",
+        default="ardupilot",
+        choices=sorted(units.PROFILES),
+        help="unit profile of the IMU messages in a .tlog or on the link (default ardupilot)",
+    )
+    parser.add_argument(
+        "--message",
+        choices=units.MESSAGES,
+        help="IMU message to read from a .tlog or the link (default: the first one the profile reads that the "
+        "log holds; RAW_IMU live)",
+    )
+    parser.add_argument("--system-id", type=int, help="read only this MAVLink system (default: any)")
+    parser.add_argument(
+        "--field-uT",
+        type=float,
+        metavar="B",
+        help="the local field magnitude in µT: the calibrated |B| is scaled to it "
+        "(default: keep the sensor's scale, determinant of the soft-iron matrix 1)",
+    )
+    parser.add_argument(
+        "--min-coverage",
+        type=float,
+        default=magfit.MIN_COVERAGE,
+        metavar="F",
+        help=f"fraction of the 26 orientation cells the data must cover (default {magfit.MIN_COVERAGE})",
+    )
+    parser.add_argument(
+        "--duration",
+        type=float,
+        default=180.0,
+        metavar="S",
+        help="live: give up after this many seconds (default 180); collection ends earlier once coverage "
+        f"is met with at least {LIVE_MIN_SAMPLES} samples",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    source = args.input
+    if source.endswith((".csv", ".csv.gz")):
+        mag = read_csv_mag(Path(source))
+    elif source.endswith(".tlog"):
+        mag = _collect(_tlog_samples(Path(source), args), args, sys.stderr)
+    else:
+        mag = _collect(_live_samples(source, args), args, sys.stderr)
+    fit = magfit.fit_ellipsoid(mag, field_uT=args.field_uT, min_coverage=args.min_coverage)
+    Path(args.output).write_text(
+        "# magnetometer calibration written by `mavattitude calibrate mag`: mag = soft_iron (raw − hard_iron_uT)\n"
+        + yaml.safe_dump(mag_block(fit.hard_iron_uT, fit.soft_iron), sort_keys=False)
+    )
+    print(report(fit, args.output))
+    return 0
+
+
+def report(fit: magfit.MagFit, output: str) -> str:
+    lines = [
+        f"{fit.samples} samples, orientation coverage {fit.coverage:.0%}, {fit.iterations} refinement iterations",
+        f"|B| spread (std / mean): before {fit.spread_before:.2%}, after {fit.spread_after:.2%}",
+        f"fit residual rms {fit.residual_rms_uT:.3f} µT on |B| = {fit.radius_uT:.2f} µT",
+        "hard iron (µT): " + ", ".join(f"{v:.3f}" for v in fit.hard_iron_uT),
+        "soft iron: " + "; ".join(", ".join(f"{v:.5f}" for v in row) for row in fit.soft_iron),
+        f"written to {output}",
+    ]
+    return "\n".join(lines)
+
+
+def read_csv_mag(path: Path) -> np.ndarray:
+    """The magnetometer columns of a CSV (µT), skipping rows marked ``mag_new == 0``."""
+    if not path.is_file():
+        raise DataFileError(f"{path}: no such file")
+    opener = gzip.open if path.suffix == ".gz" else open
+    with opener(path, "rt", newline="") as f:
+        reader = csv.reader(f)
+        header = next(reader, None)
+        if header is None:
+            raise DataFileError(f"{path}: empty file")
+        header = [h.strip() for h in header]
+        missing = [c for c in MAG_COLUMNS if c not in header]
+        if missing:
+            raise DataFileError(f"{path}: missing column(s) {', '.join(missing)} (have {', '.join(header)})")
+        cols = [header.index(c) for c in MAG_COLUMNS]
+        new = header.index("mag_new") if "mag_new" in header else None
+        rows = []
+        for number, row in enumerate(reader, start=2):
+            try:
+                if new is not None and float(row[new]) == 0.0:
+                    continue
+                rows.append([float(row[c]) for c in cols])
+            except (ValueError, IndexError) as exc:
+                raise DataFileError(f"{path}:{number}: not a number row: {exc}") from exc
+    return np.array(rows, dtype=float).reshape(-1, 3)
+
+
+def _imu_sample(msg: Any, profile: units.UnitProfile) -> units.ImuSample | None:
+    try:
+        return units.decode(msg, profile)
+    except SensorError as exc:
+        log.warning("skipped a %s: %s", msg.get_type(), exc)
+        return None
+
+
+def _tlog_samples(path: Path, args: argparse.Namespace) -> Iterator[units.ImuSample]:
+    from mavattitude.link.tlog import read_messages
+
+    profile = units.get_profile(args.profile)
+    wanted = [args.message] if args.message else list(profile.messages)
+    chosen = args.message
+    for msg in read_messages(path, wanted, system_id=args.system_id):
+        chosen = chosen or msg.get_type()  # the first IMU message the log holds decides
+        if msg.get_type() != chosen:
+            continue
+        sample = _imu_sample(msg, profile)
+        if sample is not None:
+            yield sample
+
+
+def _live_samples(connect: str, args: argparse.Namespace) -> Iterator[units.ImuSample]:
+    from mavattitude.link.connection import MavlinkLink
+
+    profile = units.get_profile(args.profile)
+    message = args.message or "RAW_IMU"
+    deadline = time.monotonic() + args.duration
+    with MavlinkLink(connect, source_system=args.system_id or 1) as link:
+        while time.monotonic() < deadline:
+            for _, msg in link.recv(timeout_s=0.2):
+                if msg.get_type() != message or (args.system_id and msg.get_srcSystem() != args.system_id):
+                    continue
+                sample = _imu_sample(msg, profile)
+                if sample is not None:
+                    yield sample
+
+
+def _collect(samples: Iterable[units.ImuSample], args: argparse.Namespace, out: TextIO) -> np.ndarray:
+    """Magnetometer readings from a sample stream, with a coverage progress line on ``out``.
+
+    Coverage is judged on the raw directions (the offset is not known yet), so it reads low for a sensor
+    with a large hard-iron offset; the fit judges it again afterwards.
+    """
+    rows: list[tuple[float, float, float]] = []
+    frac = 0.0
+    for sample in samples:
+        if sample.mag_uT is None:
+            continue
+        rows.append(sample.mag_uT)
+        if len(rows) % PROGRESS_EVERY == 0:
+            frac, counts = magfit.coverage(np.array(rows))
+            bar = "".join("#" if c >= magfit.MIN_PER_CELL else "." for c in counts)
+            out.write(f"\rcoverage [{bar}] {frac:.0%} of orientations, {len(rows)} samples ")
+            out.flush()
+            if frac >= args.min_coverage and len(rows) >= LIVE_MIN_SAMPLES and not args.input.endswith(".tlog"):
+                break
+    out.write("\n")
+    if not rows:
+        raise CalibrationError(f"{args.input}: no magnetometer readings found")
+    return np.array(rows, dtype=float)
