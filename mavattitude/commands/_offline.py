@@ -1,0 +1,154 @@
+"""What the offline commands (`solve`, `replay`) share: the config flags, the output CSV and progress."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import gzip
+import sys
+import time
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import IO, Any, TextIO
+
+import numpy as np
+
+from mavattitude.config import METHODS, Config, load_config
+from mavattitude.errors import ConfigError, DataFileError
+
+OUTPUT_COLUMNS = ("t_s", "qw", "qx", "qy", "qz", "roll_deg", "pitch_deg", "yaw_deg", "iterations", "converged")
+# Inputs at least this long show progress on stderr unless --no-progress.
+PROGRESS_MIN_SAMPLES = 50_000
+
+
+def add_config_arguments(parser: argparse.ArgumentParser) -> None:
+    """The flags that override the config (they take precedence over --config and $MAVATTITUDE_CONFIG)."""
+    parser.add_argument("--config", metavar="FILE", help="YAML config (see configs/); flags below override it")
+    parser.add_argument("--method", choices=METHODS, help="estimator (config default: ign)")
+    ref = parser.add_mutually_exclusive_group()
+    ref.add_argument(
+        "--declination",
+        type=float,
+        metavar="DEG",
+        help="magnetic declination, degrees east of true north (with --inclination)",
+    )
+    ref.add_argument("--mag-ref-ned", type=float, nargs=3, metavar=("N", "E", "D"), help="magnetic field in NED, µT")
+    parser.add_argument("--inclination", type=float, metavar="DEG", help="magnetic inclination (dip), degrees down")
+    parser.add_argument(
+        "--accel-std",
+        type=_std,
+        metavar="S",
+        help="accelerometer noise σ, m/s²: one value or three comma-separated (config default: 0.05)",
+    )
+    parser.add_argument(
+        "--mag-std",
+        type=_std,
+        metavar="S",
+        help="magnetometer noise σ, µT: one value or three comma-separated (config default: 0.5)",
+    )
+    parser.add_argument(
+        "--filter",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="low-pass and resample to the output rate (50 Hz by default) as the service does; --no-filter "
+        "solves every input sample (default: --filter)",
+    )
+    parser.add_argument(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help=f"progress on stderr (default: only for inputs of {PROGRESS_MIN_SAMPLES} samples or more)",
+    )
+
+
+def _std(text: str) -> float | list[float]:
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected one number or three comma-separated") from None
+    if len(values) not in (1, 3):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected one number or three comma-separated")
+    return values[0] if len(values) == 1 else values
+
+
+def config_from_args(args: argparse.Namespace) -> Config:
+    """The effective config: the flags over $MAVATTITUDE_CONFIG over --config over the defaults."""
+    overrides: dict[str, Any] = {}
+    if (args.declination is None) != (args.inclination is None):
+        raise ConfigError("--declination and --inclination go together")
+    if args.declination is not None:
+        overrides["reference.magnetic"] = {"declination_deg": args.declination, "inclination_deg": args.inclination}
+    if args.mag_ref_ned is not None:
+        overrides["reference.magnetic"] = {"field_ned_uT": list(args.mag_ref_ned)}
+    for flag, key in (
+        ("method", "estimator.method"),
+        ("accel_std", "noise.accel_std_mps2"),
+        ("mag_std", "noise.mag_std_uT"),
+        ("filter", "filter.enabled"),
+    ):
+        if getattr(args, flag) is not None:
+            overrides[key] = getattr(args, flag)
+    return load_config(args.config, overrides)
+
+
+def open_text(path: str | Path, mode: str) -> IO[str]:
+    """A text file, gzip-compressed when its name ends in .gz."""
+    path = Path(path)
+    try:
+        if path.suffix == ".gz":
+            return gzip.open(path, mode + "t", encoding="utf-8", newline="")  # type: ignore[return-value]
+        return path.open(mode, encoding="utf-8", newline="")
+    except OSError as exc:
+        raise DataFileError(f"{path}: cannot open: {exc.strerror or exc}") from exc
+
+
+def write_outputs(path: str | Path, rows: Iterable[Sequence[Any]]) -> int:
+    """Write the attitude CSV (``OUTPUT_COLUMNS``); returns the number of rows."""
+    n = 0
+    with open_text(path, "w") as f:
+        writer = csv.writer(f, lineterminator="\n")
+        writer.writerow(OUTPUT_COLUMNS)
+        for row in rows:
+            writer.writerow(row)
+            n += 1
+    return n
+
+
+def output_row(time_s: float, q: np.ndarray, iterations: int, converged: bool) -> list[str]:
+    from mavattitude.estimation.conventions import euler_from_quat
+
+    rpy_deg = np.degrees(euler_from_quat(q))
+    return [
+        f"{time_s:.6f}",
+        *(f"{v:.9f}" for v in q),
+        *(f"{v:.4f}" for v in rpy_deg),
+        str(iterations),
+        str(int(converged)),
+    ]
+
+
+class Progress:
+    """A progress line on stderr, redrawn in place on a terminal, every 10% otherwise."""
+
+    def __init__(self, total: int, enabled: bool | None, label: str, stream: TextIO | None = None) -> None:
+        self.total = max(total, 1)
+        self.enabled = total >= PROGRESS_MIN_SAMPLES if enabled is None else enabled
+        self.label = label
+        self.stream = stream or sys.stderr
+        self._tty = self.stream.isatty()
+        self._shown = -1
+        self._start = time.monotonic()
+
+    def update(self, done: int) -> None:
+        if not self.enabled:
+            return
+        percent = 100 * done // self.total
+        step = 1 if self._tty else 10
+        if percent // step == self._shown // step and done < self.total:
+            return
+        self._shown = percent
+        bar = "#" * (percent // 5)
+        end = "\r" if self._tty and done < self.total else "\n"
+        elapsed = time.monotonic() - self._start
+        self.stream.write(f"{self.label}: [{bar:<20}] {percent:3d}% {done}/{self.total} {elapsed:.1f} s{end}")
+        self.stream.flush()
