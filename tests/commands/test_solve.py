@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import gzip
 import re
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -19,6 +20,7 @@ from mavattitude.config import ENV_VAR
 from mavattitude.estimation.conventions import angle_between, euler_from_quat, quat_from_euler, rotate_ned_to_body
 from mavattitude.sensors.magref import field_from_angles
 
+ENV_WITHOUT_OVERLAY = {k: v for k, v in os.environ.items() if k != ENV_VAR}
 ROOT = Path(__file__).resolve().parents[2]
 PX4_CSV = ROOT / ".." / "shared" / "data" / "px4" / "px4_sample_sensors.csv.gz"
 G = 9.80665
@@ -183,7 +185,13 @@ def test_real_px4_log_as_a_subprocess_agrees_with_the_autopilot(tmp_path):
     # The onboard estimator ran with declination 0: its yaw is magnetic, so is ours.
     args = ["solve", str(PX4_CSV), "-o", str(out), "--declination", "0", "--inclination"]
     args.append(f"{_measured_inclination_deg(acc, mag):.3f}")
-    done = subprocess.run([sys.executable, "-m", "mavattitude", *args], capture_output=True, text=True, timeout=60)
+    done = subprocess.run(
+        [sys.executable, "-m", "mavattitude", *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=ENV_WITHOUT_OVERLAY,
+    )
     assert done.returncode == 0, done.stderr
     _, rows = read_output(out)
     assert len(rows) == pytest.approx(69 * 50, rel=0.01)  # 69 s at 50 Hz
