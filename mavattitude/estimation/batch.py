@@ -1,7 +1,7 @@
 """The vectorised solver over N samples: the per-sample path's equations (:mod:`.kernel`) on arrays.
 
-Every sample starts from TRIAD and iterates exactly as :func:`.solve.solve` does (a sample whose last
-correction met the tolerance is frozen, as the per-sample loop returns), so the two agree to rounding.
+Every sample starts from TRIAD and iterates exactly as :func:`.solve.solve` does (a sample that has
+converged takes no further correction, as the per-sample loop returns), so the two agree to rounding.
 Work is done in chunks that fit the CPU cache.
 """
 
@@ -56,11 +56,15 @@ def solve_batch(
     n = acc_a.shape[0]
     mag_a = _samples("mag", mag, n)
     refs = {name: _samples(name, v, n) for name, v in (("acc_ref", acc_ref), ("mag_ref", mag_ref))}
+    arrays = (acc_a, mag_a, refs["acc_ref"], refs["mag_ref"])
+    _check(*(np.broadcast_to(a, (n, 3)) for a in arrays), sin_min, min_angle_deg)
     out = BatchResult(np.empty((n, 4)), np.empty(n, dtype=np.int64), np.empty(n, dtype=bool), np.empty(n))
     for start in range(0, n, CHUNK):
         sl = slice(start, min(start + CHUNK, n))
-        chunk = [_columns(a, sl) for a in (acc_a, mag_a, refs["acc_ref"], refs["mag_ref"])]
-        _solve_chunk(chunk, noise, method, max_iterations, tolerance, sin_min, min_angle_deg, start, out, sl)
+        q, iterations, converged, loss = _solve_chunk(
+            [_columns(a, sl) for a in arrays], noise, method, max_iterations, tolerance
+        )
+        out.q[sl], out.iterations[sl], out.converged[sl], out.loss[sl] = q, iterations, converged, loss
     if full_output:
         return out
     if not out.converged.all():
@@ -91,35 +95,31 @@ def _columns(a: NDArray[np.float64], sl: slice) -> tuple:
     return tuple(np.ascontiguousarray(a[sl].T))
 
 
-def _unit(name: str, raw: tuple, offset: int) -> tuple[tuple, object]:
-    n = kernel.norm(raw)
-    bad = ~np.asarray((n > 0.0) & (n < np.inf))  # also catches NaN
-    if np.any(bad):
-        first = offset + int(np.flatnonzero(np.atleast_1d(bad))[0])
-        raise InputError(f"{name} must be finite and non-zero: {int(np.sum(bad))} bad sample(s), first: sample {first}")
-    return kernel.scaled(raw, 1.0 / n), n
+def _check(acc, mag, acc_ref, mag_ref, sin_min: float, min_angle_deg: float) -> None:
+    """The per-sample path's input checks over all samples at once, naming the first offender."""
+    units = {}
+    for name, a in (("acc", acc), ("mag", mag), ("acc_ref", acc_ref), ("mag_ref", mag_ref)):
+        n = np.linalg.norm(a, axis=1)
+        _fail(InputError, ~((n > 0.0) & (n < np.inf)), f"{name} must be finite and non-zero")  # NaN too
+        units[name] = a / n[:, None]
+    for what, (a, b) in (("acc and mag", ("acc", "mag")), ("acc_ref and mag_ref", ("acc_ref", "mag_ref"))):
+        s = np.linalg.norm(np.cross(units[a], units[b]), axis=1)
+        bad = ~(s >= sin_min)
+        if bad.any():
+            _fail(DegenerateGeometryError, bad, geometry_message(what, float(s[bad][0]), min_angle_deg))
 
 
-def _check_geometry(what: str, s: object, sin_min: float, min_angle_deg: float, offset: int) -> None:
-    bad = np.atleast_1d(~(np.asarray(s) >= sin_min))
-    if np.any(bad):
-        i = int(np.flatnonzero(bad)[0])
-        raise DegenerateGeometryError(
-            f"sample {offset + i} (and {int(bad.sum()) - 1} more): "
-            + geometry_message(what, float(np.atleast_1d(s)[i]), min_angle_deg)
-        )
+def _fail(error: type[InputError], bad: NDArray[np.bool_], message: str) -> None:
+    if bad.any():
+        first = int(np.flatnonzero(bad)[0])
+        raise error(f"{message}: {int(bad.sum())} bad sample(s), first: sample {first}")
 
 
-def _solve_chunk(chunk, noise, method, max_iterations, tolerance, sin_min, min_angle_deg, offset, out, sl) -> None:
-    acc, mag, acc_ref, mag_ref = chunk
-    w_acc, n_acc = _unit("acc", acc, offset)
-    w_mag, n_mag = _unit("mag", mag, offset)
-    v_acc, _ = _unit("acc_ref", acc_ref, offset)
-    v_mag, _ = _unit("mag_ref", mag_ref, offset)
+def _solve_chunk(chunk: list, noise: NoiseModel, method: str, max_iterations: int, tolerance: float) -> tuple:
+    """Solve one chunk of checked samples; returns ``(q (n, 4), iterations, converged, loss)``."""
+    (w_acc, n_acc), (w_mag, n_mag), (v_acc, _), (v_mag, _) = (_unit(v) for v in chunk)
     s_body = kernel.norm(kernel.cross(w_acc, w_mag))
-    _check_geometry("acc and mag", s_body, sin_min, min_angle_deg, offset)
     s_ref = kernel.norm(kernel.cross(v_acc, v_mag))
-    _check_geometry("acc_ref and mag_ref", s_ref, sin_min, min_angle_deg, offset)
 
     obs = kernel.observations(method, (w_mag, n_mag, v_mag, noise.mag_var), (w_acc, n_acc, v_acc, noise.accel_var))
     r = np.stack(np.broadcast_arrays(*kernel.triad(w_acc, w_mag, v_acc, v_mag, s_body, s_ref)), -1)
@@ -127,27 +127,22 @@ def _solve_chunk(chunk, noise, method, max_iterations, tolerance, sin_min, min_a
     ml = method == "ml"
     size = q[0].shape[0]
     iterations = np.zeros(size, dtype=np.int64)
-    loss = np.empty(size)
-    done = np.zeros(size, dtype=bool)
-    if method == "triad":
-        loss[:] = kernel.wahba_loss(q, obs, ml)
-        done[:] = True
+    done = np.full(size, method == "triad")
     step = kernel.matrix_weight_step if ml else kernel.scalar_weight_step
-    tol2 = tolerance * tolerance
-    for k in range(1, max_iterations + 1):
+    previous = np.full(size, np.nan)
+    for _ in range(max_iterations):
         if done.all():
             break
-        q_next, d2, step_loss = step(q, obs)
-        newly = ~done & (d2 <= tol2)  # as solve(): the sample returns q, and the loss at q
-        loss[newly] = step_loss[newly]
-        iterations[newly] = k
-        done |= newly
-        q = tuple(np.where(done, a, b) for a, b in zip(q, q_next, strict=True))
-    if not done.all():
-        loss[~done] = np.asarray(kernel.wahba_loss(q, obs, ml))[~done]
-        iterations[~done] = max_iterations
+        q_next, angle = step(q, obs)
+        active = ~done  # as solve(): a converged sample takes no further correction
+        q = tuple(np.where(active, b, a) for a, b in zip(q, q_next, strict=True))
+        iterations += active
+        done = done | (active & kernel.converged(angle, previous, tolerance))
+        previous = angle
     qa = np.stack(q, -1)
-    out.q[sl] = np.where(qa[:, :1] < 0.0, -qa, qa)
-    out.iterations[sl] = iterations
-    out.converged[sl] = done
-    out.loss[sl] = loss
+    return np.where(qa[:, :1] < 0.0, -qa, qa), iterations, done, kernel.wahba_loss(q, obs, ml)
+
+
+def _unit(raw: tuple) -> tuple[tuple, object]:
+    n = kernel.norm(raw)
+    return kernel.scaled(raw, 1.0 / n), n

@@ -52,7 +52,7 @@ def predicted_covariance(acc: ArrayLike, mag: ArrayLike, noise: NoiseModel, meth
             kernel.paper_weight(w_mag, n_mag, noise.mag_var),
             kernel.paper_weight(w_acc, n_acc, noise.accel_var),
         )
-    m = sum(a * (np.eye(3) - _outer(w)) for a, w in ((a_mag, w_mag), (a_acc, w_acc)))
+    m = sum(np.asarray(a)[..., None, None] * (np.eye(3) - _outer(w)) for a, w in ((a_mag, w_mag), (a_acc, w_acc)))
     s = sum(
         np.asarray(a * a)[..., None, None] * sym_to_matrix(kernel.cross_sandwich(w, r))
         for a, w, r in ((a_mag, w_mag, r_mag), (a_acc, w_acc, r_acc))

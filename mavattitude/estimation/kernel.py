@@ -159,11 +159,11 @@ def triad(w_acc: Vec, w_mag: Vec, v_acc: Vec, v_mag: Vec, s_body: Scalar, s_ref:
     )  # fmt: skip
 
 
-def scalar_weight_step(q: Quat, obs: tuple) -> tuple[Quat, Scalar, Scalar]:
+def scalar_weight_step(q: Quat, obs: tuple) -> tuple[Quat, Scalar]:
     """One IGN/CGN iteration, Eq. 34–35, for ``obs = ((ŵ₁, v₁, a₁), (ŵ₂, v₂, a₂))`` (unit vectors).
 
-    Returns the corrected, normalised quaternion, the squared correction angle ``|δ|²`` and the Wahba
-    loss (Eq. 11) at the *input* ``q``. Written out in full: it is the per-sample hot loop.
+    Returns the corrected, normalised quaternion and the correction's angle ``|δ|`` (rad). Written out
+    in full: it is the per-sample hot loop.
     """
     r = rotation_matrix_parts(q)
     (w1, v1, a1), (w2, v2, a2) = obs
@@ -186,10 +186,10 @@ def scalar_weight_step(q: Quat, obs: tuple) -> tuple[Quat, Scalar, Scalar]:
     loss = a1 * (1.0 - w1[0] * x1 - w1[1] * y1 - w1[2] * z1) + a2 * (1.0 - w2[0] * x2 - w2[1] * y2 - w2[2] * z2)
     c = -loss / (2.0 * asum)
     q_next = quat_multiply_parts(q, (1.0 + c, 0.5 * d0, 0.5 * d1, 0.5 * d2))
-    return _normalised(q_next), d0 * d0 + d1 * d1 + d2 * d2, loss
+    return _normalised(q_next), (d0 * d0 + d1 * d1 + d2 * d2) ** 0.5
 
 
-def matrix_weight_step(q: Quat, obs: tuple) -> tuple[Quat, Scalar, Scalar]:
+def matrix_weight_step(q: Quat, obs: tuple) -> tuple[Quat, Scalar]:
     """One maximum-likelihood Newton iteration for ``obs = ((ŵ₁, v₁, W₁), (ŵ₂, v₂, W₂))`` (:func:`ml_weight`).
 
     Cost ``½ Σ rᵢᵀ Wᵢ rᵢ`` with ``rᵢ(δ) = ŵᵢ − A(q ⊗ exp δ)vᵢ = rᵢ − [uᵢ×]δ − ½ δ×(δ×uᵢ) + …`` in the body
@@ -202,13 +202,10 @@ def matrix_weight_step(q: Quat, obs: tuple) -> tuple[Quat, Scalar, Scalar]:
     r = rotation_matrix_parts(q)
     h: Sym = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     g: Vec = (0.0, 0.0, 0.0)
-    loss = 0.0
     for w, v, wm in obs:
         u = rotate_ned_to_body_parts(r, v)
         p = sym_matvec(wm, (w[0] - u[0], w[1] - u[1], w[2] - u[2]))  # Wᵢ rᵢ
-        pr = p[0] * (w[0] - u[0]) + p[1] * (w[1] - u[1]) + p[2] * (w[2] - u[2])
         pu = p[0] * u[0] + p[1] * u[1] + p[2] * u[2]
-        loss = loss + 0.5 * pr
         gi = cross(p, u)
         g = (g[0] + gi[0], g[1] + gi[1], g[2] + gi[2])
         gn = cross_sandwich(u, wm)
@@ -222,7 +219,7 @@ def matrix_weight_step(q: Quat, obs: tuple) -> tuple[Quat, Scalar, Scalar]:
         )
         h = tuple(hk + gk + ck for hk, gk, ck in zip(h, gn, curv, strict=True))  # type: ignore[assignment]
     d = sym_solve(h, g)
-    return _normalised(quat_multiply_parts(q, (1.0, 0.5 * d[0], 0.5 * d[1], 0.5 * d[2]))), _sq(d), loss
+    return _normalised(quat_multiply_parts(q, (1.0, 0.5 * d[0], 0.5 * d[1], 0.5 * d[2]))), norm(d)
 
 
 def observations(method: str, mag: tuple, acc: tuple) -> tuple:
@@ -244,13 +241,25 @@ def observations(method: str, mag: tuple, acc: tuple) -> tuple:
 
 
 def wahba_loss(q: Quat, obs: tuple, matrix_weights: bool) -> Scalar:
-    """Eq. 11 at ``q`` (matrix form ``½ Σ rᵢᵀ Wᵢ rᵢ`` for ML)."""
-    step = matrix_weight_step if matrix_weights else scalar_weight_step
-    return step(q, obs)[2]
+    """Eq. 11 at ``q``: ``½ Σ aᵢ |ŵᵢ − A(q)vᵢ|²``, or ``½ Σ rᵢᵀ Wᵢ rᵢ`` with matrix weights (ML)."""
+    r = rotation_matrix_parts(q)
+    loss = 0.0
+    for w, v, weight in obs:
+        u = rotate_ned_to_body_parts(r, v)
+        res = (w[0] - u[0], w[1] - u[1], w[2] - u[2])
+        wr = sym_matvec(weight, res) if matrix_weights else scaled(res, weight)
+        loss = loss + 0.5 * (res[0] * wr[0] + res[1] * wr[1] + res[2] * wr[2])
+    return loss
 
 
-def _sq(v: Vec) -> Scalar:
-    return v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+def converged(step: Scalar, previous: Scalar, tolerance: float) -> Scalar:
+    """Stop after a correction of angle ``step`` (rad) that followed one of angle ``previous``.
+
+    Gauss–Newton on this problem converges linearly; with the observed ratio ``ρ = step/previous < 1``
+    the error left after applying ``step`` is about ``step·ρ/(1 − ρ)``. Stop when that estimate, or the
+    correction itself, is at most ``tolerance``. ``previous`` is NaN on the first iteration (no estimate).
+    """
+    return (step <= tolerance) | ((step < previous) & (step * step <= tolerance * (previous - step)))
 
 
 def _normalised(q: Quat) -> Quat:

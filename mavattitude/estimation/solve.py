@@ -6,13 +6,14 @@ equations are those of :mod:`.kernel`, shared with the vectorised :mod:`.batch`.
 Steps of the paper's IGN: (1) start from TRIAD, or from the warm start ``q0`` when its Wahba loss is
 not above TRIAD's (a stale or flipped warm start would otherwise converge to a stationary point 180°
 away, NOTES.md); (2) normalise the vectors (Eq. 3–4); (3) weights from Eq. 9/21; (4)–(7) iterate
-Eq. 34–35 until the correction's angle is at most ``tolerance``, at most ``max_iterations`` times.
+Eq. 34–35, at most ``max_iterations`` times, until the estimated error left is at most ``tolerance``
+(:func:`.kernel.converged`).
 """
 
 from __future__ import annotations
 
+import functools
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,23 +33,31 @@ MIN_ANGLE_DEG = 5.0
 
 @dataclass(eq=False, slots=True)
 class SolveResult:
-    """One attitude solution. ``covariance`` (rad², body error angles, 3×3) is computed on first access."""
+    """One attitude solution. ``loss`` and ``covariance`` are computed on first access."""
 
     q: NDArray[np.float64]  # [w, x, y, z], body FRD → NED, w ≥ 0
-    iterations: int
+    iterations: int  # Gauss–Newton corrections applied (0 for "triad")
     converged: bool
-    loss: float  # Wahba loss (Eq. 11) at q; the ML cost for "ml"; the paper-weighted loss for "triad"
     method: str
     noise: NoiseModel = field(repr=False)
-    _inputs: tuple = field(repr=False)  # (ŵ_acc, |acc|, ŵ_mag, |mag|): what the covariance needs
+    _obs: tuple = field(repr=False)  # the solver's ((ŵ₁, v₁, weight₁), (ŵ₂, v₂, weight₂))
+    _norms: tuple[float, float] = field(repr=False)  # (|acc|, |mag|)
+    _loss: float | None = field(default=None, repr=False)
     _covariance: NDArray[np.float64] | None = field(default=None, repr=False)
 
     @property
+    def loss(self) -> float:
+        """Wahba loss (Eq. 11) at ``q`` with the method's weights (the paper's for "triad")."""
+        if self._loss is None:
+            self._loss = float(kernel.wahba_loss(tuple(self.q), self._obs, self.method == "ml"))
+        return self._loss
+
+    @property
     def covariance(self) -> NDArray[np.float64]:
-        """Predicted error-angle covariance: the sandwich (ign, cgn), the CRB (ml), linearised TRIAD."""
+        """Predicted error-angle covariance (rad², body): sandwich (ign, cgn), CRB (ml), linearised TRIAD."""
         if self._covariance is None:
-            w_acc, n_acc, w_mag, n_mag = self._inputs
-            acc, mag = kernel.scaled(w_acc, n_acc), kernel.scaled(w_mag, n_mag)
+            (w_mag, _, _), (w_acc, _, _) = self._obs
+            acc, mag = kernel.scaled(w_acc, self._norms[0]), kernel.scaled(w_mag, self._norms[1])
             self._covariance = predicted_covariance(acc, mag, self.noise, self.method)
         return self._covariance
 
@@ -58,6 +67,7 @@ def check_method(method: str) -> None:
         raise InputError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
 
 
+@functools.lru_cache(maxsize=16)
 def check_settings(max_iterations: int, tolerance: float, min_angle_deg: float) -> float:
     """Validate the iteration bounds; return ``sin(min_angle)``, the collinearity threshold."""
     if not (isinstance(max_iterations, int) and max_iterations >= 1):
@@ -108,9 +118,10 @@ def solve(
 
     ``acc``, ``mag``: body FRD, any units (the accelerometer reads specific force, ``−g`` on z when
     level). ``mag_ref``, ``acc_ref``: the same quantities in NED (only their directions matter).
-    ``q0``: warm start ``[w, x, y, z]`` or None. ``tolerance``: the angle (rad) of the last Gauss–Newton
-    correction that counts as converged. Raises :class:`InputError` for unusable numbers and
-    :class:`DegenerateGeometryError` when either pair is within ``min_angle_deg`` of collinear.
+    ``q0``: warm start ``[w, x, y, z]`` or None. ``tolerance``: the attitude error (rad) left after the
+    last Gauss–Newton correction, as estimated from the last two corrections. Raises :class:`InputError`
+    for unusable numbers and :class:`DegenerateGeometryError` when either pair is within
+    ``min_angle_deg`` of collinear.
     """
     check_method(method)
     sin_min = check_settings(max_iterations, tolerance, min_angle_deg)
@@ -125,25 +136,25 @@ def solve(
     if not s_ref >= sin_min:
         raise DegenerateGeometryError(geometry_message("acc_ref and mag_ref", s_ref, min_angle_deg))
 
-    inputs = (w_acc, n_acc, w_mag, n_mag)
     obs = kernel.observations(method, (w_mag, n_mag, v_mag, noise.mag_var), (w_acc, n_acc, v_acc, noise.accel_var))
     q = quat_from_rotation_parts(kernel.triad(w_acc, w_mag, v_acc, v_mag, s_body, s_ref))
-    ml = method == "ml"
-    if method == "triad":
-        return _result(q, 0, True, kernel.wahba_loss(q, obs, ml), method, noise, inputs)
-    if q0 is not None:
-        warm = _warm_start(q0)
-        if kernel.wahba_loss(warm, obs, ml) <= kernel.wahba_loss(q, obs, ml):
-            q = warm
-
-    step = kernel.matrix_weight_step if ml else kernel.scalar_weight_step
-    tol2 = tolerance * tolerance
-    for k in range(1, max_iterations + 1):
-        q_next, d2, loss = step(q, obs)
-        if d2 <= tol2:  # the correction is below tolerance: q is the answer, loss is at q
-            return _result(q, k, True, loss, method, noise, inputs)
-        q = q_next
-    return _result(q, max_iterations, False, kernel.wahba_loss(q, obs, ml), method, noise, inputs)
+    iterations, done = 0, True
+    if method != "triad":
+        ml = method == "ml"
+        if q0 is not None:
+            warm = _warm_start(q0)
+            if kernel.wahba_loss(warm, obs, ml) <= kernel.wahba_loss(q, obs, ml):
+                q = warm
+        step = kernel.matrix_weight_step if ml else kernel.scalar_weight_step
+        previous = math.nan
+        done = False
+        while not done and iterations < max_iterations:
+            q, angle = step(q, obs)
+            iterations += 1
+            done = kernel.converged(angle, previous, tolerance)
+            previous = angle
+    w, x, y, z = q if q[0] >= 0.0 else (-q[0], -q[1], -q[2], -q[3])
+    return SolveResult(np.array((w, x, y, z)), iterations, bool(done), method, noise, obs, (n_acc, n_mag))
 
 
 def _warm_start(q0: ArrayLike) -> tuple[float, float, float, float]:
@@ -157,12 +168,3 @@ def _warm_start(q0: ArrayLike) -> tuple[float, float, float, float]:
     if not 0.0 < n < math.inf:
         raise InputError(f"q0 must be finite and non-zero, got {(w, x, y, z)}")
     return w / n, x / n, y / n, z / n
-
-
-def _result(
-    q: Sequence[float], iterations: int, converged: bool, loss: float, method: str, noise: NoiseModel, inputs: tuple
-) -> SolveResult:
-    qa = np.array(q)
-    if qa[0] < 0.0:
-        qa = -qa
-    return SolveResult(qa, iterations, converged, float(loss), method, noise, inputs)

@@ -1,0 +1,59 @@
+"""The vectorised solver's input checks and failure reporting (its agreement is in test_solve)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mavattitude.errors import ConvergenceError, DegenerateGeometryError, InputError
+from mavattitude.estimation import BatchResult, solve, solve_batch
+from mavattitude.estimation import conventions as cv
+
+from .conftest import ACC_REF, MAG_REF_UT, PAPER_NOISE, simulate
+
+
+@pytest.fixture
+def samples(rng):
+    return simulate(cv.quat_normalize(rng.normal(size=(10_000, 4))), rng)
+
+
+def test_bad_sample_is_named(samples):
+    acc, mag = (a.copy() for a in samples)
+    acc[7321] = np.nan
+    acc[9000] = 0.0
+    with pytest.raises(InputError, match=r"acc must be finite and non-zero: 2 bad sample.*first: sample 7321"):
+        solve_batch(acc, mag, MAG_REF_UT, PAPER_NOISE)
+    mag = samples[1].copy()
+    mag[5000] = samples[0][5000] * 5.0  # collinear with the accelerometer
+    with pytest.raises(
+        DegenerateGeometryError, match=r"acc and mag are 0\.00° from collinear.*: 1 bad sample\(s\), first: sample 5000"
+    ):
+        solve_batch(samples[0], mag, MAG_REF_UT, PAPER_NOISE)
+
+
+def test_shapes_are_checked(samples):
+    acc, mag = samples
+    with pytest.raises(InputError, match=r"mag must have shape \(10000, 3\) or \(3,\), got \(9999, 3\)"):
+        solve_batch(acc, mag[1:], MAG_REF_UT, PAPER_NOISE)
+    with pytest.raises(InputError, match=r"acc must have shape \(N, 3\)"):
+        solve_batch(acc[0], mag, MAG_REF_UT, PAPER_NOISE)
+
+
+def test_per_sample_references(samples, rng):
+    acc, mag = samples[0][:100], samples[1][:100]
+    refs = np.repeat(MAG_REF_UT[None], 100, axis=0) * rng.uniform(0.5, 2.0, size=(100, 1))  # only direction counts
+    np.testing.assert_allclose(
+        solve_batch(acc, mag, refs, PAPER_NOISE, acc_ref=np.repeat(ACC_REF[None], 100, axis=0)),
+        solve_batch(acc, mag, MAG_REF_UT, PAPER_NOISE, acc_ref=ACC_REF),
+        atol=1e-12,
+    )
+
+
+def test_non_convergence_raises_or_is_flagged(samples):
+    acc, mag = samples
+    with pytest.raises(ConvergenceError, match="10000 of 10000 samples did not converge in 1 iterations"):
+        solve_batch(acc, mag, MAG_REF_UT, PAPER_NOISE, max_iterations=1)
+    res = solve_batch(acc, mag, MAG_REF_UT, PAPER_NOISE, max_iterations=1, full_output=True)
+    assert isinstance(res, BatchResult) and not res.converged.any() and (res.iterations == 1).all()
+    r = solve(acc[3], mag[3], MAG_REF_UT, PAPER_NOISE, max_iterations=1)
+    assert cv.angle_between(r.q, res.q[3]) < 1e-12 and r.loss == pytest.approx(res.loss[3], rel=1e-9)
