@@ -176,10 +176,12 @@ class _Stream:
         "timeout_s",
         "times",
         "tolerance",
+        "x1",
+        "x2",
+        "y1",
+        "y2",
         "y_last",
         "y_prev",
-        "z1",
-        "z2",
     )
 
     def __init__(self, n: int, cutoff_hz: float | None, timeout_s: float, window: int, tolerance: float) -> None:
@@ -202,11 +204,7 @@ class _Stream:
 
     def design(self, fs_hz: float) -> None:
         assert self.cutoff_hz is not None
-        bq = butter2(self.cutoff_hz, fs_hz)
-        self.coef, self.fs_hz = bq, fs_hz
-        states = [bq.steady_state(v) for v in self.y_last]
-        self.z1 = [s[0] for s in states]
-        self.z2 = [s[1] for s in states]
+        self.coef, self.fs_hz = butter2(self.cutoff_hz, fs_hz), fs_hz
 
     def push(self, t: float, x: Sequence[float]) -> tuple[int, bool]:
         """Filter one sample; returns (CONTINUED | STARTED | GAP, re-designed)."""
@@ -228,22 +226,21 @@ class _Stream:
         m = len(times) - 1
         fs = m / (t - times[0])
         redesigned = False
-        if self.coef is None:
+        if self.coef is None:  # second sample of a segment: the history is the steady state at the first
             self.design(fs)
+            self.x1, self.x2, self.y1, self.y2 = (list(self.y_last) for _ in range(4))
         elif abs(fs - self.fs_hz) > self.tolerance * self.fs_hz:
             self.design(fs)
             redesigned = True
         bq = self.coef
         assert bq is not None
         b0, b1, b2, a1, a2 = bq.b0, bq.b1, bq.b2, bq.a1, bq.a2
-        z1, z2 = self.z1, self.z2
-        y = [0.0] * self.n
-        for i in range(self.n):
-            xi = x[i]
-            yi = b0 * xi + z1[i]
-            z1[i] = b1 * xi - a1 * yi + z2[i]
-            z2[i] = b2 * xi - a2 * yi
-            y[i] = yi
+        x1, x2, y1, y2 = self.x1, self.x2, self.y1, self.y2
+        y = [
+            b0 * xi + b1 * u1 + b2 * u2 - a1 * v1 - a2 * v2
+            for xi, u1, u2, v1, v2 in zip(x, x1, x2, y1, y2, strict=True)
+        ]
+        self.x1, self.x2, self.y1, self.y2 = list(x), x1, y, y1
         self.y_last = y
         return status, redesigned
 
@@ -602,13 +599,31 @@ def _filter_batch_stream(
         start = 1
         while start < b - a:
             fs_d = fs[start - 1]
-            moved = np.abs(fs[start:] - fs_d) > s.rate_tolerance * fs_d
-            stop = start + 1 + int(np.argmax(moved)) if moved.any() else b - a
+            stop = _next_redesign(fs, start, fs_d, s.rate_tolerance)
             c.redesigns += start > 1
             bq = butter2(s.cutoff_hz, fs_d)
-            y[a + start : a + stop] = filter_batch(bq, x[a + start : a + stop], y[a + start - 1])
+            if start == 1:  # the steady state at the first sample
+                x_hist = y_hist = np.stack([x[a], x[a]])
+            else:
+                back = [a + start - 1, a + start - 2]
+                x_hist, y_hist = x[back], y[back]
+            y[a + start : a + stop] = filter_batch(bq, x[a + start : a + stop], x_hist, y_hist)
             start = stop
     return y, seg
+
+
+def _next_redesign(fs: Array, start: int, fs_d: float, tolerance: float) -> int:
+    """The first sample after ``start`` whose measured rate is off the design by more than the tolerance
+    (``fs[k]`` belongs to sample ``k + 1``); scanned in growing windows so frequent re-designs stay linear."""
+    window = 256
+    lo = start
+    while lo < len(fs):
+        hi = min(len(fs), lo + window)
+        moved = np.abs(fs[lo:hi] - fs_d) > tolerance * fs_d
+        if moved.any():
+            return lo + 1 + int(np.argmax(moved))
+        lo, window = hi, window * 4
+    return len(fs) + 1
 
 
 def _batch_epoch(
@@ -673,7 +688,7 @@ def _mag_at_batch(
     held = (after & ~interp) | (~after & (tk - tm[jl] <= s.input_timeout_s))
     with np.errstate(invalid="ignore", divide="ignore"):
         frac = (tk - tm[jp]) / (tm[jl] - tm[jp])
-    lerp = ym[jp] + (ym[jl] - ym[jp]) * frac[:, None]
+        lerp = ym[jp] + (ym[jl] - ym[jp]) * frac[:, None]
     use_interp, use_held = interp & ~none, held & ~none & ~interp
     out[use_interp] = lerp[use_interp]
     out[use_held] = ym[jl][use_held]

@@ -2,9 +2,10 @@
 
 Design (the bilinear transform with pre-warping, as ``scipy.signal.butter(2, fc, fs=fs)``): with
 ``K = tan(π fc / fs)``, ``b = [K², 2K², K²] / n``, ``a = [1, 2(K² − 1) / n, (1 − √2 K + K²) / n]``,
-``n = 1 + √2 K + K²``. The streaming form is the transposed direct form II of ``scipy.signal.sosfilt``;
-its steady state at level ``L`` (DC gain 1, so the output equals ``L``) is
-``z₂ = (b₂ − a₂) L``, ``z₁ = (b₁ − a₁) L + z₂``.
+``n = 1 + √2 K + K²``. The streaming form is direct form I,
+``y = b₀x + b₁x₋₁ + b₂x₋₂ − a₁y₋₁ − a₂y₋₂``: its state is the last two inputs and outputs, signals that
+mean the same under any coefficients, so a re-design (the input rate changed) continues without a jump.
+The steady state at level ``L`` (DC gain 1) is ``x₋₁ = x₋₂ = y₋₁ = y₋₂ = L``.
 
 The batch form (:func:`filter_batch`) splits ``H(z) = d + r / (1 − p z⁻¹) + r̄ / (1 − p̄ z⁻¹)`` into
 one complex first-order recurrence ``w[n] = p w[n−1] + x[n]``, ``y = d x + 2 Re(r w)``, solved in blocks
@@ -44,10 +45,10 @@ class Biquad:
     fs_hz: float
     cutoff_hz: float
 
-    def steady_state(self, level: float) -> tuple[float, float]:
-        """``(z1, z2)`` of the transposed direct form II after a constant input ``level`` forever."""
-        z2 = (self.b2 - self.a2) * level
-        return (self.b1 - self.a1) * level + z2, z2
+    def response_state(self, x1: Array, x2: Array, y1: Array, y2: Array) -> tuple[Array, Array]:
+        """The transposed direct form II state ``(z1, z2)`` equal to a direct form I history."""
+        z2 = self.b2 * x1 - self.a2 * y1
+        return self.b1 * x1 - self.a1 * y1 + self.b2 * x2 - self.a2 * y2, z2
 
 
 def butter2(cutoff_hz: float, fs_hz: float) -> Biquad:
@@ -62,15 +63,21 @@ def butter2(cutoff_hz: float, fs_hz: float) -> Biquad:
     return Biquad(b0, 2.0 * b0, b0, 2.0 * (kk - 1.0) / n, (1.0 - math.sqrt(2.0) * k + kk) / n, fs_hz, fc)
 
 
-def filter_batch(bq: Biquad, x: Array, level: Array) -> Array:
-    """Filter ``x`` (n, channels) starting from the steady state at ``level`` (channels,)."""
+def filter_batch(bq: Biquad, x: Array, x_hist: Array, y_hist: Array) -> Array:
+    """Filter ``x`` (n, channels) after the history ``x_hist = [x₋₁, x₋₂]``, ``y_hist = [y₋₁, y₋₂]``
+    (each (2, channels); all four equal to a level for the steady state there)."""
     x = np.asarray(x, dtype=float)
     p = complex(np.roots([1.0, bq.a1, bq.a2])[0])
     d = bq.b2 / bq.a2
     r = (bq.b0 + bq.b1 / p + bq.b2 / (p * p)) / (1.0 - p.conjugate() / p)
+    # the modal state w₋₁ whose free response, 2 Re(r pⁿ⁺¹ w₋₁), is the history's: y₀ = z1, y₁ = −a1 z1 + z2
+    z1, z2 = bq.response_state(*np.asarray(x_hist, dtype=float), *np.asarray(y_hist, dtype=float))
+    c1, c2 = 2.0 * r * p, 2.0 * r * p * p
+    system = np.array([[c1.real, -c1.imag], [c2.real, -c2.imag]])
+    u, v = np.linalg.solve(system, np.stack([z1, -bq.a1 * z1 + z2]))
+    state = u + 1j * v
     block = max(1, math.floor(math.log(_BLOCK_GROWTH_LIMIT) / -math.log(abs(p))))
     chunk = block * max(1, _CHUNK_SAMPLES // block)
-    state = np.asarray(level, dtype=float) / (1.0 - p) + 0.0j  # steady state of w
     y = np.empty_like(x)
     for start in range(0, x.shape[0], chunk):
         y[start : start + chunk], state = _filter_chunk(p, d, r, block, x[start : start + chunk], state)

@@ -1,0 +1,110 @@
+"""The vehicle clock, ArduPilot mounting rotations and the calibration models."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mavattitude.errors import CalibrationError, ConfigError
+from mavattitude.sensors.calibration import Calibration, mag_block, sensor_affines
+from mavattitude.sensors.clock import ClockEvent, VehicleClock
+from mavattitude.sensors.mounting import ARDUPILOT_ROTATIONS, mounting_matrix, rotation_angles_deg
+
+WRAP_MS = 2.0**32 * 1e-3
+
+
+def test_clock_unwraps_time_boot_ms() -> None:
+    clock = VehicleClock()
+    assert clock.update(WRAP_MS - 0.010, WRAP_MS) == (WRAP_MS - 0.010, ClockEvent.OK)
+    t, event = clock.update(0.010, WRAP_MS)
+    assert event is ClockEvent.WRAP and t == pytest.approx(WRAP_MS + 0.010, abs=1e-9)
+    t, event = clock.update(0.030, WRAP_MS)
+    assert event is ClockEvent.OK and t == pytest.approx(WRAP_MS + 0.030, abs=1e-9)
+
+
+def test_clock_drops_duplicates_and_reordered_and_restarts_on_reboot() -> None:
+    clock = VehicleClock(reorder_window_s=1.0)
+    clock.update(100.0, None)
+    assert clock.update(100.0, None) == (None, ClockEvent.DUPLICATE)
+    assert clock.update(99.99, None) == (None, ClockEvent.OUT_OF_ORDER)
+    assert clock.update(100.01, None) == (100.01, ClockEvent.OK)
+    assert clock.update(2.0, None) == (2.0, ClockEvent.REBOOT)  # 98 s back: the autopilot restarted
+    assert clock.update(2.01, None) == (2.01, ClockEvent.OK)
+
+
+def test_uint64_time_never_wraps_but_reboots() -> None:
+    clock = VehicleClock()
+    clock.update(5000.0, None)
+    assert clock.update(3.0, None)[1] is ClockEvent.REBOOT
+
+
+def test_ardupilot_rotations_match_vector3_rotate() -> None:
+    v = np.array([1.0, 2.0, 3.0])
+    # AP_Math/vector3.cpp Vector3::rotate, written out there case by case
+    assert mounting_matrix("ROLL_180_YAW_90") @ v == pytest.approx([2.0, 1.0, -3.0])
+    assert mounting_matrix("ROTATION_ROLL_90_YAW_270") @ v == pytest.approx([-3.0, -1.0, 2.0])
+    assert mounting_matrix("YAW_90") @ v == pytest.approx([-2.0, 1.0, 3.0])
+    assert mounting_matrix("PITCH_180") @ v == pytest.approx([-1.0, 2.0, -3.0])
+    assert mounting_matrix("ROLL_180") @ v == pytest.approx([1.0, -2.0, -3.0])
+    assert mounting_matrix("NONE") @ v == pytest.approx(v)
+    # the two documented duplicates of rotations.h
+    assert mounting_matrix("PITCH_180_YAW_90") == pytest.approx(mounting_matrix("ROLL_180_YAW_270"), abs=1e-15)
+    assert mounting_matrix("PITCH_180_YAW_270") == pytest.approx(mounting_matrix("ROLL_180_YAW_90"), abs=1e-15)
+
+
+def test_every_named_rotation_is_proper_and_the_odd_one_matches_ardupilots_quaternion() -> None:
+    assert len(ARDUPILOT_ROTATIONS) == 44
+    for name in ARDUPILOT_ROTATIONS.values():
+        m = mounting_matrix(name)
+        assert m @ m.T == pytest.approx(np.eye(3), abs=1e-12) and np.linalg.det(m) == pytest.approx(1.0)
+    # quaternion_from_rotation for ROLL_90_PITCH_68_YAW_293 in AP_Math/quaternion.cpp (w, x, y, z)
+    w, x, y, z = 0.26774500501681575, 0.7069880468895242, 0.012957683254962660, -0.6544559666536361
+    expected = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+    assert mounting_matrix("ROLL_90_PITCH_68_YAW_293") == pytest.approx(expected, abs=1e-6)
+    assert rotation_angles_deg("roll_45") == (45.0, 0.0, 0.0)
+
+
+def test_bad_mountings_are_config_errors() -> None:
+    with pytest.raises(ConfigError, match="unknown mounting rotation 'ROLL_30'"):
+        mounting_matrix("ROLL_30")
+    with pytest.raises(ConfigError, match="must be a rotation"):
+        mounting_matrix([[1, 0, 0], [0, 1, 0], [0, 0, -1]])  # a reflection
+    with pytest.raises(ConfigError, match="3×3"):
+        mounting_matrix([[1, 0], [0, 1]])
+
+
+def test_calibration_chain_is_mounting_after_the_sensor_models() -> None:
+    cal = Calibration.from_mapping(
+        {
+            "accel": {"bias_mps2": [0.1, -0.2, 0.3], "matrix": [[1.01, 0.002, 0], [0, 0.99, 0], [0, 0.001, 1.0]]},
+            "mag": {"hard_iron_uT": [5, -3, 2], "soft_iron": [[1.1, 0.02, 0], [0.02, 0.9, 0], [0, 0, 1.05]]},
+            "gyro": {"bias_radps": [0.01, 0.0, -0.02]},
+        }
+    )
+    r = mounting_matrix("ROLL_180")
+    maps = sensor_affines(cal, r)
+    raw = np.array([1.0, -2.0, 9.0])
+    for sensor, m, b in (
+        ("acc", cal.accel.matrix, cal.accel.bias_mps2),
+        ("mag", cal.mag.soft_iron, cal.mag.hard_iron_uT),
+        ("gyr", np.eye(3), cal.gyro.bias_radps),
+    ):
+        a, c = maps[sensor]
+        assert a @ raw - c == pytest.approx(r @ (np.asarray(m) @ (raw - np.asarray(b))), abs=1e-12)
+
+
+def test_calibration_yaml_keys_and_errors() -> None:
+    block = mag_block([1, 2, 3], np.diag([1.0, 2.0, 3.0]))
+    assert block == {
+        "calibration": {"mag": {"hard_iron_uT": [1.0, 2.0, 3.0], "soft_iron": [[1, 0, 0], [0, 2, 0], [0, 0, 3]]}}
+    }
+    again = Calibration.from_mapping(block["calibration"])
+    assert again.mag.soft_iron[1][1] == 2.0 and again.accel.matrix[0][0] == 1.0  # missing keys: identity
+    with pytest.raises(CalibrationError, match="malformed"):
+        Calibration.from_mapping({"mag": {"hard_iron_uT": [1, 2]}})

@@ -1,0 +1,259 @@
+"""The front end: the low-pass against scipy, resampling on the vehicle clock, gaps, screening, the
+magnetometer on its own times, and the batch path against the streaming one."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import scipy.signal
+
+from mavattitude.sensors.frontend import (
+    FrontEnd,
+    FrontEndSettings,
+    ProcessedSample,
+    SampleFlag,
+    batch_inputs,
+    process_batch,
+)
+from mavattitude.sensors.lowpass import butter2, filter_batch
+from mavattitude.sensors.units import ImuSample
+
+G = 9.80665
+MATCH = 1e-9  # the issue's bound for matching scipy; float64 rounding of a biquad is ~1e-13 here
+
+
+def _scipy_lowpass(x: np.ndarray, cutoff_hz: float, fs_hz: float) -> np.ndarray:
+    sos = scipy.signal.butter(2, cutoff_hz, fs=fs_hz, output="sos")
+    zi = scipy.signal.sosfilt_zi(sos)
+    return np.stack([scipy.signal.sosfilt(sos, x[:, c], zi=zi * x[0, c])[0] for c in range(x.shape[1])], axis=1)
+
+
+def _samples(t, acc, gyr, mag=None, mag_every=1, message="RAW_IMU") -> list[ImuSample]:
+    out = []
+    for i in range(len(t)):
+        m = None if mag is None or i % mag_every else tuple(float(v) for v in mag[i])
+        out.append(ImuSample(float(t[i]), tuple(map(float, acc[i])), tuple(map(float, gyr[i])), m, message))
+    return out
+
+
+def _stream(settings: FrontEndSettings, samples: list[ImuSample]) -> tuple[list[ProcessedSample], FrontEnd]:
+    fe = FrontEnd(settings)
+    out: list[ProcessedSample] = []
+    for s in samples:
+        out += fe.push(s)
+    return out, fe
+
+
+@pytest.mark.parametrize("fs_hz", [50.0, 200.0, 285.714, 1000.0])
+def test_design_and_batch_filter_match_scipy(fs_hz: float) -> None:
+    rng = np.random.default_rng(3)
+    x = rng.normal(0.0, 5.0, (5000, 3))
+    bq = butter2(10.0, fs_hz)
+    sos = scipy.signal.butter(2, 10.0, fs=fs_hz, output="sos")[0]
+    assert [bq.b0, bq.b1, bq.b2, 1.0, bq.a1, bq.a2] == pytest.approx(sos.tolist(), abs=1e-15)
+    steady = np.stack([x[0], x[0]])
+    assert np.max(np.abs(filter_batch(bq, x, steady, steady) - _scipy_lowpass(x, 10.0, fs_hz))) < MATCH
+
+
+def test_streaming_filter_matches_scipy_on_grid_aligned_input() -> None:
+    # 50 Hz input on the 20 ms grid: every output tick is an input sample, so the output is the filter itself
+    rng = np.random.default_rng(4)
+    n = 2000
+    t = np.arange(n) * 0.02 + 1.0
+    acc = rng.normal([0, 0, -G], 2.0, (n, 3))
+    gyr = rng.normal(0, 1.0, (n, 3))
+    out, fe = _stream(FrontEndSettings(expected_field_uT=None), _samples(t, acc, gyr))
+    assert len(out) == n and fe.counters.redesigns == 0
+    assert [o.time_s for o in out] == pytest.approx(t.tolist(), abs=1e-12)
+    ref = _scipy_lowpass(np.hstack([acc, gyr]), 10.0, 50.0)
+    got = np.array([o.acc_mps2 + o.gyr_radps for o in out])
+    assert np.max(np.abs(got - ref)) < MATCH
+
+
+def test_steady_state_start_has_no_transient() -> None:
+    t = np.arange(300) * 0.005
+    acc = np.tile([0.3, -0.2, -G], (300, 1))
+    out, _ = _stream(FrontEndSettings(), _samples(t, acc, np.zeros((300, 3)), np.tile([20.0, 1.0, 45.0], (300, 1))))
+    got = np.array([o.acc_mps2 for o in out])
+    assert np.max(np.abs(got - acc[0])) < 1e-12  # a constant stays exactly constant from the first sample
+    assert out[0].flags & SampleFlag.RESET and not any(o.flags & SampleFlag.RESET for o in out[1:])
+
+
+def test_resampling_is_on_the_vehicle_clock_grid_and_attenuates_above_cutoff() -> None:
+    rng = np.random.default_rng(5)
+    fs = 200.0
+    t = 3.0 + np.arange(4000) / fs + rng.uniform(-0.4e-3, 0.4e-3, 4000)  # jitter ±0.4 ms
+    t = np.delete(t, rng.choice(4000, 200, replace=False))  # 5 % of the messages lost
+    slow = np.sin(2 * np.pi * 0.5 * t)  # 0.5 Hz: passes
+    acc = np.column_stack([slow, np.zeros_like(t), np.full_like(t, -G)])
+    out, fe = _stream(FrontEndSettings(), _samples(t, acc, np.zeros_like(acc)))
+    times = np.array([o.time_s for o in out])
+    ticks = times * 50.0
+    assert np.max(np.abs(ticks - np.round(ticks))) < 1e-9  # every output on a 20 ms tick
+    assert np.all(np.diff(np.round(ticks)) == 1)  # and none skipped: no gap was longer than the time-out
+    assert times[0] >= t[0] and times[-1] <= t[-1]
+    got = np.array([o.acc_mps2 for o in out])
+    settle = times > t[0] + 0.5
+    # the filter delays the 0.5 Hz wave by ~22 ms (group delay at low frequency, √2 / (2π fc)); a dropped
+    # message inside the filter's memory (~5 samples) shifts that delay by one 5 ms interval: with up to
+    # three there, 15 ms × the wave's slope π /s ≈ 0.05
+    delay = math.sqrt(2) / (2 * np.pi * 10.0)
+    assert np.max(np.abs(got[settle, 0] - np.sin(2 * np.pi * 0.5 * (times[settle] - delay)))) < 0.05
+    assert fe.counters.gap_resets == 0
+    # on clean 200 Hz input the 40 Hz wave keeps its 6 % (interpolating between samples never adds)
+    clean_t = np.arange(4000) / fs
+    # 40 Hz: a 2nd-order 10 Hz Butterworth passes 1/sqrt(1+4^4) = 6 %
+    clean = np.column_stack([np.sin(2 * np.pi * 40.0 * clean_t), np.zeros(4000), np.full(4000, -G)])
+    out, _ = _stream(FrontEndSettings(), _samples(clean_t, clean, np.zeros_like(clean)))
+    assert max(abs(o.acc_mps2[0]) for o in out if o.time_s > 0.5) < 0.062
+
+
+def test_a_gap_longer_than_the_timeout_restarts_and_is_never_bridged() -> None:
+    t = np.concatenate([np.arange(0, 2, 0.01), np.arange(2.8, 4, 0.01)])  # 0.8 s silence > 0.5 s
+    acc = np.column_stack([np.where(t < 2.4, 1.0, -1.0), np.zeros_like(t), np.full_like(t, -G)])
+    out, fe = _stream(FrontEndSettings(input_timeout_s=0.5), _samples(t, acc, np.zeros_like(acc)))
+    times = np.array([o.time_s for o in out])
+    assert not np.any((times > 1.99 + 1e-9) & (times < 2.8 - 1e-9))  # nothing inside the gap
+    resumed = [o for o in out if o.time_s >= 2.8 - 1e-9]
+    assert resumed[0].flags & SampleFlag.RESET and resumed[0].time_s == pytest.approx(2.8)
+    assert resumed[0].acc_mps2[0] == pytest.approx(-1.0, abs=1e-12)  # restarted at the new level, not smoothed
+    assert fe.counters.gap_resets == 1
+
+
+def settings_tolerance() -> float:
+    return FrontEndSettings().rate_tolerance
+
+
+def test_rate_change_redesigns_the_filter() -> None:
+    t = np.concatenate([np.arange(0, 2, 1 / 100), 2 + np.arange(0, 2, 1 / 400)])
+    acc = np.tile([0.0, 0.0, -G], (len(t), 1))
+    _, fe = _stream(FrontEndSettings(), _samples(t, acc, np.zeros_like(acc)))
+    assert fe.counters.redesigns >= 1
+    assert fe._imu.fs_hz == pytest.approx(400.0, rel=settings_tolerance())
+
+
+def test_screening_drops_bad_samples_and_flags_suspect_vectors() -> None:
+    n = 400
+    t = np.arange(n) * 0.005
+    acc = np.tile([0.0, 0.0, -G], (n, 1))
+    mag = np.tile([20.0, 0.0, 40.0], (n, 1))
+    acc[50] = [np.nan, 0, -G]
+    acc[60] = [0, 0, -200.0]  # beyond the 16 g full scale
+    samples = _samples(t, acc, np.zeros((n, 3)), mag)
+    samples[70] = ImuSample(samples[70].time_s, samples[70].acc_mps2, samples[70].gyr_radps, (np.inf, 0, 0), "RAW_IMU")
+    samples[80] = ImuSample(
+        samples[80].time_s,
+        samples[80].acc_mps2,
+        samples[80].gyr_radps,
+        samples[80].mag_uT,
+        "RAW_IMU",
+        frozenset({"gyr"}),
+    )
+    settings = FrontEndSettings(expected_field_uT=60.0)  # |B| = 44.7: 25 % off, beyond the 15 % tolerance
+    out, fe = _stream(settings, samples)
+    c = fe.counters
+    assert c.rejected == {"nonfinite": 1, "saturated_acc": 1, "saturated_gyr": 1}
+    assert c.mag_rejected == {"nonfinite": 1}
+    assert c.accepted == n - 3
+    assert all(o.flags & SampleFlag.MAG_NORM and o.mag_std_scale == settings.suspect_std_scale for o in out)
+    assert not any(o.flags & SampleFlag.ACC_NORM for o in out) and c.flagged["MAG_NORM"] == len(out)
+    fe.set_expected_field_uT(math.hypot(20.0, 40.0))
+    more = []
+    for i in range(100):  # half a g of free fall for 0.5 s
+        more += fe.push(ImuSample(2.0 + i * 0.005, (0.0, 0.0, -5.0), (0, 0, 0), (20.0, 0.0, 40.0), "RAW_IMU"))
+    assert more and not more[-1].flags & SampleFlag.MAG_NORM
+    assert more[-1].flags & SampleFlag.ACC_NORM and more[-1].acc_std_scale == settings.suspect_std_scale
+
+
+def test_slow_magnetometer_is_interpolated_on_its_own_times_and_held_then_dropped() -> None:
+    # a PX4-like IMU at 250 Hz with the magnetometer new every third message (~83 Hz)
+    n = 1000
+    t = np.arange(n) / 250.0
+    acc = np.tile([0.0, 0.0, -G], (n, 1))
+    mag = np.column_stack([20 + 5 * np.sin(2 * np.pi * 0.5 * t), np.zeros(n), np.full(n, 40.0)])
+    out, _ = _stream(FrontEndSettings(), _samples(t, acc, np.zeros((n, 3)), mag, mag_every=3))
+    steady = [o for o in out if o.time_s > 0.5]
+    assert all(o.mag_uT is not None for o in steady)
+    delay = math.sqrt(2) / (2 * np.pi * 10)  # the filter's group delay, compensated in the reference
+    err = {
+        held: max(
+            abs(o.mag_uT[0] - (20 + 5 * np.sin(2 * np.pi * 0.5 * (o.time_s - delay))))
+            for o in steady
+            if bool(o.flags & SampleFlag.MAG_HELD) == held
+        )
+        for held in (False, True)
+    }
+    slope = 5 * 2 * np.pi * 0.5  # µT/s, the wave's steepest
+    assert err[False] < 0.03  # interpolated between magnetometer samples: the filter's residual, < 1 %
+    assert err[True] < slope * 3 / 250  # held: at most one magnetometer interval (3 IMU samples) old
+    # then the magnetometer stops: held for input_timeout_s, then absent
+    fe = FrontEnd(FrontEndSettings(input_timeout_s=0.5))
+    for s in _samples(t, acc, np.zeros((n, 3)), mag, mag_every=1)[:100]:
+        fe.push(s)
+    later = []
+    for s in _samples(t[100:500], acc[100:500], np.zeros((400, 3))):
+        later += fe.push(s)
+    t_last_mag = t[99]
+    held = [o for o in later if o.time_s - t_last_mag <= 0.5]
+    gone = [o for o in later if o.time_s - t_last_mag > 0.5]
+    assert held and all(o.flags & SampleFlag.MAG_HELD and o.mag_uT is not None for o in held)
+    assert gone and all(o.flags & SampleFlag.NO_MAG and o.mag_uT is None for o in gone)
+
+
+def test_reboot_restarts_the_front_end() -> None:
+    t = np.concatenate([100 + np.arange(200) * 0.01, 0.5 + np.arange(200) * 0.01])
+    acc = np.tile([0.0, 0.0, -G], (400, 1))
+    out, fe = _stream(FrontEndSettings(), _samples(t, acc, np.zeros((400, 3))))
+    assert fe.counters.reboots == 1 and fe.counters.gap_resets == 0
+    after = [o for o in out if o.time_s < 50]
+    assert after[0].flags & SampleFlag.RESET and after[0].time_s == pytest.approx(0.5)
+
+
+def test_filter_disabled_passes_every_sample_calibrated_and_mounted() -> None:
+    t = np.arange(10) * 0.013
+    acc = np.tile([1.0, 2.0, -G], (10, 1))
+    settings = FrontEndSettings(filter_enabled=False, mounting="ROLL_180")
+    out, _ = _stream(settings, _samples(t, acc, np.zeros((10, 3)), np.tile([10.0, 20.0, 30.0], (10, 1))))
+    assert [o.time_s for o in out] == pytest.approx(t.tolist())
+    assert out[3].acc_mps2 == pytest.approx((1.0, -2.0, G)) and out[3].mag_uT == pytest.approx((10.0, -20.0, -30.0))
+
+
+def _messy_input(seed: int, n: int = 6000):
+    """200 Hz with jitter, drops, a gap, a rate change, a slower magnetometer, NaN and out-of-order rows."""
+    rng = np.random.default_rng(seed)
+    t = np.cumsum(rng.uniform(0.004, 0.006, n))
+    t[n // 3 :] += 0.9  # a gap
+    t[2 * n // 3 :] = t[2 * n // 3] + np.cumsum(np.full(n - 2 * n // 3, 0.0025))  # 400 Hz from here
+    acc = rng.normal([0, 0, -G], 1.5, (n, 3))
+    gyr = rng.normal(0, 0.5, (n, 3))
+    mag = rng.normal([20, 2, 40], 3.0, (n, 3))
+    acc[100] = np.nan
+    samples = _samples(t, acc, gyr, mag, mag_every=3)
+    samples[200], samples[201] = samples[201], samples[200]  # reordered datagrams
+    samples.insert(300, samples[299])  # a duplicate
+    return samples
+
+
+@pytest.mark.parametrize("filtered", [True, False])
+def test_batch_path_gives_the_streaming_output(filtered: bool) -> None:
+    samples = _messy_input(7)
+    settings = FrontEndSettings(mounting="YAW_90", expected_field_uT=44.0, filter_enabled=filtered)
+    stream, fe = _stream(settings, samples)
+    batch = process_batch(settings, **batch_inputs(samples))
+    assert len(batch) == len(stream) > 100
+    got = batch.samples()
+    assert [o.time_s for o in got] == [o.time_s for o in stream]  # the same ticks, bit for bit
+    assert [o.flags for o in got] == [o.flags for o in stream]
+    assert [o.acc_std_scale for o in got] == [o.acc_std_scale for o in stream]
+    assert [o.mag_std_scale for o in got] == [o.mag_std_scale for o in stream]
+    # values: the two filter forms round differently, by ~1e-13 of the signal
+    vec = lambda os: np.array([o.acc_mps2 + o.gyr_radps + (o.mag_uT or (np.nan,) * 3) for o in os])  # noqa: E731
+    assert np.nanmax(np.abs(vec(got) - vec(stream))) < 1e-9
+    assert np.array_equal(np.isnan(vec(got)), np.isnan(vec(stream)))
+    c, cb = fe.counters, batch.counters
+    assert (c.received, c.accepted, c.emitted, c.gap_resets, c.redesigns) == (
+        cb.received, cb.accepted, cb.emitted, cb.gap_resets, cb.redesigns
+    )  # fmt: skip
+    assert c.rejected == cb.rejected and c.flagged == cb.flagged and c.rejected["duplicate"] == 1
