@@ -16,8 +16,9 @@ It behaves like an autopilot on a companion-computer link:
 
 The vehicle clock is the script clock scaled by ``speed`` (an accelerated soak runs faster than real
 time); ``time_boot_ms``/``time_usec`` count from the last (simulated) boot. Faults are injected through
-methods: :meth:`FakeVehicle.send_bytes`, :meth:`send_imu`, :meth:`jump_clock`, :meth:`reboot`,
-:meth:`pause_imu`, and by changing stream rates.
+methods: :meth:`FakeVehicle.send_bytes`, :meth:`send_imu`, :meth:`inject` (a function over the next
+samples: bad values, repeated or shifted times), :meth:`jump_clock`, :meth:`reboot`, :meth:`pause_imu`,
+and by changing stream rates.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import logging
 import threading
 import time
 from array import array
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -73,6 +75,17 @@ class VehicleConfig:
     home_alt_m: float = 488.0
 
 
+@dataclass(frozen=True)
+class ImuRow:
+    """One IMU sample about to be sent (what a fault injected with :meth:`FakeVehicle.inject` sees)."""
+
+    script_s: float
+    vehicle_s: float
+    acc_mps2: tuple[float, float, float]
+    gyr_radps: tuple[float, float, float]
+    mag_uT: tuple[float, float, float] | None
+
+
 @dataclass
 class _Stream:
     rate_hz: float
@@ -103,11 +116,14 @@ class FakeVehicle:
         self._epoch = _Epoch()
         self._imu_paused = False
         self._streams: dict[int, _Stream] = {}
+        self._peer_order: list[tuple[str, int]] = []
+        self._fault: tuple[Callable[[list[ImuRow]], list[ImuRow]], float, threading.Event] | None = None
         # Records (appended by the receive thread, read under self._cond).
         self.attitude_log: list[tuple[float, float, tuple[float, float, float, float], _Epoch, int]] = []
         self.statustexts: list[str] = []
         self.commands: list[Any] = []
         self.heartbeats_from_peers: dict[tuple[int, int], int] = {}
+        self.received: Counter[tuple[int, int, str]] = Counter()  # (system, component, type)
         self._sent_t_s = array("d")
         self._sent_mono_s = array("d")
         self.imu_sent = 0
@@ -128,6 +144,11 @@ class FakeVehicle:
         if config.signing_key is not None:
             conn.setup_signing(config.signing_key, sign_outgoing=True, allow_unsigned_callback=lambda *_: True)
         return conn
+
+    def peers(self) -> list[tuple[str, int]]:
+        """The UDP addresses that have talked to this (``udpin``) vehicle, first heard first."""
+        with self._cond:
+            return list(self._peer_order)
 
     @property
     def port(self) -> int:
@@ -266,16 +287,45 @@ class FakeVehicle:
         acc, gyr, mag = sensors.measure(self.script, t, self._rng)
         name = mavlink2.mavlink_map[msg_id].msgname
         epoch = self._epoch
-        for i in range(len(t)):
-            vt = t[i] - epoch.boot_script_s + epoch.clock_offset_s
-            msg = self.encode(ImuSample(vt, _vec(acc[i]), _vec(gyr[i]), _vec(mag[i]), name))
+        rows = [
+            ImuRow(t[i], t[i] - epoch.boot_script_s + epoch.clock_offset_s, _vec(acc[i]), _vec(gyr[i]), _vec(mag[i]))
+            for i in range(len(t))
+        ]
+        for row in self._apply_fault(rows):
+            msg = self.encode(ImuSample(row.vehicle_s, row.acc_mps2, row.gyr_radps, row.mag_uT, name))
             # Logged before the send, so the log never lags the datagram (latency is then an upper bound
             # by the pack + sendto time, a few µs).
             with self._cond:
-                self._sent_t_s.append(t[i])
+                self._sent_t_s.append(row.script_s)
                 self._sent_mono_s.append(time.monotonic())
                 self.imu_sent += 1
             self.send(msg)
+
+    def inject(self, fault: Callable[[list[ImuRow]], list[ImuRow]], duration_s: float) -> threading.Event:
+        """Pass the IMU samples of the next ``duration_s`` (script time) through ``fault`` before sending.
+
+        ``fault`` may change values or times, repeat or drop rows. The returned event is set once the
+        first sample after the window has been sent (the fault is over).
+        """
+        done = threading.Event()
+        with self._cond:
+            self._fault = (fault, self.script_time() + duration_s, done)
+        return done
+
+    def _apply_fault(self, rows: list[ImuRow]) -> list[ImuRow]:
+        with self._cond:
+            fault = self._fault
+        if fault is None:
+            return rows
+        fn, end_s, done = fault
+        inside = [r for r in rows if r.script_s < end_s]
+        after = [r for r in rows if r.script_s >= end_s]
+        out = (fn(inside) if inside else []) + after
+        if after:
+            with self._cond:
+                self._fault = None
+            done.set()
+        return out
 
     def _send_heartbeat(self) -> None:
         autopilot = _AUTOPILOT.get(self.config.profile, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA)
@@ -319,10 +369,17 @@ class FakeVehicle:
                 continue
             if msg is None:
                 continue
-            self._handle(msg, time.monotonic())
+            mono = time.monotonic()
+            for address in getattr(self.conn, "clients", ()):
+                if address not in self._peer_order:
+                    with self._cond:
+                        self._peer_order.append(address)
+            self._handle(msg, mono)
 
     def _handle(self, msg: Any, mono: float) -> None:
         kind = msg.get_type()
+        with self._cond:
+            self.received[(msg.get_srcSystem(), msg.get_srcComponent(), kind)] += 1
         if kind == "ATTITUDE_QUATERNION":
             q = (msg.q1, msg.q2, msg.q3, msg.q4)
             with self._cond:

@@ -1,0 +1,95 @@
+"""End-to-end harness: the daemon as a real subprocess, the fake vehicle in the test, real UDP on 127.0.0.1.
+
+The vehicle binds an ephemeral port (``udpin:127.0.0.1:0``); the service is started with
+``udpout:127.0.0.1:PORT`` to it, so nothing races for a port. Every wait is on an event (an output, a
+counters line, a STATUSTEXT) with a bounded time-out; the only sleeps are the vehicle's own pacing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
+from typing import Any
+
+import numpy as np
+import pytest
+
+from mavattitude.sim.daemon import ServiceProcess, config_for, deep_merge
+from mavattitude.sim.scoring import UNIT_NORM_TOLERANCE
+from mavattitude.sim.sensors import SensorModel
+from mavattitude.sim.trajectory import Script
+from mavattitude.sim.vehicle import FakeVehicle, VehicleConfig
+
+START_TIMEOUT_S = 20.0  # a cold daemon start on a loaded 2-core CI machine (≈ 1 s when idle)
+EVENT_TIMEOUT_S = 10.0
+# Fast counters and re-requests keep the waits short; short input time-out keeps the silence case short.
+FAST_SERVICE: dict[str, Any] = {
+    "output": {"stats_interval_s": 0.2, "statustext_interval_s": 0.0},
+    "link": {"request_repeat_s": 1.0},
+}
+
+Flight = tuple[FakeVehicle, ServiceProcess]
+
+
+def merged(*layers: Mapping[str, Any]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for layer in layers:
+        out = deep_merge(out, layer)
+    return out
+
+
+@contextmanager
+def flight(
+    script: Script,
+    sensors: SensorModel,
+    service: Mapping[str, Any] | None = None,
+    **vehicle: Any,
+) -> Iterator[Flight]:
+    """The vehicle flying ``script`` and the service connected to it, both stopped on exit."""
+    with FakeVehicle(script, sensors, VehicleConfig("udpin:127.0.0.1:0", **vehicle)) as v:
+        config = config_for(v, **merged(FAST_SERVICE, service or {}))
+        with ServiceProcess(config) as svc:
+            if not v.wait_for_outputs(1, START_TIMEOUT_S):
+                pytest.fail("the service sent no ATTITUDE_QUATERNION; its log:\n" + svc.log_tail())
+            yield v, svc
+
+
+@pytest.fixture
+def fly() -> Callable[..., Any]:
+    return flight
+
+
+def counter(svc: ServiceProcess, key: str) -> float:
+    """The latest value of a counter (0 when the counters line does not mention it yet)."""
+    with svc._cond:
+        return svc.counters[-1].get(key, 0.0) if svc.counters else 0.0
+
+
+def wait_counter(svc: ServiceProcess, key: str, at_least: float, timeout_s: float = EVENT_TIMEOUT_S) -> float:
+    """Wait for a counters line with ``key ≥ at_least``; fail with the log tail if none comes."""
+    ok = svc.wait_until(lambda: bool(svc.counters) and svc.counters[-1].get(key, 0.0) >= at_least, timeout_s)
+    if not ok:
+        pytest.fail(f"counter {key} never reached {at_least} (now {counter(svc, key)}); log:\n{svc.log_tail()}")
+    return counter(svc, key)
+
+
+def wait_outputs(v: FakeVehicle, more: int, timeout_s: float = EVENT_TIMEOUT_S) -> None:
+    target = len(v.attitude_log) + more
+    assert v.wait_for_outputs(target, timeout_s), f"fewer than {more} new outputs within {timeout_s} s"
+
+
+def assert_all_outputs_valid(v: FakeVehicle) -> None:
+    """The service's promise: every quaternion it sent was finite and unit."""
+    _, _, q = v.outputs_since(0)
+    assert len(q) > 0
+    assert np.all(np.isfinite(q)), "a non-finite quaternion was sent"
+    assert np.max(np.abs(np.linalg.norm(q, axis=1) - 1.0)) < UNIT_NORM_TOLERANCE
+
+
+def assert_healthy(v: FakeVehicle, max_error_deg: float, outputs: int = 25) -> None:
+    """``outputs`` more outputs arrive and all are within ``max_error_deg`` of the truth."""
+    index = len(v.attitude_log)
+    wait_outputs(v, outputs)
+    s = v.score(index)
+    assert s.broken == 0
+    assert s.angle_max_deg < max_error_deg, s
