@@ -8,6 +8,7 @@ and a final counters line.
 from __future__ import annotations
 
 import argparse
+import gc
 import logging
 import signal
 import threading
@@ -116,7 +117,12 @@ def run(args: argparse.Namespace) -> int:
     try:
         pipeline = AttitudePipeline(config)
         with open_link(config) as link:
-            AttitudeService(config, link, pipeline).run(stop)
+            service = AttitudeService(config, link, pipeline)
+            # Everything allocated so far (pymavlink's dialect alone is ~40 000 objects) lives as long as the
+            # process: keep it out of the collector, whose full passes over it took ~9 ms, the latency budget.
+            gc.collect()
+            gc.freeze()
+            service.run(stop)
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
