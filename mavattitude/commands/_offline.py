@@ -71,9 +71,10 @@ def _std(text: str) -> float | list[float]:
     return values[0] if len(values) == 1 else values
 
 
-def config_from_args(args: argparse.Namespace) -> Config:
-    """The effective config: the flags over $MAVATTITUDE_CONFIG over --config over the defaults."""
-    overrides: dict[str, Any] = {}
+def config_from_args(args: argparse.Namespace, extra: dict[str, Any] | None = None) -> Config:
+    """The effective config: the flags (and ``extra`` dotted keys from a command's own flags) over
+    $MAVATTITUDE_CONFIG over --config over the defaults."""
+    overrides: dict[str, Any] = dict(extra or {})
     if (args.declination is None) != (args.inclination is None):
         raise ConfigError("--declination and --inclination go together")
     if args.declination is not None:

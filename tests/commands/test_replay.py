@@ -1,0 +1,172 @@
+"""`mavattitude replay`: a .tlog written here with pymavlink, through the service's pipeline."""
+
+from __future__ import annotations
+
+import datetime as dt
+import os
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from mavattitude.cli import main
+from mavattitude.config import ENV_VAR
+from mavattitude.estimation.conventions import angle_between, quat_from_euler, rotate_ned_to_body
+from mavattitude.sensors.magref import field_from_angles, wmm_field_ned_uT
+from mavattitude.sensors.units import PROFILES, ImuSample, encode
+
+ENV_WITHOUT_OVERLAY = {k: v for k, v in os.environ.items() if k != ENV_VAR}
+G = 9.80665
+T0_UNIX = dt.datetime(2026, 3, 1, 12, 0, tzinfo=dt.timezone.utc).timestamp()
+DECL, INCL, F_UT = -1.5, 62.0, 49.0
+REF = ["--declination", str(DECL), "--inclination", str(INCL)]
+LAT, LON, ALT = 47.4, 8.5, 450.0
+AUTOPILOT_YAW_OFFSET_DEG = 2.0  # the logged ATTITUDE differs from the truth by this much yaw
+YAW_RATE_DEG_S = 5.0
+
+
+def truth_euler_rad(t_s: np.ndarray, sysid: int) -> np.ndarray:
+    """Vehicle 1 yaws slowly at a small roll and pitch; vehicle 2 sits still, rolled 40°."""
+    t = np.asarray(t_s, dtype=float)
+    if sysid == 2:
+        return np.radians(np.stack([40.0 + 0 * t, 0 * t, 90.0 + 0 * t], -1))
+    return np.radians(np.stack([8.0 + 0 * t, -4.0 + 0 * t, 20.0 + YAW_RATE_DEG_S * t], -1))
+
+
+def write_tlog(
+    path: Path,
+    seconds: float = 3.0,
+    field_ned_uT: np.ndarray | None = None,
+    attitude: bool = True,
+    position: bool = False,
+    second_vehicle: bool = True,
+) -> Path:
+    """A ground station's recording: its own heartbeat, the autopilot(s') heartbeats, RAW_IMU at 100 Hz
+    (ArduPilot units, seeded noise), ATTITUDE at 10 Hz, optionally GLOBAL_POSITION_INT at 5 Hz."""
+    field = field_from_angles(DECL, INCL, F_UT) if field_ned_uT is None else field_ned_uT
+    rng = np.random.default_rng(3)
+    profile = PROFILES["ardupilot"]
+    links = {s: mavlink.MAVLink(None, srcSystem=s, srcComponent=1) for s in (1, 2, 255)}
+    records: list[tuple[float, bytes]] = []
+
+    def add(t_s: float, sysid: int, msg: mavlink.MAVLink_message) -> None:
+        records.append((t_s, msg.pack(links[sysid])))
+
+    vehicles = (1, 2) if second_vehicle else (1,)
+    for k in range(int(seconds) + 1):
+        add(k + 0.001, 255, links[255].heartbeat_encode(6, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0))
+        for s in vehicles:
+            add(k + 0.002, s, links[s].heartbeat_encode(2, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4))
+    t = np.arange(1, int(seconds * 100)) / 100.0
+    for s in vehicles:
+        rpy = truth_euler_rad(t, s)
+        q = quat_from_euler(rpy[:, 0], rpy[:, 1], rpy[:, 2])
+        acc = rotate_ned_to_body(q, [0.0, 0.0, -G]) + rng.normal(0, 0.03, (len(t), 3))
+        mag = rotate_ned_to_body(q, field) + rng.normal(0, 0.3, (len(t), 3))
+        gyr = np.tile([0.0, 0.0, np.radians(YAW_RATE_DEG_S) if s == 1 else 0.0], (len(t), 1))
+        for i, ti in enumerate(t):
+            sample = ImuSample(float(ti), tuple(acc[i]), tuple(gyr[i]), tuple(mag[i]), "RAW_IMU")
+            add(ti, s, links[s].raw_imu_encode(**encode(sample, profile)))
+            if attitude and i % 10 == 5:
+                r, p, y = rpy[i] + [0.0, 0.0, np.radians(AUTOPILOT_YAW_OFFSET_DEG)]
+                add(ti, s, links[s].attitude_encode(round(ti * 1e3), r, p, y, 0.0, 0.0, 0.0))
+    if position:
+        for ti in np.arange(0.5, seconds, 0.2):
+            add(ti, 1, links[1].global_position_int_encode(round(ti * 1e3), 474000000, 85000000, 450000, 0, 0, 0, 0, 0))
+    records.sort(key=lambda r: r[0])
+    with path.open("wb") as f:
+        for t_s, buf in records:
+            f.write(struct.pack(">Q", round((T0_UNIX + t_s) * 1e6)) + buf)
+    return path
+
+
+def read_rows(path: Path) -> np.ndarray:
+    return np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+
+
+def errors_deg(rows: np.ndarray, sysid: int = 1) -> np.ndarray:
+    rpy = truth_euler_rad(rows[:, 0], sysid)
+    return np.degrees(angle_between(rows[:, 1:5], quat_from_euler(rpy[:, 0], rpy[:, 1], rpy[:, 2])))
+
+
+# Per-sample heading σ: magnetometer 0.3 µT / (49 µT cos 62°) = 0.75°, and the tilt error (0.03 / 9.81 rad =
+# 0.18°) × tan 62° = 0.33°: 0.82° together. The 10 Hz Butterworth passes 11.1 Hz of the 50 Hz input band:
+# σ × 0.47 ≈ 0.39°. The filter's 22 ms group delay at 5°/s adds 0.11°. Bound: 4σ + lag.
+MAX_ERR_DEG = 1.7
+
+
+def test_replay_writes_the_attitude_and_compares_with_the_autopilot(tmp_path, capsys):
+    log = write_tlog(tmp_path / "flight.tlog")
+    out = tmp_path / "flight.csv"
+    assert main(["replay", str(log), "-o", str(out), *REF]) == 0
+    rows = read_rows(out)
+    assert len(rows) == pytest.approx(150, abs=2)  # 3 s at 50 Hz
+    assert errors_deg(rows[10:]).max() < MAX_ERR_DEG  # vehicle 1, not vehicle 2 (rolled 40°)
+    captured = capsys.readouterr()
+    table = captured.out
+    yaw = next(line for line in table.splitlines() if line.startswith("yaw"))
+    mean_yaw = float(yaw.split()[1])
+    # Ours is the truth, the autopilot's is the truth + 2°: −2° within the error bound.
+    assert abs(mean_yaw + AUTOPILOT_YAW_OFFSET_DEG) < MAX_ERR_DEG / 2
+    assert "output samples compared with the autopilot's ATTITUDE" in table
+    png = out.with_suffix(".png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "other system or component" in captured.err  # vehicle 2 and the ground station were skipped
+
+
+def test_the_configured_system_id_selects_the_vehicle(tmp_path, capsys):
+    log = write_tlog(tmp_path / "two.tlog", attitude=False)
+    config = tmp_path / "c.yaml"
+    config.write_text(yaml.safe_dump({"link": {"vehicle_system_id": 2}}))
+    out = tmp_path / "v2.csv"
+    assert main(["replay", str(log), "-o", str(out), *REF, "--config", str(config)]) == 0
+    assert errors_deg(read_rows(out)[10:], sysid=2).max() < MAX_ERR_DEG
+    assert capsys.readouterr().out == ""  # no ATTITUDE in the log: no table
+    assert not out.with_suffix(".png").exists()
+
+
+def test_auto_reference_from_the_logged_position_and_date(tmp_path):
+    when = dt.datetime.fromtimestamp(T0_UNIX, dt.timezone.utc).date()
+    wmm = np.array(wmm_field_ned_uT(LAT, LON, ALT, when))
+    log = write_tlog(tmp_path / "gps.tlog", field_ned_uT=wmm, position=True, second_vehicle=False)
+    out = tmp_path / "gps.csv"
+    assert main(["replay", str(log), "-o", str(out), "--no-plot"]) == 0
+    rows = read_rows(out)
+    assert rows[0, 0] >= 0.5  # nothing before the first position
+    assert errors_deg(rows[10:]).max() < MAX_ERR_DEG
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "args", "message"),
+    [
+        ({}, ["--message", "SCALED_IMU"], "no SCALED_IMU from the autopilot"),
+        ({"position": False}, [], "reference.magnetic is auto but the log holds no position"),
+    ],
+)
+def test_what_the_log_lacks_is_named(tmp_path, capsys, kwargs, args, message):
+    log = write_tlog(tmp_path / "x.tlog", seconds=1.0, second_vehicle=False, **kwargs)
+    assert main(["replay", str(log), "-o", str(tmp_path / "x.csv"), *args, *([] if "position" in kwargs else REF)]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_replay_as_a_subprocess(tmp_path):
+    log = write_tlog(tmp_path / "sub.tlog", seconds=1.0, second_vehicle=False)
+    out = tmp_path / "sub.csv.gz"
+    done = subprocess.run(
+        [sys.executable, "-m", "mavattitude", "replay", str(log), "-o", str(out), *REF, "--no-plot"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=ENV_WITHOUT_OVERLAY,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "total angle" in done.stdout
+    assert out.stat().st_size > 0 and not (tmp_path / "sub.png").exists()
+    # The differences are ours minus the autopilot's, as the table says: yaw ≈ −2°.
+    yaw = next(line for line in done.stdout.splitlines() if line.startswith("yaw"))
+    assert float(yaw.split()[1]) == pytest.approx(-AUTOPILOT_YAW_OFFSET_DEG, abs=MAX_ERR_DEG / 2)
