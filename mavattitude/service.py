@@ -289,9 +289,17 @@ class AttitudeService:
 
     def _on_position(self, msg: Any) -> None:
         position = units.decode_position(msg)
-        if position is not None:
-            self.counters.positions += 1
-            self.pipeline.set_position(position)
+        if position is None:
+            return
+        self.counters.positions += 1
+        if self.pipeline.set_position(position.lat_deg, position.lon_deg, position.alt_m):
+            log.info(
+                "magnetic reference from the WMM at %.4f°, %.4f°, %.0f m: %s µT NED",
+                position.lat_deg,
+                position.lon_deg,
+                position.alt_m,
+                np.array2string(self.pipeline.mag_ref_ned_uT, precision=2),
+            )
 
     def _emit(self, out: Any, t_rx: float) -> None:
         try:

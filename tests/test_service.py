@@ -254,6 +254,31 @@ def test_configured_system_id_and_no_requests():
     wanted.close()
 
 
+def test_automatic_magnetic_reference_waits_for_the_vehicle_position():
+    config = make_config(**{"reference.magnetic": "auto"})
+    running = Running(config)
+    vehicle = Autopilot()
+    vehicle.target = running.link.local_address
+    lock_on(vehicle)
+    wanted = {mavlink2.MAVLINK_MSG_ID_RAW_IMU, mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT}
+    wait_until(vehicle, lambda: {m.param1 for m in vehicle.received if m.get_type() == "COMMAND_LONG"} == wanted)
+    vehicle.stream(100)
+    wait_until(vehicle, lambda: running.service.pipeline.counters.rejected["no_reference"] > 0)
+    assert running.service.counters.emitted == 0
+    # Zurich, 500 m: the WMM field there becomes the reference
+    vehicle.send(mavlink2.MAVLink_global_position_int_message(0, 473_769_000, 85_417_000, 500_000, 0, 0, 0, 0, 0))
+    wait_until(vehicle, lambda: running.service.counters.positions == 1)
+    vehicle.stream(100)
+    vehicle.wait_for("ATTITUDE_QUATERNION")
+    counters = running.finish()
+    reference = running.service.pipeline.mag_ref_ned_uT
+    # Central Europe: |B| ≈ 48 µT, inclination ≈ 63° (WMM); 5 µT and 3° are loose bounds on "the right place"
+    assert abs(np.linalg.norm(reference) - 48.0) < 5.0
+    assert abs(math.degrees(math.atan2(reference[2], math.hypot(reference[0], reference[1]))) - 63.5) < 3.0
+    assert counters.emitted > 0
+    vehicle.close()
+
+
 def test_counters_line_logged_periodically_and_at_the_end(served, caplog):
     running, vehicle = served
     caplog.set_level(logging.INFO, logger="mavattitude.service")
