@@ -1,0 +1,115 @@
+"""`mavattitude calibrate mag`: from a CSV, a .tlog and live over real UDP; the YAML it writes; refusals."""
+
+from __future__ import annotations
+
+import gzip
+import socket
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from pymavlink import mavutil
+
+from mavattitude.cli import main
+from mavattitude.sensors.calibration import Calibration
+from mavattitude.sensors.units import ImuSample, encode, get_profile
+from tests.link.test_tlog import write_tlog
+
+OFFSET = np.array([18.0, -25.0, 9.0])
+DISTORTION = np.array([[1.15, 0.03, 0.0], [0.03, 0.9, 0.02], [0.0, 0.02, 1.05]])
+
+
+def _distorted(n: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    u = rng.normal(size=(n, 3))
+    field = 48.0 * u / np.linalg.norm(u, axis=1, keepdims=True) + rng.normal(0.0, 0.2, (n, 3))
+    return field @ DISTORTION.T + OFFSET
+
+
+def _check_yaml(path: Path) -> Calibration:
+    data = yaml.safe_load(path.read_text())
+    assert set(data) == {"calibration"} and set(data["calibration"]) == {"mag"}
+    assert set(data["calibration"]["mag"]) == {"hard_iron_uT", "soft_iron"}
+    cal = Calibration.from_mapping(data["calibration"])
+    corrected = (_distorted(500, seed=9) - cal.mag.hard_iron_uT) @ np.asarray(cal.mag.soft_iron).T
+    norms = np.linalg.norm(corrected, axis=1)
+    assert np.std(norms) / np.mean(norms) < 0.01  # 0.2 µT noise on 48 µT and the integer rounding: ~0.5 %
+    return cal
+
+
+def test_from_csv_writes_the_mag_block_and_reports(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    src = tmp_path / "turns.csv.gz"
+    with gzip.open(src, "wt") as f:
+        f.write("t_s,mag_x_uT,mag_y_uT,mag_z_uT,mag_new\n")
+        for i, row in enumerate(_distorted(1200)):
+            f.write(f"{i * 0.01},{row[0]},{row[1]},{row[2]},1\n")
+            f.write(f"{i * 0.01 + 0.005},{row[0] + 99},{row[1]},{row[2]},0\n")  # a repeat, skipped
+    out = tmp_path / "mag.yaml"
+    assert main(["calibrate", "mag", str(src), "-o", str(out), "--field-uT", "48"]) == 0
+    cal = _check_yaml(out)
+    assert np.asarray(cal.mag.hard_iron_uT) == pytest.approx(OFFSET, abs=0.2)
+    text = capsys.readouterr().out
+    assert "1200 samples" in text and "|B| spread" in text and "before" in text and "residual" in text
+
+
+def test_from_a_tlog(tmp_path: Path) -> None:
+    profile = get_profile("ardupilot")
+    packets = [
+        (1, "RAW_IMU", encode(ImuSample(i * 0.01, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), tuple(m), "RAW_IMU"), profile))
+        for i, m in enumerate(_distorted(1000))
+    ]
+    log = tmp_path / "turns.tlog"
+    write_tlog(log, packets)
+    out = tmp_path / "mag.yaml"
+    assert main(["calibrate", "mag", str(log), "-o", str(out), "--profile", "ardupilot"]) == 0
+    _check_yaml(out)
+
+
+def test_poor_coverage_is_refused_with_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    src = tmp_path / "bench.csv"
+    rows = _distorted(3000)
+    rows = rows[rows[:, 2] > OFFSET[2] + 35]  # one attitude only
+    src.write_text("mag_x_uT,mag_y_uT,mag_z_uT\n" + "\n".join(",".join(map(str, r)) for r in rows))
+    assert main(["calibrate", "mag", str(src), "-o", str(tmp_path / "x.yaml")]) == 2
+    assert "cover" in capsys.readouterr().err and not (tmp_path / "x.yaml").exists()
+
+
+def test_missing_columns_are_a_user_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    src = tmp_path / "bad.csv"
+    src.write_text("t_s,mx,my,mz\n0,1,2,3\n")
+    assert main(["calibrate", "mag", str(src), "-o", str(tmp_path / "x.yaml")]) == 2
+    assert "missing column(s) mag_x_uT" in capsys.readouterr().err
+
+
+def test_live_over_udp_with_coverage_progress(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    stop = threading.Event()
+    profile = get_profile("ardupilot")
+
+    def vehicle() -> None:
+        conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1, dialect="common")
+        conn.mav.WIRE_PROTOCOL_VERSION = "2.0"
+        mags = _distorted(4000, seed=3)
+        i = 0
+        while not stop.is_set():
+            sample = ImuSample(i * 0.005, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), tuple(mags[i % 4000]), "RAW_IMU")
+            conn.mav.raw_imu_send(**encode(sample, profile))
+            i += 1
+            stop.wait(0.0005)  # pacing the sender, about 2 kHz
+        conn.close()
+
+    sender = threading.Thread(target=vehicle, daemon=True)
+    sender.start()
+    out = tmp_path / "live.yaml"
+    try:
+        code = main(["calibrate", "mag", f"udpin:127.0.0.1:{port}", "-o", str(out), "--duration", "30"])
+    finally:
+        stop.set()
+        sender.join(5.0)
+    assert code == 0
+    _check_yaml(out)
+    assert "coverage [" in capsys.readouterr().err

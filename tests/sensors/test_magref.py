@@ -1,0 +1,71 @@
+"""The magnetic reference: angles, a vector, and WMM2025 at the vehicle's position (waiting until one)."""
+
+from __future__ import annotations
+
+import datetime as dt
+import math
+from types import SimpleNamespace
+
+import pytest
+
+from mavattitude.errors import ConfigError
+from mavattitude.sensors.magref import MagneticReference, distance_km, field_from_angles, wmm_field_ned_uT
+
+DATE = dt.date(2026, 6, 1)
+
+
+def test_angles_give_the_ned_field() -> None:
+    n, e, d = field_from_angles(10.0, 60.0, 50.0)
+    assert math.hypot(n, e, d) == pytest.approx(50.0)
+    assert math.degrees(math.atan2(e, n)) == pytest.approx(10.0)  # declination east of north
+    assert math.degrees(math.atan2(d, math.hypot(n, e))) == pytest.approx(60.0)  # inclination, down positive
+    ref = MagneticReference("angles", declination_deg=10.0, inclination_deg=60.0)
+    assert ref.reference.intensity_uT is None and math.hypot(*ref.reference.field_ned_uT) == pytest.approx(1.0)
+
+
+def test_vector_mode_and_config_object() -> None:
+    cfg = SimpleNamespace(mode="vector", declination_deg=None, inclination_deg=None, intensity_uT=None,
+                          field_ned_uT=(20.0, 1.0, 44.0))  # fmt: skip
+    ref = MagneticReference.from_config(cfg)
+    assert ref.reference.field_ned_uT == (20.0, 1.0, 44.0) and not ref.waiting
+    assert ref.reference.intensity_uT == pytest.approx(math.hypot(20.0, 1.0, 44.0))
+    assert ref.update_position(47.0, 8.0, 400.0) is False  # a fixed reference ignores positions
+    with pytest.raises(ConfigError, match="non-zero"):
+        MagneticReference("vector", field_ned_uT=(0.0, 0.0, 0.0))
+    with pytest.raises(ConfigError, match="declination_deg and inclination_deg"):
+        MagneticReference("angles", declination_deg=3.0)
+
+
+def test_auto_waits_for_a_position_then_uses_wmm() -> None:
+    ref = MagneticReference("auto")
+    assert ref.waiting and ref.reference.source == "waiting" and ref.reference.field_ned_uT is None
+    assert ref.update_position(48.137, 11.575, 520.0, DATE) is True  # Munich
+    n, e, d = ref.reference.field_ned_uT
+    # published figures for Munich, 2025–2026: declination ≈ +4.4°, inclination ≈ 64.3°, ≈ 48.6 µT
+    assert math.degrees(math.atan2(e, n)) == pytest.approx(4.4, abs=0.6)
+    assert math.degrees(math.atan2(d, math.hypot(n, e))) == pytest.approx(64.3, abs=0.5)
+    assert math.hypot(n, e, d) == pytest.approx(48.6, abs=0.8)
+    assert ref.reference.source == "wmm" and not ref.waiting
+
+
+def test_auto_recomputes_only_after_moving_a_few_km() -> None:
+    ref = MagneticReference("auto", recompute_distance_km=5.0)
+    ref.update_position(-33.86, 151.21, 0.0, DATE)  # Sydney: the field points up (negative down component)
+    assert ref.reference.field_ned_uT[2] < 0.0
+    first = ref.reference
+    assert ref.update_position(-33.87, 151.21, 0.0, DATE) is False  # 1.1 km
+    assert ref.reference is first
+    assert ref.update_position(-33.95, 151.21, 0.0, DATE) is True  # 10 km
+    assert ref.reference.field_ned_uT != first.field_ned_uT
+
+
+def test_altitude_is_metres_and_weakens_the_field() -> None:
+    low = math.hypot(*wmm_field_ned_uT(0.0, 0.0, 0.0, DATE))
+    high = math.hypot(*wmm_field_ned_uT(0.0, 0.0, 100_000.0, DATE))
+    # a dipole field falls as r⁻³: 100 km up is (6371 / 6471)³ = 0.954 of the ground value; the model's
+    # higher-degree terms fall faster (r⁻⁴ and beyond), so a little lower. Metres read as km would give ~0.
+    assert high / low == pytest.approx((6371.0 / 6471.0) ** 3, abs=0.02)
+
+
+def test_haversine_distance() -> None:
+    assert distance_km(0.0, 0.0, 0.0, 1.0) == pytest.approx(111.19, abs=0.01)
