@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as dt
+import functools
 import logging
 import math
 from collections import Counter
@@ -149,9 +150,9 @@ class SnapshotEstimator:
         noise = self._noise_for(sample.acc_std_scale, sample.mag_std_scale)
         r = solve(sample.acc_mps2, sample.mag_uT, mag_ref_ned_uT, noise, self.method, q0=self._q0, **self.options)
         self._q0 = r.q
-        flags = _flag_names(sample.flags) | ({"NOT_CONVERGED"} if not r.converged else set())
+        flags = _flag_names(sample.flags) if r.converged else _flag_names(sample.flags) | {"NOT_CONVERGED"}
         rates = np.array(sample.gyr_radps, dtype=float)
-        return [AttitudeOutput(sample.time_s, r.q, rates, r.iterations, r.converged, frozenset(flags), _lazy(r))]
+        return [AttitudeOutput(sample.time_s, r.q, rates, r.iterations, r.converged, flags, _lazy(r))]
 
 
 def _lazy(result: Any) -> Callable[[], Array]:
@@ -192,7 +193,7 @@ class FusedEstimator:
                 e.rates_radps,
                 0,
                 True,
-                frozenset(front | ({"MAG_DISTURBED"} if e.mag_disturbed else set())),
+                front | {"MAG_DISTURBED"} if e.mag_disturbed else front,
                 _constant(e.covariance),
             )
             for e in estimates
@@ -203,8 +204,9 @@ def _constant(value: Array) -> Callable[[], Array]:
     return lambda: value
 
 
-def _flag_names(flags: SampleFlag) -> set[str]:
-    return {f.name for f in SampleFlag if f & flags and f.name}
+@functools.cache
+def _flag_names(flags: SampleFlag) -> frozenset[str]:
+    return frozenset(f.name for f in SampleFlag if f & flags and f.name)
 
 
 #: ``estimator.method`` → the estimator that runs it.

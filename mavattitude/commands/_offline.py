@@ -5,16 +5,20 @@ from __future__ import annotations
 import argparse
 import csv
 import gzip
+import logging
 import sys
 import time
 from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import IO, Any, TextIO
+from typing import IO, TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 
 from mavattitude.config import METHODS, Config, load_config
-from mavattitude.errors import ConfigError, DataFileError
+from mavattitude.errors import ConfigError, DataFileError, MavAttitudeError
+
+if TYPE_CHECKING:
+    from mavattitude.pipeline import AttitudePipeline
 
 OUTPUT_COLUMNS = ("t_s", "qw", "qx", "qy", "qz", "roll_deg", "pitch_deg", "yaw_deg", "iterations", "converged")
 # Inputs at least this long show progress on stderr unless --no-progress.
@@ -153,3 +157,12 @@ class Progress:
         elapsed = time.monotonic() - self._start
         self.stream.write(f"{self.label}: [{bar:<20}] {percent:3d}% {done}/{self.total} {elapsed:.1f} s{end}")
         self.stream.flush()
+
+
+def summarise(pipeline: AttitudePipeline, n_in: int, source: str) -> None:
+    """Log the counters; nothing solved at all is a failure, not an empty success."""
+    counters = pipeline.counters
+    logging.getLogger("mavattitude").info("%s: %d samples in; %s", source, n_in, counters.summary())
+    if counters.emitted == 0:
+        reasons = dict(counters.rejected) or dict(counters.frontend.rejected) or "no output tick"
+        raise MavAttitudeError(f"{source}: no attitude could be computed ({reasons})")

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from mavattitude.commands._offline import add_config_arguments, config_from_args, output_row, write_outputs
+from mavattitude.commands._offline import add_config_arguments, config_from_args, output_row, summarise, write_outputs
 from mavattitude.config import MESSAGES, PROFILES
 from mavattitude.errors import DataFileError, SensorError
 
@@ -99,8 +99,6 @@ def run(args: argparse.Namespace) -> int:
                 when = dt.datetime.fromtimestamp(msg._timestamp, dt.timezone.utc).date()
                 pipeline.set_position(position.lat_deg, position.lon_deg, position.alt_m, when)
     _check_found(args.log, message, contents, pipeline)
-    from mavattitude.commands.solve import summarise
-
     summarise(pipeline, contents.imu_messages, args.log)
     write_outputs(args.output, rows)
     log.info("wrote %d attitudes to %s", len(rows), args.output)

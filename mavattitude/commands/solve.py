@@ -17,7 +17,6 @@ import argparse
 import csv
 import logging
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -27,13 +26,11 @@ from mavattitude.commands._offline import (
     config_from_args,
     open_text,
     output_row,
+    summarise,
     write_outputs,
 )
 from mavattitude.config import Config
-from mavattitude.errors import ConfigError, DataFileError, MavAttitudeError
-
-if TYPE_CHECKING:
-    from mavattitude.pipeline import AttitudePipeline
+from mavattitude.errors import ConfigError, DataFileError
 
 NAME = "solve"
 HELP = "attitude for every sample of a CSV file (offline, same pipeline as the service)"
@@ -112,12 +109,3 @@ def run(args: argparse.Namespace) -> int:
     write_outputs(args.output, rows)
     log.info("wrote %d attitudes to %s", len(rows), args.output)
     return 0
-
-
-def summarise(pipeline: AttitudePipeline, n_in: int, source: str) -> None:
-    """Log the counters; nothing solved at all is a failure, not an empty success."""
-    counters = pipeline.counters
-    log.info("%s: %d samples in; %s", source, n_in, counters.summary())
-    if counters.emitted == 0:
-        reasons = dict(counters.rejected) or dict(counters.frontend.rejected) or "no output tick"
-        raise MavAttitudeError(f"{source}: no attitude could be computed ({reasons})")
