@@ -329,7 +329,10 @@ class EstimatorConfig:
         default=10, metadata=_meta(_number(1, 100, integer=True), "Gauss–Newton iteration bound")
     )
     tolerance: float = field(
-        default=1e-12, metadata=_meta(_number(0.0, 1e-3, lo_open=True), "Gauss–Newton step tolerance")
+        default=1e-12,
+        metadata=_meta(
+            _number(0.0, 1e-3, lo_open=True), "converged when a Gauss–Newton correction is below this angle, rad"
+        ),
     )
     min_angle_deg: float = field(
         default=5.0, metadata=_meta(_number(0.0, 90.0), "refuse acc/mag closer than this to collinear, deg")
@@ -514,10 +517,11 @@ def load_config(
     it came from; rules spanning keys are checked on the merged result.
     """
     merged: dict[str, Any] = {}
-    for source, data in layers(path, overrides, env):
+    found = layers(path, overrides, env)
+    for source, data in found:
         from_dict(data, source, cross_check=False)
         merged = _merge(merged, data)
-    return from_dict(merged, "effective config")
+    return from_dict(merged, found[0][0] if len(found) == 1 else "effective config")
 
 
 def describe() -> list[tuple[str, Any, str]]:

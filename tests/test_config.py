@@ -179,6 +179,12 @@ def test_errors_name_the_layer_they_come_from(tmp_path):
         load_config(base, overrides={"filter.output_rate_hz": 10}, env={})
 
 
+def test_a_single_layer_is_named_in_cross_key_errors(tmp_path):
+    only = write(tmp_path, "only.yaml", {"filter": {"cutoff_hz": 30}})
+    with pytest.raises(ConfigError, match=r"only\.yaml: filter\.cutoff_hz: must be below half"):
+        load_config(only, env={})
+
+
 def test_unreadable_and_malformed_files(tmp_path):
     with pytest.raises(ConfigError, match=r"missing\.yaml: cannot read config file"):
         load_config(tmp_path / "missing.yaml", env={})

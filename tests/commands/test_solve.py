@@ -122,6 +122,19 @@ def test_flags_override_the_env_file_which_overrides_the_config_file(tmp_path, m
     assert rows[:, 8].max() > 0 and len(rows) == 100  # the flags: ign, filtered
 
 
+def test_the_fused_filter_runs_from_the_command_line(tmp_path):
+    out = tmp_path / "out.csv"
+    assert main(["solve", str(write_csv(tmp_path / "in.csv")), "-o", str(out), *REF, "--method", "fused"]) == 0
+    _, rows = read_output(out)
+    assert len(rows) > 50 and np.degrees(angle_between(rows[-1, 1:5], Q_TRUE)) < MAX_ERR_DEG
+
+
+def test_fused_needs_gyro_columns(tmp_path, capsys):
+    src = write_csv(tmp_path / "in.csv", gyro=False)
+    assert main(["solve", str(src), "-o", str(tmp_path / "o.csv"), *REF, "--method", "fused"]) == 2
+    assert "fused needs a gyroscope" in capsys.readouterr().err
+
+
 def test_accel_and_mag_std_take_one_or_three_values(tmp_path):
     src, out = write_csv(tmp_path / "in.csv"), tmp_path / "out.csv"
     assert main(["solve", str(src), "-o", str(out), *REF, "--accel-std", "0.1", "--mag-std", "0.2,0.2,0.4"]) == 0
