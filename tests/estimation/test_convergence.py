@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from mavattitude.estimation import conventions as cv
 from mavattitude.estimation import kernel, solve, solve_batch
+from mavattitude.estimation.solve import WARM_START_BUDGET
 from mavattitude.estimation.noise import paper_weight
 
 from .conftest import ACC_REF, MAG_REF_UT, PAPER_NOISE, simulate
@@ -108,3 +109,16 @@ def test_warm_start_from_previous_answer(rng):
     # The previous answer is a better start than TRIAD here (same truth, independent noise); an exact
     # warm start needs a single correction to confirm itself.
     assert solve(acc[1], mag[1], MAG_REF_UT, PAPER_NOISE, q0=cold.q).iterations == 1
+
+
+def test_stale_warm_start_falls_back_to_triad(rng):
+    # A previous answer a few degrees off in tilt (a maneuver at 50 Hz) converges slowly under Eq. 34;
+    # the solver gives it WARM_START_BUDGET corrections, then restarts from TRIAD. Same answer either way.
+    q_true = cv.quat_from_euler(0.3, -0.1, 2.0)
+    acc, mag = simulate(q_true, rng)
+    cold = solve(acc[0], mag[0], MAG_REF_UT, PAPER_NOISE)
+    for tilt_deg in (0.5, 3.0, 20.0):
+        stale = cv.quat_multiply(cold.q, cv.quat_from_rotvec(np.radians([tilt_deg, 0.0, 0.0])))
+        r = solve(acc[0], mag[0], MAG_REF_UT, PAPER_NOISE, q0=stale)
+        assert r.converged and cv.angle_between(r.q, cold.q) < 1e-9
+        assert r.iterations <= WARM_START_BUDGET + 3  # warm attempt + at most 3 from TRIAD
