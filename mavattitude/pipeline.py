@@ -47,14 +47,14 @@ log = logging.getLogger(__name__)
 
 # A quaternion whose norm is further than this from 1 is a numerical failure, not an attitude.
 UNIT_TOLERANCE = 1e-6
-_NAN3 = np.full(3, np.nan)
 
 
 @dataclass(frozen=True)
 class AttitudeOutput:
     """One attitude: at ``time_s`` (vehicle clock), ``q`` = ``[w, x, y, z]`` body FRD → NED, unit, finite.
 
-    ``rates_radps``: body rates from the calibrated gyro (NaN if the input had none). ``covariance``: the
+    ``rates_radps``: body rates from the calibrated gyro (low-passed with the other sensors, or with the
+    bias the fused filter estimated removed). ``covariance``: the
     predicted 3×3 body-frame error-angle covariance (rad²), computed on first access. ``flags``: names of
     what the front end or the estimator noticed (``RESET``, ``ACC_NORM``, ``MAG_NORM``, ``MAG_HELD``,
     ``NOT_CONVERGED``, ``MAG_DISTURBED``).
@@ -109,9 +109,13 @@ class Estimator(Protocol):
     #: Whether the front end should low-pass and resample for this estimator (``filter.enabled`` permitting).
     wants_filtered: bool
 
-    def estimate(self, sample: ProcessedSample, mag_ref_ned_uT: Array) -> list[AttitudeOutput]: ...
+    def estimate(self, sample: ProcessedSample, mag_ref_ned_uT: Array) -> list[AttitudeOutput]:
+        """Outputs for one front-end sample; a ``RESET`` flag (start, gap, reboot) is the estimator's to act on."""
+        ...
 
-    def reset(self) -> None: ...
+    def reset(self) -> None:
+        """Forget the state (the pipeline calls it after an invalid output)."""
+        ...
 
 
 def _noise_model(config: Config) -> NoiseModel:
@@ -278,8 +282,6 @@ class AttitudePipeline:
 
     def _estimate(self, tick: ProcessedSample) -> list[AttitudeOutput]:
         c = self.counters
-        if tick.flags & SampleFlag.RESET:
-            self.estimator.reset()
         if self.mag_ref_ned_uT is None:
             c.rejected["no_reference"] += 1
             return []
