@@ -11,8 +11,8 @@ from scipy.spatial.transform import Rotation
 
 from mavattitude.estimation import conventions as cv
 from mavattitude.estimation import kernel, solve, solve_batch
-from mavattitude.estimation.solve import WARM_START_BUDGET
 from mavattitude.estimation.noise import paper_weight
+from mavattitude.estimation.solve import WARM_START_BUDGET
 
 from .conftest import ACC_REF, MAG_REF_UT, PAPER_NOISE, simulate
 
