@@ -300,7 +300,9 @@ class AttitudePipeline:
     def _valid(self, output: AttitudeOutput) -> bool:
         c = self.counters
         q = output.q
-        if not (np.all(np.isfinite(q)) and abs(float(np.linalg.norm(q)) - 1.0) <= UNIT_TOLERANCE):
+        w, x, y, z = q.tolist()
+        norm2 = w * w + x * x + y * y + z * z  # NaN or inf if any component is; |q|² − 1 ≈ 2 (|q| − 1)
+        if not (math.isfinite(norm2) and abs(norm2 - 1.0) <= 2.0 * UNIT_TOLERANCE):
             c.rejected["invalid_quaternion"] += 1
             self.estimator.reset()
             log.warning("t=%.3f s: estimator returned a non-unit or non-finite quaternion %s", output.time_s, q)
