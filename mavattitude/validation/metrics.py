@@ -12,7 +12,7 @@ magnetic reference may carry) and standard deviation (the spread that matters).
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -65,10 +65,9 @@ class BroadScore:
 
     def columns(self) -> dict[str, float]:
         return {
-            f"{phase} {k.removesuffix('_deg')}": v
-            for phase in ("move", "rest")
-            for k, v in asdict(getattr(self, phase)).items()
-            if k != "samples"
+            f"{label} {kind}": getattr(rms, f"{kind}_deg")
+            for label, rms in (("move", self.movement), ("rest", self.rest))
+            for kind in ("total", "heading", "inclination")
         }
 
 

@@ -1,0 +1,194 @@
+"""Run a recording through the estimators, the way the service does and the way offline work does.
+
+- **stream**: every sample, in order, through :class:`~mavattitude.pipeline.AttitudePipeline` — the
+  service's own front end (screen, low-pass, 50 Hz resampling) and solver; scored at its output ticks
+  against the reference interpolated to those instants.
+- **batch**: :func:`~mavattitude.estimation.solve_batch` on the raw samples (no filter), scored per
+  sample — the per-sample baseline (with ``triad``, the data README's reference figures).
+
+Both take the recording's own references (:class:`~mavattitude.validation.frames.RestReference`): the
+magnetic field measured at the opening rest and the per-axis sensor noise measured there.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from mavattitude.config import Config, load_config
+from mavattitude.estimation import NoiseModel, solve_batch
+from mavattitude.estimation.conventions import Array
+from mavattitude.pipeline import AttitudePipeline
+from mavattitude.sensors.units import ImuSample
+from mavattitude.validation.loaders import Recording, truth_at
+from mavattitude.validation.metrics import BroadScore, Px4Score, broad_errors, euler_differences, score_broad, score_px4
+
+PATHS = ("stream", "batch")
+# solve_batch is a per-sample solver; the gyro-aided filter exists only as a stream.
+BATCH_METHODS = ("ign", "cgn", "ml", "triad")
+
+Progress = Callable[[int, int], None]
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """What one path and method produced on one recording."""
+
+    path: str
+    method: str
+    time_s: Array  # (M,) instants of the estimates (input samples for batch, 50 Hz ticks for stream)
+    q: Array  # (M, 4) body → NED
+    expected: int  # how many estimates a gap-free run would have produced
+    elapsed_s: float  # processing time (time.monotonic)
+    counters: Mapping[str, int] = field(default_factory=dict)
+
+    @property
+    def coverage(self) -> float:
+        return len(self.time_s) / self.expected if self.expected else float("nan")
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """An estimate scored against the recording's reference, with the per-instant errors for plots."""
+
+    estimate: Estimate
+    score: BroadScore | Px4Score
+    errors_rad: Array  # (M, 3): BROAD total/heading/inclination, or PX4 roll/pitch/yaw differences
+    truth_q: Array  # (M, 4) the reference at the estimate's instants
+    movement: Array  # (M,) bool
+
+
+def validation_config(recording: Recording, method: str, base: Config | None = None, **overrides: Any) -> Config:
+    """``base`` (or the defaults) with the recording's references and ``method``; ``overrides`` are dotted keys."""
+    ref = recording.reference
+    layer = {
+        "estimator.method": method,
+        "reference.magnetic": {"field_ned_uT": [float(v) for v in ref.field_ned_uT]},
+        "noise.accel_std_mps2": [float(v) for v in ref.acc_std_mps2],
+        "noise.mag_std_uT": [float(v) for v in ref.mag_std_uT],
+        **{k.replace("__", "."): v for k, v in overrides.items()},
+    }
+    merged = {} if base is None else base.to_dict()
+    return load_config(None, overrides=_flatten(merged) | layer, env={})
+
+
+def _flatten(data: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in data.items():
+        if isinstance(value, Mapping) and f"{prefix}{key}" not in ("reference.magnetic", "mounting.rotation"):
+            out |= _flatten(value, f"{prefix}{key}.")
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+def samples(recording: Recording) -> list[ImuSample]:
+    """The recording as the link would deliver it: a magnetometer value only when it is new."""
+    rows = zip(
+        recording.time_s.tolist(),
+        recording.acc_mps2.tolist(),
+        recording.gyr_radps.tolist(),
+        recording.mag_uT.tolist(),
+        recording.mag_new.tolist(),
+        strict=True,
+    )
+    return [
+        ImuSample(
+            time_s=t,
+            acc_mps2=tuple(acc),
+            gyr_radps=tuple(gyr),
+            mag_uT=tuple(mag) if new else None,
+            message="HIGHRES_IMU",
+        )
+        for t, acc, gyr, mag, new in rows
+    ]
+
+
+def estimate_stream(recording: Recording, config: Config, progress: Progress | None = None) -> Estimate:
+    """Push every sample through the service's pipeline and collect its outputs."""
+    pipeline = AttitudePipeline(config)
+    feed = samples(recording)
+    times, quats = [], []
+    start = time.monotonic()
+    for i, sample in enumerate(feed):
+        for out in pipeline.push(sample):
+            times.append(out.time_s)
+            quats.append(out.q)
+        if progress is not None and i % 5000 == 0:
+            progress(i, len(feed))
+    elapsed = time.monotonic() - start
+    duration = recording.time_s[-1] - recording.time_s[0]
+    return Estimate(
+        path="stream",
+        method=config.estimator.method,
+        time_s=np.asarray(times, dtype=float),
+        q=np.asarray(quats, dtype=float).reshape(-1, 4),
+        expected=int(duration * config.filter.output_rate_hz),
+        elapsed_s=elapsed,
+        counters=_stream_counters(pipeline),
+    )
+
+
+def estimate_batch(recording: Recording, config: Config) -> Estimate:
+    """``solve_batch`` on the raw samples with the config's noise, references and method."""
+    noise = NoiseModel(accel_std=config.noise.accel_std_mps2, mag_std=config.noise.mag_std_uT)
+    start = time.monotonic()
+    usable = _observable(recording.acc_mps2, recording.mag_uT, config.estimator.min_angle_deg)
+    result = solve_batch(
+        recording.acc_mps2[usable],
+        recording.mag_uT[usable],
+        recording.reference.field_ned_uT,
+        noise,
+        method=config.estimator.method,
+        acc_ref=(0.0, 0.0, -1.0),
+        max_iterations=config.estimator.max_iterations,
+        tolerance=config.estimator.tolerance,
+        min_angle_deg=config.estimator.min_angle_deg,
+        full_output=True,  # a sample that hits max_iterations is counted, not fatal
+    )
+    return Estimate(
+        path="batch",
+        method=config.estimator.method,
+        time_s=recording.time_s[usable],
+        q=result.q,
+        expected=len(recording),
+        elapsed_s=time.monotonic() - start,
+        counters={"degenerate": int((~usable).sum()), "not converged": int((~result.converged).sum())},
+    )
+
+
+def _observable(acc: Array, mag: Array, min_angle_deg: float) -> Array:
+    """Samples whose two directions are further than ``min_angle_deg`` from collinear.
+
+    ``solve_batch`` refuses a batch holding any other (the rotation about their common direction is
+    unobservable); the per-sample path would refuse those samples one by one, so they are left out and
+    show as lost coverage.
+    """
+    sin_angle = np.linalg.norm(np.cross(acc, mag), axis=1) / (np.linalg.norm(acc, axis=1) * np.linalg.norm(mag, axis=1))
+    return sin_angle > np.sin(np.radians(min_angle_deg))
+
+
+def evaluate(recording: Recording, estimate: Estimate) -> Evaluation:
+    """Score an estimate with the recording's metric (BROAD's, or agreement with the autopilot)."""
+    truth, movement, rest = truth_at(recording, estimate.time_s)
+    if recording.kind == "broad":
+        score: BroadScore | Px4Score = score_broad(estimate.q, truth, movement, rest)
+        errors = broad_errors(estimate.q, truth)
+    else:
+        score = score_px4(estimate.q, truth)
+        errors = euler_differences(estimate.q, truth)
+    return Evaluation(estimate=estimate, score=score, errors_rad=errors, truth_q=truth, movement=movement)
+
+
+def _stream_counters(pipeline: AttitudePipeline) -> dict[str, int]:
+    """The pipeline's counters worth a column: rejects by reason, flags, not converged."""
+    c = pipeline.counters
+    out = {f"rejected {k}": v for k, v in c.rejected.items()}
+    out |= {f"input rejected {k}": v for k, v in c.frontend.rejected.items()}
+    out |= {f"flagged {k}": v for k, v in c.frontend.flagged.items()}
+    out["not converged"] = c.not_converged
+    return out
