@@ -7,8 +7,12 @@ is the message's integer quantisation (1 mG, 1 mgauss).
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import logging
 import math
+import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -21,10 +25,10 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavattitude.config import Config, load_config
 from mavattitude.estimation.conventions import angle_between, quat_from_euler, rotate_ned_to_body
-from mavattitude.link import LinkCounters, MavlinkLink
+from mavattitude.link import LinkCounters
 from mavattitude.pipeline import AttitudePipeline
 from mavattitude.sensors import units
-from mavattitude.service import AttitudeService, ServiceCounters, counters_line
+from mavattitude.service import AttitudeService, ServiceCounters, counters_line, open_link
 from mavattitude.systemd_notify import SystemdNotifier
 from tests.link.peer import UdpPeer
 
@@ -79,14 +83,11 @@ class Autopilot(UdpPeer):
 class Running:
     """The service on its own thread, stopped and joined at the end."""
 
-    def __init__(self, config: Config) -> None:
+    def __init__(self, config: Config, notifier: SystemdNotifier | None = None) -> None:
         self.config = config
-        self.link = MavlinkLink(
-            config.link.connect,
-            source_system=config.link.vehicle_system_id or 1,
-            source_component=config.link.component_id,
-        )
-        self.service = AttitudeService(config, self.link, AttitudePipeline(config), SystemdNotifier(environ={}))
+        self.link = open_link(config)
+        notifier = notifier if notifier is not None else SystemdNotifier(environ={})
+        self.service = AttitudeService(config, self.link, AttitudePipeline(config), notifier)
         self.stop = threading.Event()
         self.result: ServiceCounters | None = None
         self.thread = threading.Thread(target=self._run, name="service", daemon=True)
@@ -310,14 +311,15 @@ def test_counters_line_is_numbers_only():
     assert all(math.isnan(float(v)) or float(v) >= 0 for v in pairs.values())
 
 
-def test_run_command_exits_zero_on_sigterm_with_final_counters(tmp_path):
+@pytest.mark.parametrize("stop_signal", [signal.SIGTERM, signal.SIGINT])
+def test_run_command_exits_zero_on_a_stop_signal_with_final_counters(stop_signal):
     vehicle = Autopilot()
     cmd = [sys.executable, "-m", "mavattitude", "run", "--connect", f"udpout:127.0.0.1:{vehicle.address[1]}"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         vehicle.wait_for("HEARTBEAT", timeout_s=15.0)  # start-up imports numpy and pymavlink: allow for it
         stopped_at = time.monotonic()
-        proc.terminate()
+        proc.send_signal(stop_signal)
         _, err = proc.communicate(timeout=5.0)
         elapsed_s = time.monotonic() - stopped_at
     finally:
@@ -337,3 +339,60 @@ def test_world_readable_key_refused_with_one_line(tmp_path):
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=30)
     assert proc.returncode == 2
     assert "world-readable" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_signed_link_required_forger_ignored(tmp_path):
+    key_file = tmp_path / "signing.key"
+    key_file.write_text("vehicle passphrase\n")
+    key_file.chmod(0o600)
+    key = hashlib.sha256(b"vehicle passphrase").digest()  # MAVProxy's passphrase -> key
+    running = Running(make_config(**{"link.signing.key_file": str(key_file), "link.signing.require_signing": True}))
+    vehicle = Autopilot()
+    vehicle.set_key(key)
+    forger = Autopilot()  # same system and component, no key
+    for peer in (vehicle, forger):
+        peer.target = running.link.local_address
+    lock_on(vehicle)
+    forger.stream(20, acc_mps2=(9.8, 0.0, 0.0))
+    vehicle.stream(100)
+    vehicle.wait_for("ATTITUDE_QUATERNION")
+    wait_until(vehicle, lambda: running.link.counters.signature_rejected == 20)
+    counters = running.finish()
+    assert counters.received == 100  # the forged samples never reached the pipeline
+    assert vehicle.mav.signing.goodsig_count > 0 and vehicle.mav.signing.badsig_count == 0
+    vehicle.close()
+    forger.close()
+
+
+def test_systemd_notify_ready_after_first_output_then_status_watchdog_stopping(tmp_path):
+    path = str(tmp_path / "notify.sock")
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    listener.bind(path)
+    listener.settimeout(WAIT_S)
+    notifier = SystemdNotifier(environ={"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "200000"})
+    running = Running(make_config(), notifier)
+    vehicle = Autopilot()
+    vehicle.target = running.link.local_address
+
+    def next_notification() -> str:
+        return listener.recv(4096).decode()
+
+    lock_on(vehicle)
+    assert next_notification() == "WATCHDOG=1"  # pinged from the loop before any output
+    vehicle.stream(100)
+    vehicle.wait_for("ATTITUDE_QUATERNION")
+    seen: list[str] = []
+    while not (any(n.startswith("READY=1") for n in seen) and any(n.startswith("STATUS=received=") for n in seen)):
+        seen.append(next_notification())  # each wait bounded by the socket's time-out
+    assert seen.count("READY=1\nSTATUS=first attitude sent") == 1
+    assert "WATCHDOG=1" in seen
+    running.finish()
+    rest = []
+    listener.setblocking(False)
+    with contextlib.suppress(BlockingIOError):
+        while True:
+            rest.append(next_notification())
+    assert "STOPPING=1" in rest
+    listener.close()
+    notifier.close()
+    vehicle.close()

@@ -38,6 +38,7 @@ Message = Any  # a pymavlink MAVLink_message: field attributes, get_type(), get_
 
 MAX_MESSAGES_PER_RECV = 64  # bound one recv() so a burst cannot starve heartbeats and the watchdog
 UDP_RECEIVE_BUFFER_BYTES = 1 << 20
+UDP_PEER_TIMEOUT_S = 5.0  # a udpin peer silent this long is no longer sent to (unless it is the only one)
 CONNECT_TIMEOUT_S = 0.5  # a TCP connect attempt; short, so a stop request is never held up for long
 SIGNING_CLOCK_UPDATE_S = 1.0
 STATUSTEXT_LEN = 50
@@ -152,19 +153,32 @@ class _TcpServer(mavutil.mavtcpin):
 
 
 class _Udp(mavutil.mavudp):
-    """pymavlink's UDP socket, parsing each datagram on its own.
+    """pymavlink's UDP socket, parsing each datagram on its own and answering only real peers.
 
-    MAVLink over UDP puts whole frames in each datagram. pymavlink keeps the bytes of a truncated frame
-    and reads the next datagram as its continuation, so one truncated datagram also destroys the good
-    frame after it; here the incomplete rest of a datagram is dropped (and counted) when the next arrives.
+    - MAVLink over UDP puts whole frames in each datagram. pymavlink keeps the bytes of a truncated
+      frame and reads the next datagram as its continuation, so one truncated datagram also destroys
+      the good frame after it; here the incomplete rest of a datagram is dropped (and counted) when
+      the next one arrives.
+    - A ``udpin`` socket sends to every address it has heard from. pymavlink adds any sender, forever;
+      here only senders of a well-formed (and, with signing required, well-signed) message count, and
+      one silent for ``UDP_PEER_TIMEOUT_S`` is dropped (pymavlink keeps the last one), so garbage from a
+      spoofed address buys neither our traffic nor our memory.
     """
 
     on_truncated: Any = None  # called once per dropped incomplete frame
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
+        super().__init__(*args, timeout=UDP_PEER_TIMEOUT_S, **kwargs)
         # room for a burst while the loop is busy (the kernel caps this at net.core.rmem_max)
         self.port.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, UDP_RECEIVE_BUFFER_BYTES)
+        self._sender: tuple[str, int] | None = None
+
+    def recv(self, n: int | None = None) -> bytes:
+        try:
+            data, self._sender = self.port.recvfrom(mavutil.UDP_MAX_PACKET_LEN)
+        except (BlockingIOError, ConnectionRefusedError):  # nothing waiting; an ICMP error from a udpout peer
+            return b""
+        return data
 
     def recv_msg(self) -> Message | None:
         msg = self.mav.parse_char(b"")  # complete frames still buffered from the last datagram
@@ -179,6 +193,9 @@ class _Udp(mavutil.mavudp):
                 if self.on_truncated is not None:
                     self.on_truncated()
             msg = self.mav.parse_char(data)
+        if self.udp_server and msg is not None and msg.get_type() != "BAD_DATA":
+            self.clients.add(self._sender)
+            self.clients_last_alive[self._sender] = time.time()  # pymavlink's write() ages them by time.time()
         # no mavutil.post_message: its per-system bookkeeping (two message copies per instance-keyed
         # message such as RAW_IMU) is a third of the receive cost and nothing here reads it
         return msg

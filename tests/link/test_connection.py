@@ -4,6 +4,8 @@ TCP reconnection, and connection-string checking."""
 from __future__ import annotations
 
 import math
+import os
+import select
 import socket
 import time
 
@@ -266,3 +268,39 @@ def test_unbindable_address_and_missing_serial_device_are_link_errors():
 def test_system_id_255_is_refused():
     with pytest.raises(LinkError, match="255 is for ground stations"):
         MavlinkLink("udpin:127.0.0.1:0", source_system=255)
+
+
+def test_udpin_answers_only_senders_of_valid_messages(udp_pair):
+    link, peer = udp_pair
+    spoofer = UdpPeer(system=9)
+    spoofer.target = peer.target
+    spoofer.send_raw(b"\xfd\x09garbage that is no frame")
+    peer.send(peer.heartbeat())
+    recv_until(link, "HEARTBEAT")
+    link.send_heartbeat()
+    peer.wait_for("HEARTBEAT")
+    assert link.counters.bad_data == 1
+    assert spoofer.poll(0.2) == []  # bounded wait: the heartbeat reached the peer already
+    spoofer.close()
+
+
+def test_serial_device_through_a_pseudo_terminal():
+    """A real tty (a pty pair) through pyserial: the link on the slave end, the test on the master."""
+    master, slave = os.openpty()
+    packer = UdpPeer(system=1)  # used only to pack and parse frames
+    try:
+        with MavlinkLink(f"{os.ttyname(slave)},57600", source_system=1) as link:
+            assert link.endpoint.kind == "serial" and link.endpoint.baud == 57600
+            os.write(master, packer.pack(packer.heartbeat()))
+            recv_until(link, "HEARTBEAT")
+            link.send_heartbeat()
+            ready, _, _ = select.select([master], [], [], WAIT_S)
+            assert ready
+            frame = os.read(master, 280)
+            assert frame[0] == MAVLINK2_MAGIC
+            (hb,) = packer.mav.parse_buffer(frame)
+            assert hb.get_type() == "HEARTBEAT" and hb.get_srcComponent() == 191
+    finally:
+        os.close(master)
+        os.close(slave)
+        packer.close()
