@@ -57,12 +57,6 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
         help="low-pass and resample to the output rate (50 Hz by default) as the service does; --no-filter "
         "solves every input sample (default: --filter)",
     )
-    parser.add_argument(
-        "--progress",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help=f"progress on stderr (default: only for inputs of {PROGRESS_MIN_SAMPLES} samples or more)",
-    )
 
 
 def _std(text: str) -> float | list[float]:

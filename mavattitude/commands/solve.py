@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from mavattitude.commands._offline import (
+    PROGRESS_MIN_SAMPLES,
     Progress,
     add_config_arguments,
     config_from_args,
@@ -51,6 +52,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", help="input CSV (or .csv.gz) with t_s, acc_*_mps2, mag_*_uT [, gyr_*_radps]")
     parser.add_argument("-o", "--output", required=True, help="output CSV (gzip-compressed if it ends in .gz)")
     add_config_arguments(parser)
+    parser.add_argument(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help=f"progress on stderr (default: only for inputs of {PROGRESS_MIN_SAMPLES} samples or more)",
+    )
 
 
 def read_samples(path: str | Path) -> dict[str, np.ndarray]:
