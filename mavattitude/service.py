@@ -226,7 +226,7 @@ class AttitudeService:
         self.vehicle = source
         self.link.set_source_system(source[0])
         log.info("locked onto the autopilot: system %d, component %d", *source)
-        self._statustext("start", f"mavattitude {__version__} on, {self._input_name} -> ATTITUDE_QUATERNION", "info")
+        self._statustext("start", f"mavattitude {__version__}: attitude from {self._input_name}", "info")
         if self.config.link.request_messages:
             self._next_request = time.monotonic()
         self._next_heartbeat = time.monotonic()  # announce ourselves under the vehicle's id at once
@@ -323,6 +323,8 @@ class AttitudeService:
         text = f"mavattitude: no {self._input_name} for {silent_s:.1f} s, output stopped"
         log.warning("%s", text)
         self._statustext("input_lost", text, "warning", log_it=False)
+        if self.config.link.request_messages and self.vehicle is not None:
+            self._next_request = time.monotonic()  # a rebooted autopilot has forgotten our request: ask now
 
     def _reject(self, reason: str, exc: Exception) -> None:
         self.counters.rejected[reason] = self.counters.rejected.get(reason, 0) + 1

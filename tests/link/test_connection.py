@@ -7,6 +7,8 @@ import math
 import os
 import select
 import socket
+import subprocess
+import sys
 import time
 
 import pytest
@@ -304,3 +306,31 @@ def test_serial_device_through_a_pseudo_terminal():
         os.close(master)
         os.close(slave)
         packer.close()
+
+
+def test_mavlink2_even_when_pymavlink_was_imported_first_for_mavlink1():
+    """Another importer got pymavlink's MAVLink 1 default; our link still sends and parses MAVLink 2
+    (ADAP_TUNING has id 11010: MAVLink 2 only)."""
+    script = """
+import os, socket, time
+os.environ.pop("MAVLINK20", None)
+from pymavlink import mavutil
+assert mavutil.mavlink.WIRE_PROTOCOL_VERSION == "1.0", mavutil.mavlink.WIRE_PROTOCOL_VERSION
+from pymavlink.dialects.v20 import all as v2
+from mavattitude.link import MavlinkLink
+link = MavlinkLink("udpin:127.0.0.1:0", source_system=1)
+peer = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+peer.settimeout(3.0)
+packer = v2.MAVLink(None, srcSystem=1, srcComponent=1)
+peer.sendto(v2.MAVLink_adap_tuning_message(1, *[0.0] * 12).pack(packer), link.local_address)
+got = []
+deadline = time.monotonic() + 3.0
+while not got and time.monotonic() < deadline:
+    got = link.recv(0.05)
+link.send_heartbeat()
+print(peer.recv(300)[0], got[0][1].get_type())
+"""
+    env = {k: v for k, v in os.environ.items() if k != "MAVLINK20"}
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=30, env=env)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == [str(MAVLINK2_MAGIC), "ADAP_TUNING"]
