@@ -137,7 +137,7 @@ def estimate_batch(recording: Recording, config: Config) -> Estimate:
     """``solve_batch`` on the raw samples with the config's noise, references and method."""
     noise = NoiseModel(accel_std=config.noise.accel_std_mps2, mag_std=config.noise.mag_std_uT)
     start = time.monotonic()
-    usable = _observable(recording.acc_mps2, recording.mag_uT, config.estimator.min_angle_deg)
+    usable = observable(recording.acc_mps2, recording.mag_uT, config.estimator.min_angle_deg)
     result = solve_batch(
         recording.acc_mps2[usable],
         recording.mag_uT[usable],
@@ -161,7 +161,7 @@ def estimate_batch(recording: Recording, config: Config) -> Estimate:
     )
 
 
-def _observable(acc: Array, mag: Array, min_angle_deg: float) -> Array:
+def observable(acc: Array, mag: Array, min_angle_deg: float) -> Array:
     """Samples whose two directions are further than ``min_angle_deg`` from collinear.
 
     ``solve_batch`` refuses a batch holding any other (the rotation about their common direction is
