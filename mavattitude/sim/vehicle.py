@@ -68,6 +68,9 @@ class VehicleConfig:
     stream_on_start: bool = False  # ArduPilot Copter: silent until SET_MESSAGE_INTERVAL
     deny_nonzero_param3: bool = True  # ArduPilot denies SET_MESSAGE_INTERVAL with param3 ≠ 0
     speed: float = 1.0  # vehicle seconds per real second
+    # Hold the script at its start until the IMU stream is first asked for (tests see the whole script);
+    # the vehicle clock runs from boot regardless.
+    fly_when_asked: bool = False
     seed: int = 0
     signing_key: bytes | None = None  # sign outgoing packets with this key
     home_lat_deg: float = 47.3977
@@ -128,7 +131,8 @@ class FakeVehicle:
         self._sent_mono_s = array("d")
         self.imu_sent = 0
         self.conn = self._open(config)
-        self._t0_mono = time.monotonic()
+        self._t0_mono = time.monotonic()  # the vehicle's boot
+        self._script_t0_mono: float | None = None if config.fly_when_asked else self._t0_mono
         self._default_streams()
 
     # --- set-up -----------------------------------------------------------------------------------------
@@ -159,7 +163,7 @@ class FakeVehicle:
         now = self.script_time()
         self._streams = {_MSG_GLOBAL_POSITION_INT: _Stream(_POSITION_RATE_HZ, now)}
         if self.config.stream_on_start:
-            self._streams[self._msg_id(self.config.message)] = _Stream(self.sensors.rate_hz, now)
+            self._set_stream(self._msg_id(self.config.message), self.sensors.rate_hz)
 
     @staticmethod
     def _msg_id(name: str) -> int:
@@ -190,8 +194,11 @@ class FakeVehicle:
     # --- clocks -----------------------------------------------------------------------------------------
 
     def script_time(self, mono_s: float | None = None) -> float:
+        """Script seconds since the script started (0 while a ``fly_when_asked`` vehicle waits)."""
+        if self._script_t0_mono is None:
+            return 0.0
         mono_s = time.monotonic() if mono_s is None else mono_s
-        return (mono_s - self._t0_mono) * self.config.speed
+        return (mono_s - self._script_t0_mono) * self.config.speed
 
     def vehicle_time(self, script_s: float) -> float:
         return script_s - self._epoch.boot_script_s + self._epoch.clock_offset_s
@@ -218,11 +225,7 @@ class FakeVehicle:
 
     def set_rate(self, message: str, rate_hz: float | None) -> None:
         """Stream ``message`` at ``rate_hz`` (None stops it), as if a SET_MESSAGE_INTERVAL arrived."""
-        msg_id = self._msg_id(message)
-        if rate_hz is None:
-            self._streams.pop(msg_id, None)
-        else:
-            self._streams[msg_id] = _Stream(rate_hz, self.script_time())
+        self._set_stream(self._msg_id(message), rate_hz)
 
     def stream_rate(self, message: str) -> float | None:
         stream = self._streams.get(self._msg_id(message))
@@ -430,11 +433,20 @@ class FakeVehicle:
         if rate_hz is None:
             self._streams.pop(msg_id, None)
             return
+        if msg_id != _MSG_GLOBAL_POSITION_INT and self._script_t0_mono is None:
+            self._take_off()
         stream = self._streams.get(msg_id)
         if stream is None:
             self._streams[msg_id] = _Stream(rate_hz, self.script_time())
         else:
             stream.rate_hz = rate_hz
+
+    def _take_off(self) -> None:
+        """Start the script now; the vehicle clock runs on from where it was (``fly_when_asked``)."""
+        now = time.monotonic()
+        with self._cond:
+            self._epoch = dataclasses.replace(self._epoch, boot_script_s=-(now - self._t0_mono) * self.config.speed)
+            self._script_t0_mono = now
 
     # --- waiting and scoring ----------------------------------------------------------------------------
 
@@ -446,6 +458,17 @@ class FakeVehicle:
     def wait_for_outputs(self, count: int, timeout_s: float) -> bool:
         """Wait until ``count`` ATTITUDE_QUATERNION messages have arrived in total."""
         return self.wait_until(lambda: len(self.attitude_log) >= count, timeout_s)
+
+    def wait_for_script_time(self, script_s: float, timeout_s: float) -> bool:
+        """Wait until an output describing script time ``script_s`` or later has arrived."""
+
+        def reached() -> bool:
+            if not self.attitude_log:
+                return False
+            _, t_vehicle, _, epoch, _ = self.attitude_log[-1]
+            return t_vehicle + epoch.boot_script_s - epoch.clock_offset_s >= script_s
+
+        return self.wait_until(reached, timeout_s)
 
     def outputs_since(self, index: int = 0) -> tuple[Array, Array, Array]:
         """``(recv_mono_s, script_time_s, q)`` of outputs from ``index`` on."""

@@ -46,6 +46,7 @@ def flight(
     **vehicle: Any,
 ) -> Iterator[Flight]:
     """The vehicle flying ``script`` and the service connected to it, both stopped on exit."""
+    vehicle.setdefault("fly_when_asked", True)  # the script starts when the service asks for the IMU
     with FakeVehicle(script, sensors, VehicleConfig("udpin:127.0.0.1:0", **vehicle)) as v:
         config = config_for(v, **merged(FAST_SERVICE, service or {}))
         with ServiceProcess(config) as svc:
