@@ -36,8 +36,9 @@ import numpy as np
 
 from mavattitude import __version__
 from mavattitude.config import Config
-from mavattitude.errors import InputError, LinkError, MavAttitudeError, SensorError
+from mavattitude.errors import InputError, MavAttitudeError, SensorError
 from mavattitude.link import MavlinkLink, load_signing_key, message_id
+from mavattitude.pipeline import AttitudePipeline
 from mavattitude.sensors import units
 from mavattitude.systemd_notify import SystemdNotifier, default_notifier
 
@@ -118,7 +119,7 @@ class AttitudeService:
         self,
         config: Config,
         link: MavlinkLink,
-        pipeline: Any,
+        pipeline: AttitudePipeline,
         notifier: SystemdNotifier | None = None,
     ) -> None:
         self.config = config
@@ -128,10 +129,7 @@ class AttitudeService:
         self.counters = ServiceCounters()
         self.vehicle: tuple[int, int] | None = None
         self._input_name = config.input.message
-        input_id = message_id(config.input.message)
-        if input_id is None:
-            raise LinkError(f"the MAVLink dialect has no message {config.input.message}")
-        self._input_id = input_id
+        self._input_id = message_id(config.input.message)
         self._profile = units.get_profile(config.input.profile, config.input.custom)
         self._wants_position = config.reference.magnetic.mode == "auto"
         self._position_id = message_id(POSITION_MESSAGE)
@@ -238,7 +236,7 @@ class AttitudeService:
             self.counters.interval_requests += 1
             if self._ack_due is None:
                 self._ack_due = now + ACK_TIMEOUT_S
-        if self._wants_position and self._position_id is not None:
+        if self._wants_position:
             self.link.request_message_interval(self.vehicle, self._position_id, POSITION_RATE_HZ)
 
     def _on_ack(self, msg: Any) -> None:

@@ -106,7 +106,7 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mavattitude.pipeline import AttitudePipeline  # numpy and the solvers: only when serving
+    from mavattitude.pipeline import AttitudePipeline  # numpy, pymavlink and the solvers: only when serving
     from mavattitude.service import AttitudeService, open_link
 
     config = load_config(args.config, overrides_from_args(args))

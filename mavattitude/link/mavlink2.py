@@ -24,6 +24,8 @@ os.environ.setdefault("MAVLINK20", "1")
 
 from pymavlink import mavutil  # after the environment set-up above, on purpose
 
+from mavattitude.errors import LinkError
+
 mavlink2: ModuleType = importlib.import_module(f"pymavlink.dialects.v20.{mavutil.current_dialect}")
 
 
@@ -39,6 +41,9 @@ def force_mavlink2(conn: Any) -> None:
     conn.first_byte = False  # no process-wide protocol switch triggered by what a peer sends
 
 
-def message_id(name: str) -> int | None:
-    """The MAVLink message id of a message name (``"RAW_IMU"`` -> 27), or None if the dialect lacks it."""
-    return getattr(mavlink2, f"MAVLINK_MSG_ID_{name.upper()}", None)
+def message_id(name: str) -> int:
+    """The MAVLink message id of a message name (``"RAW_IMU"`` -> 27)."""
+    msg_id = getattr(mavlink2, f"MAVLINK_MSG_ID_{name.upper()}", None)
+    if msg_id is None:
+        raise LinkError(f"the MAVLink dialect {mavutil.current_dialect!r} has no message {name}")
+    return int(msg_id)
