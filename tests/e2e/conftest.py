@@ -7,8 +7,12 @@ counters line, a STATUSTEXT) with a bounded time-out; the only sleeps are the ve
 
 from __future__ import annotations
 
+import socket
+import subprocess
+import sys
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -94,3 +98,63 @@ def assert_healthy(v: FakeVehicle, max_error_deg: float, outputs: int = 25) -> N
     s = v.score(index)
     assert s.broken == 0
     assert s.angle_max_deg < max_error_deg, s
+
+
+def free_udp_port() -> int:
+    """An ephemeral UDP port for a process that must bind it itself (MAVProxy's --out)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+# MAVProxy as a pure router: no heartbeats of its own, no stream-rate requests, no modules (param, wp,
+# rally, fence... each fetch from the vehicle at start), no state on disk, no console.
+MAVPROXY_QUIET = [
+    "--daemon",
+    "--non-interactive",
+    "--no-state",
+    "--streamrate=-1",
+    "--heartbeat-rate=0",
+    "--default-modules=",
+    "--mav20",
+    "--nowait",
+]
+
+
+@contextmanager
+def mavproxy(master: str, out: str, workdir: Path) -> Iterator[subprocess.Popen[str]]:
+    exe = Path(sys.executable).with_name("mavproxy.py")
+    proc = subprocess.Popen(
+        [str(exe), f"--master={master}", f"--out={out}", *MAVPROXY_QUIET],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        cwd=workdir,
+    )
+    try:
+        yield proc
+    finally:
+        proc.terminate()
+        try:
+            proc.communicate(timeout=5.0)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.communicate()
+
+
+@contextmanager
+def routed_flight(
+    script: Script, sensors: SensorModel, workdir: Path, service: Mapping[str, Any] | None = None, **vehicle: Any
+) -> Iterator[Flight]:
+    """Vehicle ⇄ MAVProxy ⇄ service, the way a companion computer is wired."""
+    vehicle.setdefault("fly_when_asked", True)
+    with FakeVehicle(script, sensors, VehicleConfig("udpin:127.0.0.1:0", **vehicle)) as v:
+        out_port = free_udp_port()
+        with mavproxy(f"udpout:127.0.0.1:{v.port}", f"udpin:127.0.0.1:{out_port}", workdir):
+            config = config_for(v, **merged(FAST_SERVICE, service or {}))
+            config["link"]["connect"] = f"udpout:127.0.0.1:{out_port}"
+            with ServiceProcess(config) as svc:
+                if not v.wait_for_outputs(1, START_TIMEOUT_S):
+                    pytest.fail("no ATTITUDE_QUATERNION through MAVProxy; service log:\n" + svc.log_tail())
+                yield v, svc
