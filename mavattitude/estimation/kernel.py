@@ -12,7 +12,9 @@ Index ``i`` = 1 magnetometer, 2 accelerometer, as in the paper.
 - :func:`ml_weight` — the maximum-likelihood weight matrix ``R_unit⁺ + ŵŵᵀ/κ²`` (beyond the paper).
 - :func:`triad` — the closed-form TRIAD attitude (the accelerometer is the primary vector).
 - :func:`scalar_weight_step` — one Gauss–Newton correction, Eq. 32–35, for scalar weights (IGN, CGN).
-- :func:`matrix_weight_step` — the tangent-space Gauss–Newton correction for matrix weights (ML).
+- :func:`matrix_weight_step` — the tangent-space Newton correction for matrix weights (ML).
+- :func:`covariance` — the predicted body error-angle covariance of each method (see
+  :mod:`.covariance` for the formulas and why not the paper's Eq. 23 / 39).
 
 Eq. 34 in three dimensions: ``A(q)v`` is quadratic in ``q``, so with ``u = A(q)v`` and any correction
 written in the orthogonal basis ``Δq = q ⊗ [c, δ/2]`` the Jacobian ``H`` of Eq. 32 gives exactly
@@ -70,6 +72,12 @@ def sym_solve(m: Sym, b: Vec) -> Vec:
         (axy * b[0] + ayy * b[1] + ayz * b[2]) * inv,
         (axz * b[0] + ayz * b[1] + azz * b[2]) * inv,
     )
+
+
+def sym_inverse(m: Sym) -> Sym:
+    det, adj = sym_det_adj(m)
+    inv = 1.0 / det
+    return tuple(e * inv for e in adj)  # type: ignore[return-value]
 
 
 def sym_matvec(m: Sym, v: Vec) -> Vec:
@@ -131,9 +139,7 @@ def ml_weight(w: Vec, r_unit: Sym, a: Scalar) -> Sym:
         yz + k2 * w[1] * w[2],
         zz + k2 * w[2] * w[2],
     )
-    det, adj = sym_det_adj(m)
-    inv = 1.0 / det
-    return tuple(e * inv for e in adj)  # type: ignore[return-value]
+    return sym_inverse(m)
 
 
 def triad(w_acc: Vec, w_mag: Vec, v_acc: Vec, v_mag: Vec, s_body: Scalar, s_ref: Scalar) -> tuple:
@@ -238,6 +244,70 @@ def observations(method: str, mag: tuple, acc: tuple) -> tuple:
             weight = paper_weight(w, n, var)
         out.append((w, v, weight))
     return tuple(out)
+
+
+def sym_congruence(a: Sym, s: Sym) -> Sym:
+    """``a s a`` for symmetric ``a`` and ``s`` (symmetric)."""
+    c0, c1, c2 = sym_matvec(s, (a[0], a[1], a[2])), sym_matvec(s, (a[1], a[3], a[4])), sym_matvec(s, (a[2], a[4], a[5]))
+    r0, r1, r2 = sym_matvec(a, c0), sym_matvec(a, c1), sym_matvec(a, c2)  # columns of a (s a)
+    return (r0[0], r1[0], r2[0], r1[1], r2[1], r2[2])
+
+
+def _outer_sym(x: Vec, y: Vec) -> Sym:
+    """``x yᵀ + y xᵀ``."""
+    return (2 * x[0] * y[0], x[0] * y[1] + y[0] * x[1], x[0] * y[2] + y[0] * x[2],
+            2 * x[1] * y[1], x[1] * y[2] + y[1] * x[2], 2 * x[2] * y[2])  # fmt: skip
+
+
+def covariance(method: str, mag: tuple, acc: tuple) -> Sym:
+    """Predicted covariance of the body error angles for ``(ŵ, |Ŵ|, var)`` of each sensor (rad², 6-tuple).
+
+    Scalar weights (ign, cgn): ``M⁻¹ (Σ aᵢ² [ŵᵢ×] R_unit,i [ŵᵢ×]ᵀ) M⁻¹``, ``M = Σ aᵢ (I − ŵᵢŵᵢᵀ)``.
+    ml: the Cramér–Rao bound ``(Σ [ŵᵢ×]ᵀ Wᵢ [ŵᵢ×])⁻¹`` (the radial part of ``Wᵢ`` drops out there).
+    triad: see :func:`triad_covariance`.
+    """
+    (w1, n1, var1), (w2, n2, var2) = mag, acc
+    r1, r2 = unit_covariance(w1, n1, var1), unit_covariance(w2, n2, var2)
+    if method == "triad":
+        return triad_covariance(w2, r2, w1, r1)
+    if method == "ml":
+        a1, a2 = paper_weight(w1, n1, var1), paper_weight(w2, n2, var2)
+        info1 = cross_sandwich(w1, ml_weight(w1, r1, a1))
+        info2 = cross_sandwich(w2, ml_weight(w2, r2, a2))
+        return sym_inverse(tuple(x + y for x, y in zip(info1, info2, strict=True)))  # type: ignore[arg-type]
+    a1, a2 = (1.0, 1.0) if method == "cgn" else (paper_weight(w1, n1, var1), paper_weight(w2, n2, var2))
+    asum = a1 + a2
+    m = (
+        asum - a1 * w1[0] * w1[0] - a2 * w2[0] * w2[0],
+        -a1 * w1[0] * w1[1] - a2 * w2[0] * w2[1],
+        -a1 * w1[0] * w1[2] - a2 * w2[0] * w2[2],
+        asum - a1 * w1[1] * w1[1] - a2 * w2[1] * w2[1],
+        -a1 * w1[1] * w1[2] - a2 * w2[1] * w2[2],
+        asum - a1 * w1[2] * w1[2] - a2 * w2[2] * w2[2],
+    )
+    b1, b2 = cross_sandwich(w1, r1), cross_sandwich(w2, r2)
+    middle = tuple(a1 * a1 * x + a2 * a2 * y for x, y in zip(b1, b2, strict=True))
+    return sym_congruence(sym_inverse(m), middle)  # type: ignore[arg-type]
+
+
+def triad_covariance(e: Vec, r_p: Sym, u: Vec, r_s: Sym) -> Sym:
+    """Linearised TRIAD, primary ``e = ŵₚ`` (accelerometer), secondary ``u = ŵₛ``: ``δα = Gₚ nₚ + Gₛ nₛ``.
+
+    The primary fit ``ŵₚ ∥ Â vₚ`` gives the error perpendicular to ``e``: ``δ⊥ = −[e×] nₚ``. The
+    secondary must lie in the plane of ``ŵₚ, ŵₛ``, which fixes the part along ``e``:
+    ``e·δ = (h·nₚ − c·nₛ/|c|²)`` with ``c = e × u`` and ``h = e × (c × u)/|c|²``. Hence ``Gₚ = −[e×] + e hᵀ``,
+    ``Gₛ = −e cᵀ/|c|²`` and ``P = [e×]Rₚ[e×]ᵀ − (z eᵀ + e zᵀ) + (hᵀRₚh + cᵀRₛc/|c|⁴) e eᵀ``, ``z = e × Rₚh``.
+    """
+    c = cross(e, u)
+    c2 = c[0] * c[0] + c[1] * c[1] + c[2] * c[2]
+    h = scaled(cross(e, cross(c, u)), 1.0 / c2)
+    rh = sym_matvec(r_p, h)
+    z = cross(e, rh)
+    rc = sym_matvec(r_s, c)
+    k = h[0] * rh[0] + h[1] * rh[1] + h[2] * rh[2] + (c[0] * rc[0] + c[1] * rc[1] + c[2] * rc[2]) / (c2 * c2)
+    base, mixed = cross_sandwich(e, r_p), _outer_sym(z, e)
+    ee = (e[0] * e[0], e[0] * e[1], e[0] * e[2], e[1] * e[1], e[1] * e[2], e[2] * e[2])
+    return tuple(b - x + k * y for b, x, y in zip(base, mixed, ee, strict=True))  # type: ignore[return-value]
 
 
 def wahba_loss(q: Quat, obs: tuple, matrix_weights: bool) -> Scalar:

@@ -28,8 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..errors import DegenerateGeometryError, InputError
 from . import kernel
 from .conventions import quat_from_rotation_parts
-from .covariance import predicted_covariance
-from .noise import NoiseModel
+from .noise import NoiseModel, sym_to_matrix
 
 METHODS = ("ign", "cgn", "ml", "triad")
 MAX_ITERATIONS = 10
@@ -64,8 +63,9 @@ class SolveResult:
         """Predicted error-angle covariance (rad², body): sandwich (ign, cgn), CRB (ml), linearised TRIAD."""
         if self._covariance is None:
             (w_mag, _, _), (w_acc, _, _) = self._obs
-            acc, mag = kernel.scaled(w_acc, self._norms[0]), kernel.scaled(w_mag, self._norms[1])
-            self._covariance = predicted_covariance(acc, mag, self.noise, self.method)
+            n_acc, n_mag = self._norms
+            p = kernel.covariance(self.method, (w_mag, n_mag, self.noise.mag_var), (w_acc, n_acc, self.noise.accel_var))
+            self._covariance = sym_to_matrix(p)
         return self._covariance
 
 

@@ -88,3 +88,10 @@ def test_covariance_is_lazy_and_cached():
     r = solve(PAPER_GRAVITY_BODY_MPS2, PAPER_MAG_BODY_UT, PAPER_MAG_NED_UT, PAPER_NOISE, acc_ref=GRAVITY_DOWN)
     assert r._covariance is None
     assert r.covariance is r.covariance
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_per_sample_and_vectorised_covariance_agree(monte_carlo, method):
+    acc, mag, _ = monte_carlo
+    r = solve(acc[0], mag[0], PAPER_MAG_NED_UT, PAPER_NOISE, method=method, acc_ref=GRAVITY_DOWN)
+    np.testing.assert_allclose(r.covariance, predicted_covariance(acc[:5], mag[:5], PAPER_NOISE, method)[0], rtol=1e-12)
