@@ -44,9 +44,9 @@ from numpy.typing import NDArray
 
 from mavattitude.sensors.calibration import Calibration, sensor_affines
 from mavattitude.sensors.clock import ClockEvent, VehicleClock
-from mavattitude.sensors.lowpass import Biquad, butter2, filter_batch
+from mavattitude.sensors.lowpass import butter2, filter_batch
 from mavattitude.sensors.mounting import mounting_matrix
-from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2, ImuSample, wrap_period_s
+from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2, TIME_FIELDS, ImuSample, wrap_period_s
 
 log = logging.getLogger(__name__)
 
@@ -160,6 +160,7 @@ def last_tick(t_s: float, rate_hz: float) -> int:
 
 
 CONTINUED, STARTED, GAP = 0, 1, 2
+_WRAP_PERIODS = {message: wrap_period_s(message) for message in TIME_FIELDS}
 
 
 class _Stream:
@@ -199,58 +200,54 @@ class _Stream:
         self.y_last: list[float] = []
         self.t_prev: float | None = None  # the sample before the last, in the same segment
         self.y_prev: list[float] = []
-        self.coef: Biquad | None = None
+        self.coef: tuple[float, float, float, float, float] | None = None
         self.fs_hz = 0.0
 
     def design(self, fs_hz: float) -> None:
         assert self.cutoff_hz is not None
-        self.coef, self.fs_hz = butter2(self.cutoff_hz, fs_hz), fs_hz
+        bq = butter2(self.cutoff_hz, fs_hz)
+        self.coef, self.fs_hz = (bq.b0, bq.b1, bq.b2, bq.a1, bq.a2), fs_hz
 
     def push(self, t: float, x: Sequence[float]) -> tuple[int, bool]:
         """Filter one sample; returns (CONTINUED | STARTED | GAP, re-designed)."""
-        status = CONTINUED
-        if self.t_last is None or t - self.t_last > self.timeout_s:
-            status = STARTED if self.t_last is None else GAP
+        t_last = self.t_last
+        if t_last is None or t - t_last > self.timeout_s:
             self.restart()
             self.segment += 1
             self.times.append(t)
-            self.t_last, self.y_last = t, list(x)
-            return status, False
+            self.t_last, self.y_last = t, x
+            return STARTED if t_last is None else GAP, False
         times = self.times
         times.append(t)
-        self.t_prev, self.y_prev = self.t_last, self.y_last
-        self.t_last = t
+        self.t_prev, self.y_prev, self.t_last = t_last, self.y_last, t
         if self.cutoff_hz is None:
-            self.y_last = list(x)
-            return status, False
-        m = len(times) - 1
-        fs = m / (t - times[0])
+            self.y_last = x
+            return CONTINUED, False
+        fs = (len(times) - 1) / (t - times[0])
         redesigned = False
         if self.coef is None:  # second sample of a segment: the history is the steady state at the first
             self.design(fs)
-            self.x1, self.x2, self.y1, self.y2 = (list(self.y_last) for _ in range(4))
+            self.x1 = self.x2 = self.y1 = self.y2 = self.y_last
         elif abs(fs - self.fs_hz) > self.tolerance * self.fs_hz:
             self.design(fs)
             redesigned = True
-        bq = self.coef
-        assert bq is not None
-        b0, b1, b2, a1, a2 = bq.b0, bq.b1, bq.b2, bq.a1, bq.a2
-        x1, x2, y1, y2 = self.x1, self.x2, self.y1, self.y2
+        b0, b1, b2, a1, a2 = self.coef  # type: ignore[misc]
+        x1, y1 = self.x1, self.y1
         y = [
             b0 * xi + b1 * u1 + b2 * u2 - a1 * v1 - a2 * v2
-            for xi, u1, u2, v1, v2 in zip(x, x1, x2, y1, y2, strict=True)
+            for xi, u1, u2, v1, v2 in zip(x, x1, self.x2, y1, self.y2, strict=False)
         ]
-        self.x1, self.x2, self.y1, self.y2 = list(x), x1, y, y1
-        self.y_last = y
-        return status, redesigned
+        self.x1, self.x2, self.y1, self.y2, self.y_last = x, x1, y, y1, y
+        return CONTINUED, redesigned
 
 
 def _finite(v: Sequence[float]) -> bool:
     return math.isfinite(v[0]) and math.isfinite(v[1]) and math.isfinite(v[2])
 
 
-def _over(v: Sequence[float], limit: float) -> bool:
-    return abs(v[0]) >= limit or abs(v[1]) >= limit or abs(v[2]) >= limit
+def _within(v: Sequence[float], limit: float) -> bool:
+    """All components strictly inside ±limit (False for NaN)."""
+    return -limit < v[0] < limit and -limit < v[1] < limit and -limit < v[2] < limit
 
 
 def _affine_rows(a: Array, c: Array) -> tuple[tuple[float, ...], ...]:
@@ -282,7 +279,7 @@ class FrontEnd:
     def push(self, sample: ImuSample) -> list[ProcessedSample]:
         c = self.counters
         c.received += 1
-        t, event = self._clock.update(sample.time_s, wrap_period_s(sample.message))
+        t, event = self._clock.update(sample.time_s, _WRAP_PERIODS.get(sample.message))
         if t is None:
             c.rejected[event.value] += 1
             return []
@@ -295,22 +292,18 @@ class FrontEnd:
             c.wraps += 1
         s = self.settings
         acc, gyr, mag = sample.acc_mps2, sample.gyr_radps, sample.mag_uT
-        reason = None
-        if not (_finite(acc) and _finite(gyr)):
-            reason = "nonfinite"
-        elif "acc" in sample.saturated or _over(acc, s.acc_full_scale_mps2):
-            reason = "saturated_acc"
-        elif "gyr" in sample.saturated or _over(gyr, s.gyr_full_scale_radps):
-            reason = "saturated_gyr"
-        if reason is not None:
-            c.rejected[reason] += 1
-            return []
+        # one chained comparison per vector is the fast path (NaN fails it too); the reason only on failure
+        if sample.saturated or not (_within(acc, s.acc_full_scale_mps2) and _within(gyr, s.gyr_full_scale_radps)):
+            reason = self._reject_reason(sample)
+            if reason is not None:
+                c.rejected[reason] += 1
+                return []
         c.accepted += 1
         if mag is not None:
-            if not _finite(mag):
-                c.mag_rejected["nonfinite"] += 1
-            elif "mag" in sample.saturated or _over(mag, s.mag_full_scale_uT):
-                c.mag_rejected["saturated"] += 1
+            if ("mag" in sample.saturated or not _within(mag, s.mag_full_scale_uT)) and (
+                reason := "nonfinite" if not _finite(mag) else "saturated"
+            ):
+                c.mag_rejected[reason] += 1
             else:
                 status, redesigned = self._mag.push(t, _apply(self._mag_cal, mag))
                 c.mag_gap_resets += status == GAP
@@ -325,6 +318,16 @@ class FrontEnd:
             self._pending_reset = True
             self._next_k = first_tick(t, s.output_rate_hz) if s.filter_enabled else 0
         return self._emit(t)
+
+    def _reject_reason(self, sample: ImuSample) -> str | None:
+        s, acc, gyr = self.settings, sample.acc_mps2, sample.gyr_radps
+        if not (_finite(acc) and _finite(gyr)):
+            return "nonfinite"
+        if "acc" in sample.saturated or not _within(acc, s.acc_full_scale_mps2):
+            return "saturated_acc"
+        if "gyr" in sample.saturated or not _within(gyr, s.gyr_full_scale_radps):
+            return "saturated_gyr"
+        return None  # only the magnetometer is saturated
 
     def _emit(self, t: float) -> list[ProcessedSample]:
         s, imu = self.settings, self._imu
@@ -527,16 +530,18 @@ def process_batch(
     mag_ok = mag_in & mag_fin & ~mag_sat
 
     affines = sensor_affines(s.calibration, mounting_matrix(s.mounting))
-    imu_body = np.hstack([_apply_batch(affines["acc"], acc[accepted]), _apply_batch(affines["gyr"], gyr[accepted])])
-    mag_body = _apply_batch(affines["mag"], mag[mag_ok])
-    t_imu, t_mag = t[accepted], t[mag_ok]
-    epoch_imu, epoch_mag = epoch[accepted], epoch[mag_ok]
+    imu_body = np.hstack(
+        [_apply_batch(affines["acc"], _rows(acc, accepted)), _apply_batch(affines["gyr"], _rows(gyr, accepted))]
+    )
+    mag_body = _apply_batch(affines["mag"], _rows(mag, mag_ok))
+    t_imu, t_mag = _rows(t, accepted), _rows(t, mag_ok)
+    epoch_imu, epoch_mag = _rows(epoch, accepted), _rows(epoch, mag_ok)
     b0 = expected_field_uT if expected_field_uT is not None else s.expected_field_uT
 
     pieces = []
-    for e in np.unique(epoch_imu):
+    for e in range(int(epoch[-1]) + 1 if n else 0):
         ii, mm = epoch_imu == e, epoch_mag == e
-        pieces.append(_batch_epoch(s, t_imu[ii], imu_body[ii], t_mag[mm], mag_body[mm], c))
+        pieces.append(_batch_epoch(s, _rows(t_imu, ii), _rows(imu_body, ii), _rows(t_mag, mm), _rows(mag_body, mm), c))
     out = _concat(pieces, c)
     _screen_batch(s, out, b0)
     c.emitted = len(out)
@@ -547,9 +552,16 @@ def process_batch(
     return out
 
 
+def _rows(a: Any, mask: NDArray[np.bool_]) -> Any:
+    """``a[mask]``, without the copy when every row is kept (the usual case)."""
+    return a if mask.all() else a[mask]
+
+
 def _apply_batch(affine: tuple[Array, Array], v: Array) -> Array:
+    """``A v − c`` per row, in :func:`_apply`'s order of operations (and faster than a (n, 3) matmul)."""
     a, c = affine
-    return v @ a.T - c
+    x, y, z = v[:, 0], v[:, 1], v[:, 2]
+    return np.column_stack([a[i, 0] * x + a[i, 1] * y + a[i, 2] * z - c[i] for i in range(3)])
 
 
 def _batch_clock(
@@ -630,6 +642,8 @@ def _batch_epoch(
     s: FrontEndSettings, t: Array, imu: Array, tm: Array, mag: Array, c: FrontEndCounters
 ) -> tuple[Array, Array, Array, NDArray[np.int64]]:
     """Ticks of one boot epoch: (times, IMU values (·, 6), magnetometer (·, 3) NaN-padded, flags)."""
+    if len(t) == 0:
+        return np.empty(0), np.empty((0, 6)), np.empty((0, 3)), np.empty(0, dtype=np.int64)
     y, _ = _filter_batch_stream(s, t, imu, c)
     ym, segm = _filter_batch_stream(s, tm, mag, c)
     segments = _segments(t, s.input_timeout_s)

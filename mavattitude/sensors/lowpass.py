@@ -75,25 +75,35 @@ def filter_batch(bq: Biquad, x: Array, x_hist: Array, y_hist: Array) -> Array:
     c1, c2 = 2.0 * r * p, 2.0 * r * p * p
     system = np.array([[c1.real, -c1.imag], [c2.real, -c2.imag]])
     u, v = np.linalg.solve(system, np.stack([z1, -bq.a1 * z1 + z2]))
-    state = u + 1j * v
+    state = r * (u + 1j * v)  # carried as r·w: then y = d x + 2 Re(r w) needs no multiply by r
     block = max(1, math.floor(math.log(_BLOCK_GROWTH_LIMIT) / -math.log(abs(p))))
     chunk = block * max(1, _CHUNK_SAMPLES // block)
+    j = np.tile(np.arange(block), chunk // block)
+    tables = (r * p**-j, p**j, p ** (j + 1))  # the same for every chunk: computed once
     y = np.empty_like(x)
     for start in range(0, x.shape[0], chunk):
-        y[start : start + chunk], state = _filter_chunk(p, d, r, block, x[start : start + chunk], state)
+        y[start : start + chunk], state = _filter_chunk(p, d, block, tables, x[start : start + chunk], state)
     return y
 
 
-def _filter_chunk(p: complex, d: float, r: complex, block: int, x: Array, state: NDArray[np.complex128]):
-    """One stretch of :func:`filter_batch`: ``(y, w)`` from ``x`` (n, channels) and the state ``w`` before it."""
+def _filter_chunk(
+    p: complex,
+    d: float,
+    block: int,
+    tables: tuple[NDArray[np.complex128], ...],
+    x: Array,
+    state: NDArray[np.complex128],
+) -> tuple[Array, NDArray[np.complex128]]:
+    """One stretch of :func:`filter_batch`: ``(y, r·w)`` from ``x`` (n, channels) and ``r·w`` before it."""
     n, channels = x.shape
-    block = min(block, n)
     blocks = -(-n // block)
+    size = blocks * block
+    r_p_neg, p_pos, p_pos1 = (table[:size] for table in tables)
     # channels first, time contiguous: every elementwise operation runs over long inner loops
-    xt = np.zeros((channels, blocks * block))
+    xt = np.zeros((channels, size))
     xt[:, :n] = x.T
-    j = np.tile(np.arange(block), blocks)
-    w = np.cumsum((xt * p**-j).reshape(channels, blocks, block), axis=2).reshape(channels, -1) * p**j
+    w = np.cumsum((xt * r_p_neg).reshape(channels, blocks, block), axis=2).reshape(channels, -1)
+    w *= p_pos
     ends = w[:, block - 1 :: block]
     q = p**block
     # W_b, the state before block b: W_{b+1} = q W_b + e_b, summed until q^m is negligible
@@ -103,6 +113,6 @@ def _filter_chunk(p: complex, d: float, r: complex, block: int, x: Array, state:
     for m in range(max(terms, 1)):
         carry[:, m + 1 :] += q_m * ends[:, : blocks - m - 1]
         q_m *= q
-    w += np.repeat(carry, block, axis=1) * p ** (j + 1)
-    y = d * xt + 2.0 * (r * w).real
+    w += np.repeat(carry, block, axis=1) * p_pos1
+    y = d * xt + 2.0 * w.real
     return y[:, :n].T, w[:, n - 1]

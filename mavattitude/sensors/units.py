@@ -68,13 +68,14 @@ _OTHER_FIELDS: dict[str, dict[str, int | float]] = {
 }
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)
 class ImuSample:
     """One IMU reading in SI units, sensor/board frame, at ``time_s`` on the vehicle's clock.
 
     ``mag_uT`` is ``None`` when the message carries no new magnetometer reading (HIGHRES_IMU
     ``fields_updated``, or an all-zero field: no compass). ``saturated`` names the sensors (``"acc"``,
     ``"gyr"``, ``"mag"``) whose raw value sat at its integer limit, so the front end can screen them.
+    Not frozen: building it is on the per-message path, and a frozen dataclass costs twice as much.
     """
 
     time_s: float
@@ -175,48 +176,56 @@ def decode(msg: Any, profile: UnitProfile) -> ImuSample:
     magnitude (wrong units at the sender, e.g. ArduPilot's HIGHRES_IMU magnetometer).
     """
     kind = msg.get_type()
-    scale = profile.scale(kind)
-    time_field, time_unit_s, _ = TIME_FIELDS[kind]
-    raw = [getattr(msg, name) for name in (*_ACC, *_GYR, *_MAG)]
-    saturated: set[str] = set()
-    if scale.count_bits is not None:
-        bits = scale.count_bits
-        raw = [_sign_extend(int(v), bits) for v in raw]
-        lo, hi = -(1 << (bits - 1)), (1 << (bits - 1)) - 1
-    else:
-        lo, hi = INT16_MIN, INT16_MAX
-    if kind in INTEGER_MESSAGES:
-        for sensor, part in (("acc", raw[0:3]), ("gyr", raw[3:6]), ("mag", raw[6:9])):
-            if min(part) <= lo or max(part) >= hi:
-                saturated.add(sensor)
-    sa, sg, sm = scale.acc_mps2, scale.gyr_radps, scale.mag_uT
-    acc = (raw[0] * sa, raw[1] * sa, raw[2] * sa)
-    gyr = (raw[3] * sg, raw[4] * sg, raw[5] * sg)
-    mag: Vec3 | None = (raw[6] * sm, raw[7] * sm, raw[8] * sm)
+    scale = profile.messages.get(kind) or profile.scale(kind)
+    ax, ay, az = msg.xacc, msg.yacc, msg.zacc
+    gx, gy, gz = msg.xgyro, msg.ygyro, msg.zgyro
+    mx, my, mz = msg.xmag, msg.ymag, msg.zmag
+    saturated = _NONE_SATURATED
     if kind == "HIGHRES_IMU":
-        if not msg.fields_updated & HIGHRES_MAG_UPDATED:
-            mag = None
-    elif raw[6] == 0 and raw[7] == 0 and raw[8] == 0:
-        mag = None  # an integer message with no compass reads exactly zero
-    if mag is not None:
+        time_s = msg.time_usec * 1e-6
+        has_mag = bool(msg.fields_updated & HIGHRES_MAG_UPDATED)
+    else:
+        time_s = msg.time_usec * 1e-6 if kind == "RAW_IMU" else msg.time_boot_ms * 1e-3
+        bits = scale.count_bits
+        if bits is not None:
+            ax, ay, az, gx, gy, gz, mx, my, mz = (
+                _sign_extend(int(v), bits) for v in (ax, ay, az, gx, gy, gz, mx, my, mz)
+            )
+            lo, hi = -(1 << (bits - 1)), (1 << (bits - 1)) - 1
+        else:
+            lo, hi = INT16_MIN, INT16_MAX
+        if not (lo < min(ax, ay, az, gx, gy, gz, mx, my, mz) and max(ax, ay, az, gx, gy, gz, mx, my, mz) < hi):
+            saturated = _saturated((ax, ay, az), (gx, gy, gz), (mx, my, mz), lo, hi)
+        has_mag = not (mx == 0 and my == 0 and mz == 0)  # an integer message with no compass reads exactly zero
+    sa, sg = scale.acc_mps2, scale.gyr_radps
+    mag: Vec3 | None = None
+    if has_mag:
+        sm = scale.mag_uT
+        mag = (mx * sm, my * sm, mz * sm)
         norm = math.sqrt(mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2])
         if norm > MAX_PLAUSIBLE_FIELD_UT:
-            hint = (
-                " (ArduPilot's HIGHRES_IMU magnetometer is known to be 10⁶ too large: read RAW_IMU or SCALED_IMU)"
-                if profile.name == "ardupilot" and kind == "HIGHRES_IMU"
-                else ""
-            )
-            raise SensorError(
-                f"{kind} magnetometer |B| = {norm:.4g} µT is implausible (> {MAX_PLAUSIBLE_FIELD_UT:g} µT) "
-                f"with profile {profile.name!r}{hint}"
-            )
-    return ImuSample(
-        time_s=getattr(msg, time_field) * time_unit_s,
-        acc_mps2=acc,
-        gyr_radps=gyr,
-        mag_uT=mag,
-        message=kind,
-        saturated=frozenset(saturated),
+            raise _implausible(kind, profile, norm)
+    return ImuSample(time_s, (ax * sa, ay * sa, az * sa), (gx * sg, gy * sg, gz * sg), mag, kind, saturated)
+
+
+_NONE_SATURATED: frozenset[str] = frozenset()
+
+
+def _saturated(acc: tuple, gyr: tuple, mag: tuple, lo: int, hi: int) -> frozenset[str]:
+    return frozenset(
+        name for name, part in (("acc", acc), ("gyr", gyr), ("mag", mag)) if min(part) <= lo or max(part) >= hi
+    )
+
+
+def _implausible(kind: str, profile: UnitProfile, norm: float) -> SensorError:
+    hint = (
+        " (ArduPilot's HIGHRES_IMU magnetometer is known to be 10⁶ too large: read RAW_IMU or SCALED_IMU)"
+        if profile.name == "ardupilot" and kind == "HIGHRES_IMU"
+        else ""
+    )
+    return SensorError(
+        f"{kind} magnetometer |B| = {norm:.4g} µT is implausible (> {MAX_PLAUSIBLE_FIELD_UT:g} µT) "
+        f"with profile {profile.name!r}{hint}"
     )
 
 

@@ -257,3 +257,18 @@ def test_batch_path_gives_the_streaming_output(filtered: bool) -> None:
         cb.received, cb.accepted, cb.emitted, cb.gap_resets, cb.redesigns
     )  # fmt: skip
     assert c.rejected == cb.rejected and c.flagged == cb.flagged and c.rejected["duplicate"] == 1
+
+
+def test_batch_edge_cases_empty_all_rejected_and_a_reboot() -> None:
+    settings = FrontEndSettings()
+    empty = process_batch(settings, np.empty(0), np.empty((0, 3)), np.empty((0, 3)))
+    assert len(empty) == 0 and empty.counters.received == 0
+    nan = np.full((5, 3), np.nan)
+    rejected = process_batch(settings, np.arange(5) * 0.01, nan, nan)
+    assert len(rejected) == 0 and rejected.counters.rejected == {"nonfinite": 5}
+    t = np.concatenate([100 + np.arange(100) * 0.01, 0.5 + np.arange(100) * 0.01])
+    acc = np.tile([0.0, 0.0, -G], (200, 1))
+    batch = process_batch(settings, t, acc, np.zeros((200, 3)))
+    stream, fe = _stream(settings, _samples(t, acc, np.zeros((200, 3))))
+    assert batch.counters.reboots == fe.counters.reboots == 1
+    assert batch.time_s.tolist() == [o.time_s for o in stream]
