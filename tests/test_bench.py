@@ -20,7 +20,8 @@ from mavattitude.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
 QUICK_TIMEOUT_S = 120  # the quick run takes seconds; this only bounds a hung one
-MEASURED = re.compile(r"^-?[0-9.]+(e[-+]?\d+)? \S+$|^\d+, [0-9.]+% of \d+$")
+# A number with its unit (possibly followed by detail: "0 of 3995", "2000 Hz (tried 2000 Hz)"), or "none (...)".
+MEASURED = re.compile(r"^(-?[0-9.]+(e[-+]?\d+)?( \S+|,)|none \()")
 
 
 def _table_rows(text: str) -> dict[tuple[str, str], str]:

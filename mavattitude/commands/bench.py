@@ -18,6 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -246,6 +247,234 @@ def bench_fused(settings: Settings) -> list[Row]:
     return [_row("fused", EXPECTED_ROWS["fused"][0], per_sample_s * 1e6, "µs")]
 
 
+EXPECTED_ROWS["frontend"] = [
+    "decode + calibrate + filter + resample per input message (RAW_IMU at 200 Hz)",
+    "process_batch throughput (calibrate + filter + resample on arrays)",
+]
+
+
+@section("frontend")
+def bench_frontend(settings: Settings) -> list[Row]:
+    units = _require("mavattitude.sensors.units", "the sensor front end (issue 3)")
+    frontend = _require("mavattitude.sensors.frontend", "the sensor front end (issue 3)")
+    calibration = _require("mavattitude.sensors.calibration", "the sensor front end (issue 3)")
+    mavlink2 = _require("mavattitude.link.mavlink2", "the MAVLink link layer (issue 4)").mavlink2
+    from mavattitude.estimation import conventions as cv
+
+    rng = np.random.default_rng(SEED)
+    n = settings.pick(2_000, 20_000)
+    rate_hz = 200.0
+    t = np.arange(n) / rate_hz + rng.normal(0.0, 0.1 / rate_hz, n)  # 10% jitter, as a real link has
+    t.sort()
+    q_true = cv.quat_from_rotvec(np.outer(np.arange(n) / rate_hz, (0.03, -0.05, 0.08)))
+    acc = cv.rotate_ned_to_body(q_true, (0.0, 0.0, -GRAVITY_MPS2)) + rng.normal(0.0, ACC_STD_MPS2, (n, 3))
+    mag = cv.rotate_ned_to_body(q_true, MAG_REF_NED_UT) + rng.normal(0.0, MAG_STD_UT, (n, 3)) + (3.0, -2.0, 1.0)
+    gyr = rng.normal(0.0, 0.003, (n, 3))
+    # A real calibration (hard and soft iron, accelerometer bias) so the calibrate step does its work.
+    cal = calibration.Calibration.from_mapping(
+        {
+            "accel": {"bias_mps2": [0.02, -0.01, 0.03]},
+            "mag": {"hard_iron_uT": [3.0, -2.0, 1.0], "soft_iron": [[1.02, 0.01, 0], [0.01, 0.98, 0], [0, 0, 1.0]]},
+        }
+    )
+    front_settings = frontend.FrontEndSettings(calibration=cal, expected_field_uT=float(np.linalg.norm(MAG_REF_NED_UT)))
+    profile = units.get_profile("ardupilot")
+    messages = []
+    for i in range(n):
+        sample = units.ImuSample(float(t[i]), tuple(acc[i]), tuple(gyr[i]), tuple(mag[i]), "RAW_IMU")
+        messages.append(mavlink2.MAVLink_raw_imu_message(**units.encode(sample, profile)))
+
+    def stream_pass() -> None:
+        fe = frontend.FrontEnd(front_settings)
+        for msg in messages:
+            fe.push(units.decode(msg, profile))
+
+    per_message_s = best_time_s(stream_pass, settings.pick(2, 5)) / n
+    n_batch = settings.pick(100_000, 1_000_000)
+    t_b = np.arange(n_batch) / rate_hz
+    reps = -(-n_batch // n)
+    acc_b, gyr_b, mag_b = (np.tile(x, (reps, 1))[:n_batch] for x in (acc, gyr, mag))
+    batch_s = best_time_s(lambda: frontend.process_batch(front_settings, t_b, acc_b, gyr_b, mag_b), 3)
+    sec = "frontend"
+    return [
+        _row(sec, EXPECTED_ROWS[sec][0], per_message_s * 1e6, "µs", 20.0),
+        _row(sec, EXPECTED_ROWS[sec][1], n_batch / batch_s, "samples/s", 1_000_000, higher_is_better=True),
+    ]
+
+
+EXPECTED_ROWS["service"] = [
+    "latency at 200 Hz, datagram arrival → ATTITUDE_QUATERNION sent (service's clock), p50",
+    "latency at 200 Hz, datagram arrival → ATTITUDE_QUATERNION sent (service's clock), p99",
+    "latency at 200 Hz, vehicle's IMU send → vehicle's receipt (both UDP hops), p99",
+    "CPU of the service at 200 Hz input, share of one core",
+    "input at 2 000 Hz: IMU messages lost",
+    "input at 2 000 Hz: output rate",
+    "highest input rate tried with no loss and 50 Hz out",
+]
+
+START_TIMEOUT_S = 30.0  # a cold daemon start on a loaded 2-core machine takes a few seconds
+WARMUP_OUTPUTS = 25  # skip the first half second of outputs (imports, first allocations)
+
+
+@dataclass(frozen=True)
+class Phase:
+    """What one stretch of the real service at one input rate measured."""
+
+    rate_hz: float
+    sent: int
+    received: int
+    latency_p50_ms: float  # the service's own: median of its counters windows' p50
+    latency_p99_ms: float  # the worst of its counters windows' p99 (an upper bound on the phase's p99)
+    vehicle_latency_p99_ms: float
+    output_rate_hz: float
+    cpu_share: float
+
+    @property
+    def lost(self) -> int:
+        return self.sent - self.received
+
+    @property
+    def sustained(self) -> bool:
+        # The output keeps its 50 Hz to within 1% (the vehicle clock's jitter is far smaller).
+        return self.lost == 0 and abs(self.output_rate_hz - 50.0) <= 0.5
+
+
+def fly_service(phases: list[tuple[float, float]]) -> list[Phase]:
+    """The real daemon (a subprocess) against the fake vehicle, for each ``(rate_hz, seconds)`` in turn.
+
+    The vehicle streams at the phase's rate on its own (config caps requests at 2 000 Hz) and the service
+    only listens. Between phases the stream pauses until the service has counted everything sent, so
+    each phase's loss is exact. Counters every 0.2 s give the service's latency per window.
+    """
+    scenarios = _require("mavattitude.sim.scenarios", "the fake vehicle (issue 5)")
+    daemon = _require("mavattitude.sim.daemon", "the service harness (issue 5)")
+    vehicle_mod = _require("mavattitude.sim.vehicle", "the fake vehicle (issue 5)")
+    script = scenarios.slow_rotation(sum(seconds for _, seconds in phases) + 60.0)
+    vehicle_cfg = vehicle_mod.VehicleConfig("udpin:127.0.0.1:0", stream_on_start=True, seed=SEED)
+    results = []
+    # The sensor model's timing jitter scales with its rate: take the fastest phase's, so every rate is valid.
+    sensors = scenarios.consumer_sensors(max(rate for rate, _ in phases))
+    with vehicle_mod.FakeVehicle(script, sensors, vehicle_cfg) as vehicle:
+        config = daemon.config_for(
+            vehicle, link={"request_messages": False, "request_rate_hz": 200.0}, output={"stats_interval_s": 0.2}
+        )
+        with daemon.ServiceProcess(config) as service:
+            if not vehicle.wait_for_outputs(WARMUP_OUTPUTS, START_TIMEOUT_S):
+                raise RuntimeError("the service sent no attitude:\n" + service.log_tail())
+            message = vehicle.config.message
+            for rate_hz, seconds in phases:
+                sent0, received0 = _drained(vehicle, service)
+                vehicle.set_rate(message, rate_hz)
+                vehicle.pause_imu(False)
+                first, lines0 = len(vehicle.attitude_log) + WARMUP_OUTPUTS // 5, len(service.counters)
+                cpu0, wall0 = _cpu_s(service.pid), time.monotonic()
+                time.sleep(seconds)  # pacing: the vehicle streams in real time meanwhile
+                cpu_share = (_cpu_s(service.pid) - cpu0) / (time.monotonic() - wall0)
+                sent1, received1 = _drained(vehicle, service)
+                if sent1 == sent0:
+                    raise RuntimeError(f"the fake vehicle sent nothing at {rate_hz:g} Hz")
+                windows = [c for c in service.counters[lines0:] if np.isfinite(c.get("latency_p99_ms", np.nan))]
+                score = vehicle.score(first)
+                results.append(
+                    Phase(
+                        rate_hz,
+                        sent1 - sent0,
+                        received1 - received0,
+                        float(np.median([c["latency_p50_ms"] for c in windows])) if windows else float("nan"),
+                        float(np.max([c["latency_p99_ms"] for c in windows])) if windows else float("nan"),
+                        score.latency_p99_ms,
+                        score.output_rate_hz,
+                        cpu_share,
+                    )
+                )
+            if service.stop() != 0:
+                raise RuntimeError("the service did not exit cleanly:\n" + service.log_tail())
+    return results
+
+
+DRAIN_TIMEOUT_S = 5.0
+
+
+def _drained(vehicle: Any, service: Any) -> tuple[int, int]:
+    """Pause the stream; (sent, received) once the service's received count has settled.
+
+    Settled: two consecutive counters lines after the pause agree, so the vehicle has finished the batch
+    it was sending and nothing is left in the service's socket. (Messages sent before the service
+    connected are counted as sent and never received: callers use differences between two drains.)
+    """
+    vehicle.pause_imu(True)
+    lines = len(service.counters)
+
+    def settled() -> bool:
+        new = service.counters[lines:]
+        return len(new) >= 2 and new[-1]["received"] == new[-2]["received"]
+
+    if not service.wait_until(settled, DRAIN_TIMEOUT_S):
+        raise RuntimeError(f"the service's received count did not settle within {DRAIN_TIMEOUT_S} s")
+    return vehicle.imu_sent, int(service.counters[-1]["received"])
+
+
+def _cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a process so far (/proc/PID/stat fields 14 and 15)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+@section("service")
+def bench_service(settings: Settings) -> list[Row]:
+    if not Path("/proc/self/stat").exists():
+        raise NotAvailable("needs Linux /proc to measure the service's CPU time")
+    _require("mavattitude.service", "the service (issue 4)")
+    rates = [(200.0, settings.pick(2, 30)), (2000.0, settings.pick(2, 20))]
+    rates += [] if settings.quick else [(4000.0, 10.0), (8000.0, 10.0)]
+    at_200, at_2000, *beyond = fly_service(rates)
+    ladder = [at_2000, *beyond]
+    best = max((f.rate_hz for f in ladder if f.sustained), default=float("nan"))
+    tried = ", ".join(f"{f.rate_hz:g}" for f in ladder)
+    sec, names = "service", EXPECTED_ROWS["service"]
+    return [
+        _row(sec, names[0], at_200.latency_p50_ms, "ms"),
+        _row(sec, names[1], at_200.latency_p99_ms, "ms", 2.0),
+        _row(sec, names[2], at_200.vehicle_latency_p99_ms, "ms"),
+        _row(sec, names[3], 100.0 * at_200.cpu_share, "%", 5.0),
+        Row(sec, names[4], f"{at_2000.lost} of {at_2000.sent}", "0", "yes" if at_2000.lost == 0 else "no"),
+        _row(sec, names[5], at_2000.output_rate_hz, "Hz"),
+        Row(
+            sec,
+            names[6],
+            (_fmt(best, "Hz", 4) if np.isfinite(best) else "none") + f" (tried {tried} Hz)",
+            "≥ 2000 Hz",
+            "yes" if best >= 2000.0 else "no",
+        ),
+    ]
+
+
+EXPECTED_ROWS["soak"] = [
+    "soak: simulated time at 200 Hz input",
+    "soak: resident memory growth",
+    "soak: error drift (largest − smallest window RMS)",
+    "soak: output rate, slowest window",
+]
+
+
+@section("soak")
+def bench_soak(settings: Settings) -> list[Row]:
+    soak = _require("mavattitude.sim.soak", "the soak runner (issue 5)")
+    duration_s, window_s = (160.0, 40.0) if settings.quick else (3600.0, 300.0)
+    report = soak.run_soak(duration_s=duration_s, rate_hz=200.0, speed=20.0, window_s=window_s, seed=SEED)
+    if len(report.windows) < 2:
+        raise RuntimeError(f"the soak measured {len(report.windows)} window(s), too few to see growth")
+    if report.exit_code != 0:
+        raise RuntimeError(f"the service exited {report.exit_code} after the soak: {report.summary()}")
+    sec, names = "soak", EXPECTED_ROWS["soak"]
+    return [
+        _row(sec, names[0], duration_s, "s"),
+        _row(sec, names[1], report.rss_growth_mb, "MB", 5.0),
+        _row(sec, names[2], report.error_drift_deg, "°"),
+        _row(sec, names[3], report.output_rates_hz[0], "Hz"),
+    ]
+
+
 # --- the table and the machine ----------------------------------------------------------------------------
 
 
@@ -338,10 +567,11 @@ def run(args: argparse.Namespace) -> int:
     rows: list[Row] = []
     failed = False
     for name in args.sections or list(SECTIONS):
+        start = time.monotonic()
         section_rows, section_failed = run_section(name, settings)
         rows += section_rows
         failed |= section_failed
-        print(f"bench: {name} done", file=sys.stderr, flush=True)
+        print(f"bench: {name} done in {time.monotonic() - start:.1f} s", file=sys.stderr, flush=True)
     print(render_table(rows))
     if args.output is not None:
         args.output.parent.mkdir(parents=True, exist_ok=True)
