@@ -4,6 +4,9 @@ INPUT is a CSV (``.csv`` or ``.csv.gz`` with columns ``mag_x_uT, mag_y_uT, mag_z
 ``mag_new`` column of 0 are repeats and skipped), a telemetry log (``.tlog``), or a pymavlink connection
 string (``udpin:0.0.0.0:14550``, ``tcp:HOST:PORT``, ``/dev/ttyACM0``) to collect live while the vehicle is
 turned by hand. The result is the ``calibration: mag:`` block of the config.
+
+ArduPilot's RAW_IMU and SCALED_IMU magnetometer is already corrected by the autopilot's own compass
+calibration: a fit on it finds what that calibration left.
 """
 
 from __future__ import annotations
@@ -179,8 +182,8 @@ def _live_samples(connect: str, args: argparse.Namespace) -> Iterator[units.ImuS
 def _collect(samples: Iterable[units.ImuSample], args: argparse.Namespace, out: TextIO) -> np.ndarray:
     """Magnetometer readings from a sample stream, with a coverage progress line on ``out``.
 
-    Coverage is judged on the raw directions (the offset is not known yet), so it reads low for a sensor
-    with a large hard-iron offset; the fit judges it again afterwards.
+    Coverage is judged around the midpoint of the readings' range on each axis (a cheap hard-iron
+    estimate: the offset is not fitted yet); the fit judges it again around the fitted centre.
     """
     rows: list[tuple[float, float, float]] = []
     frac = 0.0
@@ -189,7 +192,8 @@ def _collect(samples: Iterable[units.ImuSample], args: argparse.Namespace, out: 
             continue
         rows.append(sample.mag_uT)
         if len(rows) % PROGRESS_EVERY == 0:
-            frac, counts = magfit.coverage(np.array(rows))
+            seen = np.array(rows)
+            frac, counts = magfit.coverage(seen - (seen.max(axis=0) + seen.min(axis=0)) / 2.0)
             bar = "".join("#" if c >= magfit.MIN_PER_CELL else "." for c in counts)
             out.write(f"\rcoverage [{bar}] {frac:.0%} of orientations, {len(rows)} samples ")
             out.flush()
