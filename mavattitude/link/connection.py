@@ -370,13 +370,14 @@ class MavlinkLink:
         received: list[tuple[float, Message]] = []
         try:
             while len(received) < MAX_MESSAGES_PER_RECV:
+                t_rx = time.monotonic()  # before reading and parsing: our whole handling counts as latency
                 msg = conn.recv_msg()
                 if msg is None:
                     break
                 if msg.get_type() == "BAD_DATA":
                     self._count_bad(msg)
                     continue
-                received.append((time.monotonic(), msg))
+                received.append((t_rx, msg))
         except OSError as exc:  # includes _Disconnected and serial.SerialException
             self._drop(exc)
         self.counters.received += len(received)
