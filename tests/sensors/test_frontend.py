@@ -8,6 +8,8 @@ import math
 import numpy as np
 import pytest
 import scipy.signal
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from mavattitude.sensors.frontend import (
     FrontEnd,
@@ -272,3 +274,29 @@ def test_batch_edge_cases_empty_all_rejected_and_a_reboot() -> None:
     stream, fe = _stream(settings, _samples(t, acc, np.zeros((200, 3))))
     assert batch.counters.reboots == fe.counters.reboots == 1
     assert batch.time_s.tolist() == [o.time_s for o in stream]
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    seed=st.integers(0, 2**31),
+    rate_hz=st.sampled_from([50.0, 87.0, 250.0, 1000.0]),
+    mag_every=st.integers(1, 4),
+    filtered=st.booleans(),
+)
+def test_batch_equals_streaming_on_random_timing(seed: int, rate_hz: float, mag_every: int, filtered: bool) -> None:
+    rng = np.random.default_rng(seed)
+    n = 400
+    dt = rng.choice([1.0, 1.0, 1.0, 2.0, 0.5, 0.0, 80.0], n, p=[0.6, 0.1, 0.1, 0.1, 0.05, 0.03, 0.02]) / rate_hz
+    t = 5.0 + np.cumsum(dt * rng.uniform(0.9, 1.1, n))  # jitter, drops, bursts, duplicates and gaps
+    acc = rng.normal([0, 0, -G], 2.0, (n, 3))
+    mag = rng.normal([20, 0, 40], 5.0, (n, 3))
+    samples = _samples(t, acc, rng.normal(0, 1, (n, 3)), mag, mag_every=mag_every)
+    settings_ = FrontEndSettings(expected_field_uT=44.7, filter_enabled=filtered)
+    stream, _ = _stream(settings_, samples)
+    got = process_batch(settings_, **batch_inputs(samples)).samples()
+    assert [o.time_s for o in got] == [o.time_s for o in stream]
+    assert [o.flags for o in got] == [o.flags for o in stream]
+    vec = lambda os: np.array([o.acc_mps2 + o.gyr_radps + (o.mag_uT or (np.nan,) * 3) for o in os])  # noqa: E731
+    if stream:
+        assert np.array_equal(np.isnan(vec(got)), np.isnan(vec(stream)))
+        assert np.nanmax(np.abs(vec(got) - vec(stream)), initial=0.0) < 1e-9
