@@ -1,9 +1,9 @@
 """The paper's equations, written once, on components that are plain floats *or* equal-shape arrays.
 
 Vectors are 3-tuples, symmetric 3×3 matrices 6-tuples ``(xx, xy, xz, yy, yz, zz)``, quaternions 4-tuples.
-Only ``+ − × /`` and ``** 0.5`` appear, so every function runs unchanged on Python floats (the per-sample
-path in :mod:`.solve`, free of numpy's per-call overhead) and on ``(N,)`` arrays (the vectorised
-:mod:`.batch`). Both paths therefore evaluate the same equations in the same order.
+Only ``+ − × /``, ``** 0.5`` and comparisons joined by ``& |`` appear, so every function runs unchanged
+on Python floats (the per-sample path in :mod:`.solve`, free of numpy's per-call overhead) and on
+``(N,)`` arrays (the vectorised :mod:`.batch`). Both paths therefore evaluate the same equations in the same order.
 
 Index ``i`` = 1 magnetometer, 2 accelerometer, as in the paper.
 
@@ -89,7 +89,7 @@ def cross_sandwich(u: Vec, m: Sym) -> Sym:
     """``[u×]ᵀ m [u×]`` for symmetric ``m`` (equal to ``[u×] m [u×]ᵀ``)."""
     x, y, z = u
     xx, xy, xz, yy, yz, zz = m
-    # Columns of m [u×]: m (e_k × ...) expanded once; then [u×]ᵀ applied to each.
+    # Columns of m [u×], i.e. m (u × e_k) for k = x, y, z; then [u×]ᵀ applied to each.
     c0 = (xy * z - xz * y, yy * z - yz * y, yz * z - zz * y)  # m [u×] e_x
     c1 = (xz * x - xx * z, yz * x - xy * z, zz * x - xz * z)  # m [u×] e_y
     c2 = (xx * y - xy * x, xy * y - yy * x, xz * y - yz * x)  # m [u×] e_z

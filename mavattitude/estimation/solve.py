@@ -10,8 +10,8 @@ until the estimated error left is at most ``tolerance`` (:func:`.kernel.converge
 From TRIAD, Eq. 34 converges in 2 corrections over random attitudes (at most 4 in the maneuvering
 flight of tools/reproduce_paper.py): TRIAD fits the heavily weighted accelerometer exactly, and
 Gauss–Newton's linear rate on what is left is tiny. A warm start ``q0`` (the previous
-sample's answer) is used only when its Wahba loss is not above TRIAD's (a flipped one sits near a
-stationary point 180° away, NOTES.md) and only for ``WARM_START_BUDGET`` corrections: in a maneuver the
+sample's answer) is used only when its Wahba loss is not above TRIAD's (a stale or flipped one may sit
+at a stationary point of Eq. 34 180° away, NOTES.md) and only for ``WARM_START_BUDGET`` corrections: in a maneuver the
 previous answer's tilt error converges at Gauss–Newton's slow linear rate (0.15 per step measured in
 tools/reproduce_paper.py's flight), so the solver then restarts from TRIAD. All corrections count.
 """
