@@ -347,10 +347,10 @@ class FrontEnd:
         return out
 
     def _tick(self, tk: float, y: Sequence[float]) -> ProcessedSample:
-        s, c = self.settings, self.counters
-        flags = SampleFlag(0)
+        s = self.settings
+        flags = 0  # plain int bits while building: IntFlag arithmetic costs a microsecond per operation
         if self._pending_reset:
-            flags |= SampleFlag.RESET
+            flags = _RESET
             self._pending_reset = False
         acc = (y[0], y[1], y[2])
         mag, mag_flag = self._mag_at(tk)
@@ -358,34 +358,39 @@ class FrontEnd:
         acc_scale = mag_scale = 1.0
         g = s.gravity_mps2
         if abs(_norm(acc) - g) > s.acc_norm_tolerance * g:
-            flags |= SampleFlag.ACC_NORM
+            flags |= _ACC_NORM
             acc_scale = s.suspect_std_scale
         b0 = self.expected_field_uT
         if mag is not None and b0 is not None and abs(_norm(mag) - b0) > s.mag_norm_tolerance * b0:
-            flags |= SampleFlag.MAG_NORM
+            flags |= _MAG_NORM
             mag_scale = s.suspect_std_scale
+        c = self.counters
         c.emitted += 1
         if flags & _COUNTED:
             for flag in _COUNTED_FLAGS:
                 if flags & flag:
                     c.flagged[flag.name or ""] += 1
-        return ProcessedSample(tk, acc, mag, (y[3], y[4], y[5]), flags, acc_scale, mag_scale)
+        return ProcessedSample(tk, acc, mag, (y[3], y[4], y[5]), _FLAGS[flags], acc_scale, mag_scale)
 
-    def _mag_at(self, tk: float) -> tuple[Vec3 | None, SampleFlag]:
+    def _mag_at(self, tk: float) -> tuple[Vec3 | None, int]:
         m = self._mag
         if m.t_last is None:
-            return None, SampleFlag.NO_MAG
+            return None, _NO_MAG
         if m.t_last >= tk:
             if m.t_prev is not None and m.t_prev < tk:
-                return _vec(_lerp(m.t_prev, m.y_prev, m.t_last, m.y_last, tk)), SampleFlag(0)
-            return _vec(m.y_last), SampleFlag.MAG_HELD
+                return _vec(_lerp(m.t_prev, m.y_prev, m.t_last, m.y_last, tk)), 0
+            return _vec(m.y_last), _MAG_HELD
         if tk - m.t_last <= self.settings.input_timeout_s:
-            return _vec(m.y_last), SampleFlag.MAG_HELD
-        return None, SampleFlag.NO_MAG
+            return _vec(m.y_last), _MAG_HELD
+        return None, _NO_MAG
 
 
+_RESET, _ACC_NORM, _MAG_NORM, _MAG_HELD, _NO_MAG = (
+    int(f) for f in (SampleFlag.RESET, SampleFlag.ACC_NORM, SampleFlag.MAG_NORM, SampleFlag.MAG_HELD, SampleFlag.NO_MAG)
+)
+_FLAGS = [SampleFlag(v) for v in range(32)]  # every combination, built once
 _COUNTED_FLAGS = (SampleFlag.RESET, SampleFlag.ACC_NORM, SampleFlag.MAG_NORM, SampleFlag.NO_MAG)
-_COUNTED = SampleFlag.RESET | SampleFlag.ACC_NORM | SampleFlag.MAG_NORM | SampleFlag.NO_MAG
+_COUNTED = int(SampleFlag.RESET | SampleFlag.ACC_NORM | SampleFlag.MAG_NORM | SampleFlag.NO_MAG)
 
 
 def _apply(rows: tuple[tuple[float, ...], ...], v: Sequence[float]) -> Vec3:
