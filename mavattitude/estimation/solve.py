@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import functools
 import math
+import numbers
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -77,7 +78,7 @@ def check_method(method: str) -> None:
 @functools.lru_cache(maxsize=16)
 def check_settings(max_iterations: int, tolerance: float, min_angle_deg: float) -> float:
     """Validate the iteration bounds; return ``sin(min_angle)``, the collinearity threshold."""
-    if not (isinstance(max_iterations, int) and max_iterations >= 1):
+    if not (isinstance(max_iterations, numbers.Integral) and max_iterations >= 1):
         raise InputError(f"max_iterations must be an integer ≥ 1, got {max_iterations!r}")
     if not (math.isfinite(tolerance) and tolerance > 0.0):
         raise InputError(f"tolerance must be a finite angle > 0 rad, got {tolerance!r}")
