@@ -172,6 +172,7 @@ def test_emits_attitude_quaternion_for_the_vehicle_time(served):
         assert first_sample_s * 1e3 <= aq.time_boot_ms <= vehicle.time_s * 1e3
     times = [aq.time_boot_ms for aq in outputs]
     assert times == sorted(times) and set(np.diff(times)) == {20}  # 50 Hz on the vehicle clock
+    wait_until(vehicle, lambda: running.service.counters.received == 200)
     counters = running.finish()
     assert counters.received == 200 and counters.emitted >= 40
     assert counters.latency_p99_ms < 100.0  # loopback in one process on a shared CPU: a loose sanity bound
@@ -287,6 +288,7 @@ def test_counters_line_logged_periodically_and_at_the_end(served, caplog):
     vehicle.stream(100)
     vehicle.wait_for("ATTITUDE_QUATERNION")
     wait_until(vehicle, lambda: any(r.getMessage().startswith("counters: ") for r in caplog.records))
+    wait_until(vehicle, lambda: running.service.counters.received == 100)
     running.finish()
     final = [r.getMessage() for r in caplog.records if r.getMessage().startswith("counters (final): ")]
     assert len(final) == 1
@@ -357,7 +359,9 @@ def test_signed_link_required_forger_ignored(tmp_path):
     vehicle.stream(100)
     vehicle.wait_for("ATTITUDE_QUATERNION")
     wait_until(vehicle, lambda: running.link.counters.signature_rejected == 20)
+    wait_until(vehicle, lambda: running.service.counters.received == 100)
     counters = running.finish()
+    assert running.link.counters.signature_rejected == 20
     assert counters.received == 100  # the forged samples never reached the pipeline
     assert vehicle.mav.signing.goodsig_count > 0 and vehicle.mav.signing.badsig_count == 0
     vehicle.close()
