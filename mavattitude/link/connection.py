@@ -307,7 +307,6 @@ class MavlinkLink:
             self._schedule_retry()
             return
         self.counters.reconnects += 1
-        self._backoff_s = self._reconnect_range_s[0]
         log.info("link %s:%s open again", *self._where())
 
     def _where(self) -> tuple[str, str]:
@@ -380,7 +379,9 @@ class MavlinkLink:
                 received.append((t_rx, msg))
         except OSError as exc:  # includes _Disconnected and serial.SerialException
             self._drop(exc)
-        self.counters.received += len(received)
+        if received:
+            self.counters.received += len(received)
+            self._backoff_s = self._reconnect_range_s[0]  # the link works: the next failure retries fast
         return received
 
     def _count_truncated(self) -> None:

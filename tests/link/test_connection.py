@@ -3,6 +3,7 @@ TCP reconnection, and connection-string checking."""
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import select
@@ -195,15 +196,22 @@ def test_tcp_client_reconnects_with_backoff_after_the_peer_drops():
         packer.close()
 
 
-def test_tcp_client_waits_for_a_router_that_is_not_up_yet():
+def test_tcp_client_waits_for_a_router_that_is_not_up_yet(caplog):
     probe = _listener()
     port = probe.getsockname()[1]
     probe.close()  # nothing listens on the port now
-    link = MavlinkLink(f"tcp:127.0.0.1:{port}", source_system=1, reconnect_min_s=0.05)
+    caplog.set_level(logging.WARNING, logger="mavattitude.link.connection")
+    link = MavlinkLink(f"tcp:127.0.0.1:{port}", source_system=1, reconnect_min_s=0.05, reconnect_max_s=0.2)
     try:
         assert not link.is_open
         assert link.send_heartbeat() is False and link.counters.send_failed == 1
-        link.recv(0.01)  # a failed attempt, backing off
+        delays: list[str] = []
+        deadline = time.monotonic() + WAIT_S
+        while len(delays) < 4 and time.monotonic() < deadline:
+            link.recv(0.05)
+            messages = [r.getMessage() for r in caplog.records]
+            delays = [m.rsplit("next try in ", 1)[1] for m in messages if "next try in" in m]
+        assert delays[:4] == ["0.1 s", "0.2 s", "0.2 s", "0.2 s"]  # doubling from 0.05 s, capped at 0.2 s
         server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         server.bind(("127.0.0.1", port))
