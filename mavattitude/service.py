@@ -225,6 +225,8 @@ class AttitudeService:
         self.link.set_source_system(source[0])
         log.info("locked onto the autopilot: system %d, component %d", *source)
         self._statustext("start", f"mavattitude {__version__}: attitude from {self._input_name}", "info")
+        if self._wants_position:
+            log.info("magnetic reference auto: no attitude until the vehicle's %s arrives", POSITION_MESSAGE)
         if self.config.link.request_messages:
             self._next_request = time.monotonic()
         self._next_heartbeat = time.monotonic()  # announce ourselves under the vehicle's id at once
