@@ -277,6 +277,8 @@ class FrontEnd:
         self.expected_field_uT = magnitude_uT
 
     def push(self, sample: ImuSample) -> list[ProcessedSample]:
+        """Take one decoded sample; return the output ticks it completes (usually 0 or 1, none while its
+        time is a duplicate, reordered or the sample is rejected). Counters say why, never an exception."""
         c = self.counters
         c.received += 1
         t, event = self._clock.update(sample.time_s, _WRAP_PERIODS.get(sample.message))
