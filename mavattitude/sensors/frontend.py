@@ -537,7 +537,8 @@ def process_batch(
     mag_ok = mag_in & mag_fin & ~mag_sat
 
     affines = sensor_affines(s.calibration, mounting_matrix(s.mounting))
-    imu_body = np.hstack(
+    # from here on channels first, time contiguous: (6, n) for the IMU, (3, n) for the magnetometer
+    imu_body = np.concatenate(
         [_apply_batch(affines["acc"], _rows(acc, accepted)), _apply_batch(affines["gyr"], _rows(gyr, accepted))]
     )
     mag_body = _apply_batch(affines["mag"], _rows(mag, mag_ok))
@@ -548,7 +549,7 @@ def process_batch(
     pieces = []
     for e in range(int(epoch[-1]) + 1 if n else 0):
         ii, mm = epoch_imu == e, epoch_mag == e
-        pieces.append(_batch_epoch(s, _rows(t_imu, ii), _rows(imu_body, ii), _rows(t_mag, mm), _rows(mag_body, mm), c))
+        pieces.append(_batch_epoch(s, _rows(t_imu, ii), _cols(imu_body, ii), _rows(t_mag, mm), _cols(mag_body, mm), c))
     out = _concat(pieces, c)
     _screen_batch(s, out, b0)
     c.emitted = len(out)
@@ -575,11 +576,16 @@ def _rows(a: Any, mask: NDArray[np.bool_]) -> Any:
     return a if mask.all() else a[mask]
 
 
+def _cols(a: Array, mask: NDArray[np.bool_]) -> Array:
+    """``a[:, mask]`` of a channels-first array, without the copy when every column is kept."""
+    return a if mask.all() else a[:, mask]
+
+
 def _apply_batch(affine: tuple[Array, Array], v: Array) -> Array:
-    """``A v − c`` per row, in :func:`_apply`'s order of operations (and faster than a (n, 3) matmul)."""
+    """``A v − c`` for rows ``v`` (n, 3), as (3, n), in :func:`_apply`'s order of operations."""
     a, c = affine
     x, y, z = v[:, 0], v[:, 1], v[:, 2]
-    return np.column_stack([a[i, 0] * x + a[i, 1] * y + a[i, 2] * z - c[i] for i in range(3)])
+    return np.stack([a[i, 0] * x + a[i, 1] * y + a[i, 2] * z - c[i] for i in range(3)])
 
 
 def _batch_clock(
@@ -615,7 +621,7 @@ def _segments(t: Array, timeout_s: float) -> list[tuple[int, int]]:
 def _filter_batch_stream(
     s: FrontEndSettings, t: Array, x: Array, c: FrontEndCounters
 ) -> tuple[Array, NDArray[np.int64]]:
-    """Filtered values and segment ids of one stream (IMU or magnetometer) within one boot epoch."""
+    """Filtered values (channels, n) and segment ids of one stream (IMU or magnetometer) in one boot epoch."""
     y = x.copy()
     seg = np.zeros(len(t), dtype=np.int64)
     for number, (a, b) in enumerate(_segments(t, s.input_timeout_s)):
@@ -633,11 +639,11 @@ def _filter_batch_stream(
             c.redesigns += start > 1
             bq = butter2(s.cutoff_hz, fs_d)
             if start == 1:  # the steady state at the first sample
-                x_hist = y_hist = np.stack([x[a], x[a]])
+                x_hist = y_hist = np.stack([x[:, a], x[:, a]])
             else:
                 back = [a + start - 1, a + start - 2]
-                x_hist, y_hist = x[back], y[back]
-            y[a + start : a + stop] = filter_batch(bq, x[a + start : a + stop], x_hist, y_hist)
+                x_hist, y_hist = x[:, back].T, y[:, back].T
+            y[:, a + start : a + stop] = filter_batch(bq, x[:, a + start : a + stop], x_hist, y_hist)
             start = stop
     return y, seg
 
@@ -659,9 +665,9 @@ def _next_redesign(fs: Array, start: int, fs_d: float, tolerance: float) -> int:
 def _batch_epoch(
     s: FrontEndSettings, t: Array, imu: Array, tm: Array, mag: Array, c: FrontEndCounters
 ) -> tuple[Array, Array, Array, NDArray[np.int64]]:
-    """Ticks of one boot epoch: (times, IMU values (·, 6), magnetometer (·, 3) NaN-padded, flags)."""
+    """Ticks of one boot epoch: (times, IMU values (6, ·), magnetometer (·, 3) NaN-padded, flags)."""
     if len(t) == 0:
-        return np.empty(0), np.empty((0, 6)), np.empty((0, 3)), np.empty(0, dtype=np.int64)
+        return np.empty(0), np.empty((6, 0)), np.empty((0, 3)), np.empty(0, dtype=np.int64)
     y, _ = _filter_batch_stream(s, t, imu, c)
     ym, segm = _filter_batch_stream(s, tm, mag, c)
     segments = _segments(t, s.input_timeout_s)
@@ -670,7 +676,7 @@ def _batch_epoch(
     r = s.output_rate_hz
     times, values, idx_all, flags = [], [], [], []
     for a, b in segments:
-        ts, ys = t[a:b], y[a:b]
+        ts, ys = t[a:b], y[:, a:b]
         if s.filter_enabled:
             ks = np.arange(first_tick(float(ts[0]), r), last_tick(float(ts[-1]), r) + 1)
             tk = ks / r
@@ -683,7 +689,7 @@ def _batch_epoch(
         prev = np.maximum(idx - 1, 0)
         with np.errstate(invalid="ignore", divide="ignore"):
             frac = (tk - ts[prev]) / (ts[idx] - ts[prev])
-        val = np.where(exact[:, None], ys[idx], ys[prev] + (ys[idx] - ys[prev]) * frac[:, None])
+        val = np.where(exact[None, :], ys[:, idx], ys[:, prev] + (ys[:, idx] - ys[:, prev]) * frac[None, :])
         f = np.zeros(len(tk), dtype=np.int64)
         f[0] = SampleFlag.RESET
         times.append(tk)
@@ -691,8 +697,9 @@ def _batch_epoch(
         idx_all.append(a + idx)
         flags.append(f)
     if not times:
-        return np.empty(0), np.empty((0, 6)), np.empty((0, 3)), np.empty(0, dtype=np.int64)
-    tk, val, idx, f = (np.concatenate(v) for v in (times, values, idx_all, flags))
+        return np.empty(0), np.empty((6, 0)), np.empty((0, 3)), np.empty(0, dtype=np.int64)
+    tk, idx, f = (np.concatenate(v) for v in (times, idx_all, flags))
+    val = np.concatenate(values, axis=1)
     mag_out = _mag_at_batch(s, tk, t[idx], tm, ym, segm, f)
     return tk, val, mag_out, f
 
@@ -720,10 +727,10 @@ def _mag_at_batch(
     held = (after & ~interp) | (~after & (tk - tm[jl] <= s.input_timeout_s))
     with np.errstate(invalid="ignore", divide="ignore"):
         frac = (tk - tm[jp]) / (tm[jl] - tm[jp])
-        lerp = ym[jp] + (ym[jl] - ym[jp]) * frac[:, None]
+        lerp = (ym[:, jp] + (ym[:, jl] - ym[:, jp]) * frac[None, :]).T
     use_interp, use_held = interp & ~none, held & ~none & ~interp
     out[use_interp] = lerp[use_interp]
-    out[use_held] = ym[jl][use_held]
+    out[use_held] = ym[:, jl[use_held]].T
     flags[use_held] |= SampleFlag.MAG_HELD
     flags[~(use_interp | use_held)] |= SampleFlag.NO_MAG
     return out
@@ -731,11 +738,13 @@ def _mag_at_batch(
 
 def _concat(pieces: list[tuple[Array, Array, Array, NDArray[np.int64]]], c: FrontEndCounters) -> BatchOutput:
     if pieces:
-        tk, val, mag, flags = (np.concatenate(v) for v in zip(*pieces, strict=True))
+        tk, mag, flags = (np.concatenate([piece[k] for piece in pieces]) for k in (0, 2, 3))
+        val = np.concatenate([piece[1] for piece in pieces], axis=1)
     else:
-        tk, val, mag, flags = np.empty(0), np.empty((0, 6)), np.empty((0, 3)), np.empty(0, dtype=np.int64)
+        tk, val, mag, flags = np.empty(0), np.empty((6, 0)), np.empty((0, 3)), np.empty(0, dtype=np.int64)
     ones = np.ones(len(tk))
-    return BatchOutput(tk, val[:, :3], mag, val[:, 3:], flags, ones, ones.copy(), c)
+    acc, gyr = np.ascontiguousarray(val[:3].T), np.ascontiguousarray(val[3:].T)
+    return BatchOutput(tk, acc, mag, gyr, flags, ones, ones.copy(), c)
 
 
 def _screen_batch(s: FrontEndSettings, out: BatchOutput, b0: float | None) -> None:

@@ -64,8 +64,9 @@ def butter2(cutoff_hz: float, fs_hz: float) -> Biquad:
 
 
 def filter_batch(bq: Biquad, x: Array, x_hist: Array, y_hist: Array) -> Array:
-    """Filter ``x`` (n, channels) after the history ``x_hist = [x₋₁, x₋₂]``, ``y_hist = [y₋₁, y₋₂]``
-    (each (2, channels); all four equal to a level for the steady state there)."""
+    """Filter ``x`` (channels, n: channels first, time contiguous) after the history
+    ``x_hist = [x₋₁, x₋₂]``, ``y_hist = [y₋₁, y₋₂]`` (each (2, channels); all four equal to a level for
+    the steady state there). Returns (channels, n)."""
     x = np.asarray(x, dtype=float)
     p = complex(np.roots([1.0, bq.a1, bq.a2])[0])
     d = bq.b2 / bq.a2
@@ -81,8 +82,8 @@ def filter_batch(bq: Biquad, x: Array, x_hist: Array, y_hist: Array) -> Array:
     j = np.tile(np.arange(block), chunk // block)
     tables = (r * p**-j, p**j, p ** (j + 1))  # the same for every chunk: computed once
     y = np.empty_like(x)
-    for start in range(0, x.shape[0], chunk):
-        y[start : start + chunk], state = _filter_chunk(p, d, block, tables, x[start : start + chunk], state)
+    for start in range(0, x.shape[1], chunk):
+        y[:, start : start + chunk], state = _filter_chunk(p, d, block, tables, x[:, start : start + chunk], state)
     return y
 
 
@@ -94,14 +95,13 @@ def _filter_chunk(
     x: Array,
     state: NDArray[np.complex128],
 ) -> tuple[Array, NDArray[np.complex128]]:
-    """One stretch of :func:`filter_batch`: ``(y, r·w)`` from ``x`` (n, channels) and ``r·w`` before it."""
-    n, channels = x.shape
+    """One stretch of :func:`filter_batch`: ``(y, r·w)`` from ``x`` (channels, n) and ``r·w`` before it."""
+    channels, n = x.shape
     blocks = -(-n // block)
     size = blocks * block
     r_p_neg, p_pos, p_pos1 = (table[:size] for table in tables)
-    # channels first, time contiguous: every elementwise operation runs over long inner loops
-    xt = np.zeros((channels, size))
-    xt[:, :n] = x.T
+    # time contiguous: every elementwise operation runs over long inner loops; zeros pad the last block
+    xt = x if size == n else np.concatenate([x, np.zeros((channels, size - n))], axis=1)
     w = np.cumsum((xt * r_p_neg).reshape(channels, blocks, block), axis=2).reshape(channels, -1)
     w *= p_pos
     ends = w[:, block - 1 :: block]
@@ -115,4 +115,4 @@ def _filter_chunk(
         q_m *= q
     w += np.repeat(carry, block, axis=1) * p_pos1
     y = d * xt + 2.0 * w.real
-    return y[:, :n].T, w[:, n - 1]
+    return y[:, :n], w[:, n - 1]

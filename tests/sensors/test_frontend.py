@@ -56,7 +56,8 @@ def test_design_and_batch_filter_match_scipy(fs_hz: float) -> None:
     sos = scipy.signal.butter(2, 10.0, fs=fs_hz, output="sos")[0]
     assert [bq.b0, bq.b1, bq.b2, 1.0, bq.a1, bq.a2] == pytest.approx(sos.tolist(), abs=1e-15)
     steady = np.stack([x[0], x[0]])
-    assert np.max(np.abs(filter_batch(bq, x, steady, steady) - _scipy_lowpass(x, 10.0, fs_hz))) < MATCH
+    got = filter_batch(bq, x.T, steady, steady).T  # channels first
+    assert np.max(np.abs(got - _scipy_lowpass(x, 10.0, fs_hz))) < MATCH
 
 
 def test_streaming_filter_matches_scipy_on_grid_aligned_input() -> None:
