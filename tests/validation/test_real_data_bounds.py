@@ -1,0 +1,79 @@
+"""Short slices of each real recording against bounds taken from the full-file figures.
+
+The full-file figures are what ``tools/validate_real.py`` measured on the whole files (docs/validation.md);
+per-sample TRIAD's are the data README's reference figures, which the batch path reproduces to 0.05°.
+Each slice (20–45 s, rest then movement) is chosen to mix rest and movement as its file does, and
+is measured within 25 % of its file's figures; the bounds allow ``MARGIN`` = 30 % above the full-file
+figure, plus ``FLOOR_DEG`` for the sub-degree figures (rest inclination ≈ 0.3°): the inclination
+offset between the IMU and its marker frame differs between rest positions by ~0.1° (TRIAD's rest
+inclination per break of trial 04: 0.50, 0.46, 0.43, 0.42, 0.42°). A real regression (a frame, filter
+or weighting mistake) costs far more, and fails.
+Slices run in ~0.5 s each (stream) instead of ~4 s per file.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from mavattitude.validation.runner import estimate_batch, estimate_stream, evaluate, validation_config
+
+MARGIN = 1.3
+FLOOR_DEG = 0.15
+
+# (key, slice s) → (path, method) → full-file figures, degrees.
+# BROAD: movement total/heading/inclination, rest total/heading/inclination.
+# PX4: roll RMS, pitch RMS, heading std (the heading mean is an offset, bounded separately).
+FULL_FILE = {
+    ("04", (20, 45)): {
+        ("batch", "triad"): (12.4, 11.2, 5.3, 3.2, 3.2, 0.45),  # the data README's reference figures
+        ("stream", "ign"): (10.09, 9.01, 4.56, 1.65, 1.62, 0.26),
+        ("stream", "fused"): (2.30, 1.00, 2.08, 0.65, 0.58, 0.29),
+    },
+    ("08", (18, 40)): {
+        ("batch", "triad"): (51, 47, 21, 3.22, 3.19, 0.43),
+        ("stream", "ign"): (48.00, 45.07, 17.85, 1.68, 1.66, 0.21),
+        ("stream", "fused"): (6.99, 5.59, 4.21, 1.65, 1.62, 0.30),
+    },
+    # 135–165 s: the last movement with the third magnetic disturbance (143.8–146.7 s), then rest. The
+    # fused filter is not bounded here: started inside a disturbance it needs longer than the slice.
+    ("28", (135, 165)): {
+        ("batch", "triad"): (76, 69, 37, 10.42, 10.41, 0.43),
+        ("stream", "ign"): (72.14, 69.23, 24.60, 9.59, 9.59, 0.24),
+    },
+    ("px4", (0, 60)): {
+        ("batch", "triad"): (0.60, 0.41, 2.2),  # the data README's reference figures
+        ("stream", "ign"): (0.45, 0.30, 1.31),
+        ("stream", "fused"): (0.13, 0.09, 0.29),
+    },
+}
+CASES = [
+    (key, span, path, method, full) for (key, span), runs in FULL_FILE.items() for (path, method), full in runs.items()
+]
+
+
+@pytest.mark.parametrize(("key", "span", "path", "method", "full"), CASES, ids=lambda v: str(v))
+def test_slice_within_the_full_file_figures(recordings, key, span, path, method, full) -> None:
+    rec = recordings[key].slice(*span)
+    config = validation_config(rec, method)
+    estimate = estimate_stream(rec, config) if path == "stream" else estimate_batch(rec, config)
+    assert estimate.coverage > 0.95  # only near-collinear acc/mag samples may be missing (≤ 2 % per file)
+    score = evaluate(rec, estimate).score
+    if rec.kind == "broad":
+        measured = list(score.columns().values())
+    else:
+        measured = [score.roll_rms_deg, score.pitch_rms_deg, score.heading_std_deg]
+        assert abs(score.heading_mean_deg) < 1.0  # magnetic north on both sides: no offset beyond noise
+    for name, value, bound in zip(score.columns(), measured, full, strict=False):
+        limit = max(MARGIN * bound, bound + FLOOR_DEG)
+        assert value <= limit, f"{name}: {value:.2f}° > {limit:.2f}° (full file: {bound}°)"
+
+
+def test_pipeline_beats_per_sample_triad_at_rest(recordings) -> None:
+    # Full files: the low-pass halves TRIAD's rest error (04: 3.21° → 1.65°, 1.95×). The magnetometer's own
+    # ~40 Hz bandwidth caps the gain of a 10 Hz low-pass near 2× (white noise would give 3.6×).
+    rec = recordings["04"].slice(20, 45)
+    stream = evaluate(rec, estimate_stream(rec, validation_config(rec, "ign"))).score.rest
+    triad = evaluate(rec, estimate_batch(rec, validation_config(rec, "triad"))).score.rest
+    assert stream.samples > 400 and triad.samples > 2500  # the 9.5 s break before the first movement
+    assert triad.total_deg / stream.total_deg > 1.7  # 1.95 on the full file, less a 15 % margin
+    assert triad.heading_deg / stream.heading_deg > 1.7

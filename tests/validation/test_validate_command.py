@@ -1,0 +1,41 @@
+"""`mavattitude validate` end to end on a slice of the PX4 log, its errors, and the figures' helper."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from mavattitude.cli import EXIT_USER_ERROR, main
+from mavattitude.validation.plots import running_rms
+from tests.validation.conftest import PX4
+
+
+def test_validate_writes_table_report_and_json(tmp_path, capsys) -> None:
+    report, scores = tmp_path / "validation.md", tmp_path / "scores.json"
+    argv = ["validate", str(PX4), "--stop", "10", "--method", "ign", "--method", "triad", "--path", "batch"]
+    assert main([*argv, "--report", str(report), "--json", str(scores)]) == 0
+    printed = capsys.readouterr().out
+    assert "px4_sample_sensors" in printed and "roll rms" in printed
+    assert "| batch | triad |" in report.read_text()
+    data = json.loads(scores.read_text())["px4_sample_sensors"]
+    assert [(row["path"], row["method"]) for row in data] == [("batch", "ign"), ("batch", "triad")]
+    assert all(0.0 < row["roll rms"] < 5.0 and row["coverage"] == 1.0 for row in data)
+
+
+def test_validate_user_errors_exit_2(tmp_path, capsys) -> None:
+    assert main(["validate", str(tmp_path)]) == EXIT_USER_ERROR
+    assert "no .csv or .csv.gz recordings" in capsys.readouterr().err
+    assert main(["validate", str(PX4), "--set", "filter.cutoff_hz"]) == EXIT_USER_ERROR
+    assert "expected KEY=VALUE" in capsys.readouterr().err
+    assert main(["validate", str(PX4), "--set", "filter.cutof_hz=5"]) == EXIT_USER_ERROR
+    assert "did you mean cutoff_hz" in capsys.readouterr().err
+
+
+def test_running_rms_over_a_trailing_window() -> None:
+    t = np.arange(0.0, 2.0, 0.1)
+    x = np.where(t < 1.0, 1.0, 3.0)
+    x[3] = np.nan  # ignored, not propagated
+    rms = running_rms(t, x, 0.45)  # windows of 5 samples (t − 0.45, t]
+    assert rms[4] == 1.0 and rms[-1] == 3.0
+    np.testing.assert_allclose(rms[12], np.sqrt((3 * 9 + 2 * 1) / 5))
