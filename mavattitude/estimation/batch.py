@@ -130,14 +130,17 @@ def _solve_chunk(chunk: list, noise: NoiseModel, method: str, max_iterations: in
     done = np.full(size, method == "triad")
     step = kernel.matrix_weight_step if ml else kernel.scalar_weight_step
     previous = np.full(size, np.nan)
+    newton = np.zeros(size, dtype=bool)
     for _ in range(max_iterations):
         if done.all():
             break
-        q_next, angle = step(q, obs)
+        q_next, angle = step(q, obs, newton if newton.any() else False)
         active = ~done  # as solve(): a converged sample takes no further correction
         q = tuple(np.where(active, b, a) for a, b in zip(q, q_next, strict=True))
         iterations += active
-        done = done | (active & kernel.converged(angle, previous, tolerance))
+        converged = kernel.converged(angle, previous, tolerance)
+        newton = newton | (~converged & kernel.slow(angle, previous))
+        done = done | (active & converged)
         previous = angle
     qa = np.stack(q, -1)
     return np.where(qa[:, :1] < 0.0, -qa, qa), iterations, done, kernel.wahba_loss(q, obs, ml)

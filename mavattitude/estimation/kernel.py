@@ -11,7 +11,8 @@ Index ``i`` = 1 magnetometer, 2 accelerometer, as in the paper.
 - :func:`paper_weight` — Eq. 19–21: ``a = 1/κ²``, ``κ² = tr(R_unit)/3``.
 - :func:`ml_weight` — the maximum-likelihood weight matrix ``R_unit⁺ + ŵŵᵀ/κ²`` (beyond the paper).
 - :func:`triad` — the closed-form TRIAD attitude (the accelerometer is the primary vector).
-- :func:`scalar_weight_step` — one Gauss–Newton correction, Eq. 32–35, for scalar weights (IGN, CGN).
+- :func:`scalar_weight_step` — one Gauss–Newton correction, Eq. 32–35, for scalar weights (IGN, CGN),
+  with a Newton safeguard for inconsistent vectors.
 - :func:`matrix_weight_step` — the tangent-space Newton correction for matrix weights (ML).
 - :func:`covariance` — the predicted body error-angle covariance of each method (see
   :mod:`.covariance` for the formulas and why not the paper's Eq. 23 / 39).
@@ -165,11 +166,19 @@ def triad(w_acc: Vec, w_mag: Vec, v_acc: Vec, v_mag: Vec, s_body: Scalar, s_ref:
     )  # fmt: skip
 
 
-def scalar_weight_step(q: Quat, obs: tuple) -> tuple[Quat, Scalar]:
+def scalar_weight_step(q: Quat, obs: tuple, newton: Scalar = False) -> tuple[Quat, Scalar]:
     """One IGN/CGN iteration, Eq. 34–35, for ``obs = ((ŵ₁, v₁, a₁), (ŵ₂, v₂, a₂))`` (unit vectors).
 
     Returns the corrected, normalised quaternion and the correction's angle ``|δ|`` (rad). Written out
     in full: it is the per-sample hot loop.
+
+    ``newton`` (a bool, or a bool array on the batch path) is the safeguard for inconsistent vectors:
+    Eq. 34 is Gauss–Newton, whose rate is linear and of the size of the residuals; with a large
+    disagreement between the two vectors (a hard maneuver, a magnetic disturbance) it crawls or cycles.
+    Where ``newton`` is true the normal matrix ``M = Σ aᵢ (I − uᵢuᵢᵀ)`` becomes the exact Hessian of the
+    loss, ``Σ aᵢ ((ŵᵢ·uᵢ) I − ½(ŵᵢuᵢᵀ + uᵢŵᵢᵀ))`` (``M`` plus the residual curvature, as in
+    :func:`matrix_weight_step`), and the radial part ``c`` is dropped: Newton's method, quadratic, to the
+    same optimum. For consistent vectors the two matrices agree to the size of the residuals.
     """
     r = rotation_matrix_parts(q)
     (w1, v1, a1), (w2, v2, a2) = obs
@@ -181,21 +190,30 @@ def scalar_weight_step(q: Quat, obs: tuple) -> tuple[Quat, Scalar]:
     g2 = a1 * (w1[0] * y1 - w1[1] * x1) + a2 * (w2[0] * y2 - w2[1] * x2)
     # M = Σ aᵢ (I − uᵢuᵢᵀ)
     asum = a1 + a2
-    mxx = asum - a1 * x1 * x1 - a2 * x2 * x2
-    mxy = -a1 * x1 * y1 - a2 * x2 * y2
-    mxz = -a1 * x1 * z1 - a2 * x2 * z2
-    myy = asum - a1 * y1 * y1 - a2 * y2 * y2
-    myz = -a1 * y1 * z1 - a2 * y2 * z2
-    mzz = asum - a1 * z1 * z1 - a2 * z2 * z2
-    d0, d1, d2 = sym_solve((mxx, mxy, mxz, myy, myz, mzz), (g0, g1, g2))
+    m = (
+        asum - a1 * x1 * x1 - a2 * x2 * x2,
+        -a1 * x1 * y1 - a2 * x2 * y2,
+        -a1 * x1 * z1 - a2 * x2 * z2,
+        asum - a1 * y1 * y1 - a2 * y2 * y2,
+        -a1 * y1 * z1 - a2 * y2 * z2,
+        asum - a1 * z1 * z1 - a2 * z2 * z2,
+    )
+    e1 = w1[0] * x1 + w1[1] * y1 + w1[2] * z1  # ŵᵢ·uᵢ
+    e2 = w2[0] * x2 + w2[1] * y2 + w2[2] * z2
     # ½ aᵢ |ŵᵢ − uᵢ|² = aᵢ (1 − ŵᵢ·uᵢ) for unit vectors; c = Σ aᵢ uᵢ·(ŵᵢ − uᵢ) / (2 Σ aᵢ) = −loss / (2 Σ aᵢ).
-    loss = a1 * (1.0 - w1[0] * x1 - w1[1] * y1 - w1[2] * z1) + a2 * (1.0 - w2[0] * x2 - w2[1] * y2 - w2[2] * z2)
-    c = -loss / (2.0 * asum)
+    c = -(a1 * (1.0 - e1) + a2 * (1.0 - e2)) / (2.0 * asum)
+    if newton is not False:
+        s1, s2 = _outer_sym(w1, (x1, y1, z1)), _outer_sym(w2, (x2, y2, z2))
+        diag = a1 * e1 + a2 * e2
+        h = tuple((diag if k in (0, 3, 5) else 0.0) - 0.5 * (a1 * s1[k] + a2 * s2[k]) for k in range(6))
+        m = tuple(mk + newton * (hk - mk) for mk, hk in zip(m, h, strict=True))  # type: ignore[assignment]
+        c = c * (1 - newton)
+    d0, d1, d2 = sym_solve(m, (g0, g1, g2))
     q_next = quat_multiply_parts(q, (1.0 + c, 0.5 * d0, 0.5 * d1, 0.5 * d2))
     return _normalised(q_next), (d0 * d0 + d1 * d1 + d2 * d2) ** 0.5
 
 
-def matrix_weight_step(q: Quat, obs: tuple) -> tuple[Quat, Scalar]:
+def matrix_weight_step(q: Quat, obs: tuple, newton: Scalar = True) -> tuple[Quat, Scalar]:
     """One maximum-likelihood Newton iteration for ``obs = ((ŵ₁, v₁, W₁), (ŵ₂, v₂, W₂))`` (:func:`ml_weight`).
 
     Cost ``½ Σ rᵢᵀ Wᵢ rᵢ`` with ``rᵢ(δ) = ŵᵢ − A(q ⊗ exp δ)vᵢ = rᵢ − [uᵢ×]δ − ½ δ×(δ×uᵢ) + …`` in the body
@@ -203,7 +221,7 @@ def matrix_weight_step(q: Quat, obs: tuple) -> tuple[Quat, Scalar]:
     plus the curvature ``Σ (pᵢ·uᵢ) I − ½(pᵢuᵢᵀ + uᵢpᵢᵀ)``, ``pᵢ = Wᵢrᵢ``. Without that term the iteration is
     only linear, at a rate of the size of the weighted residual (0.07 per step on a 2.4σ sample of the
     paper's scenario); with it, quadratic. ``q ← q ⊗ [1, δ/2]``, normalised. Returns like
-    :func:`scalar_weight_step`.
+    :func:`scalar_weight_step`; always Newton (``newton`` is accepted for the drivers' uniform call).
     """
     r = rotation_matrix_parts(q)
     h: Sym = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -320,6 +338,16 @@ def wahba_loss(q: Quat, obs: tuple, matrix_weights: bool) -> Scalar:
         wr = sym_matvec(weight, res) if matrix_weights else scaled(res, weight)
         loss = loss + 0.5 * (res[0] * wr[0] + res[1] * wr[1] + res[2] * wr[2])
     return loss
+
+
+# From TRIAD with consistent vectors Eq. 34 shrinks its corrections ~1e-5 per step (1e-3 → 1e-8 rad);
+# a ratio above 1e-3 means large residuals, where Newton converges in a few steps and Eq. 34 in tens.
+NEWTON_RATIO = 1e-3
+
+
+def slow(step: Scalar, previous: Scalar) -> Scalar:
+    """Gauss–Newton is converging slowly (or not at all): the correction shrank by less than 1000×."""
+    return step > NEWTON_RATIO * previous
 
 
 def converged(step: Scalar, previous: Scalar, tolerance: float) -> Scalar:

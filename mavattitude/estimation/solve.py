@@ -9,7 +9,9 @@ until the estimated error left is at most ``tolerance`` (:func:`.kernel.converge
 
 From TRIAD, Eq. 34 converges in 2 corrections over random attitudes (at most 4 in the maneuvering
 flight of tools/reproduce_paper.py): TRIAD fits the heavily weighted accelerometer exactly, and
-Gauss–Newton's linear rate on what is left is tiny. A warm start ``q0`` (the previous
+Gauss–Newton's linear rate on what is left is tiny. When the two vectors disagree badly (a magnetic
+disturbance) that rate is not tiny, and once it shows (:func:`.kernel.slow`) the remaining
+corrections are Newton's, to the same optimum (:func:`.kernel.scalar_weight_step`). A warm start ``q0`` (the previous
 sample's answer) is used only when its Wahba loss is not above TRIAD's (a stale or flipped one may sit
 at a stationary point of Eq. 34 180° away, NOTES.md) and only for ``WARM_START_BUDGET`` corrections: in a maneuver the
 previous answer's tilt error converges at Gauss–Newton's slow linear rate (0.15 per step measured in
@@ -29,7 +31,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..errors import DegenerateGeometryError, InputError
 from . import kernel
 from .conventions import quat_from_rotation_parts
-from .noise import NoiseModel, sym_to_matrix
+from .noise import NoiseModel
 
 METHODS = ("ign", "cgn", "ml", "triad")
 MAX_ITERATIONS = 10
@@ -65,8 +67,10 @@ class SolveResult:
         if self._covariance is None:
             (w_mag, _, _), (w_acc, _, _) = self._obs
             n_acc, n_mag = self._norms
-            p = kernel.covariance(self.method, (w_mag, n_mag, self.noise.mag_var), (w_acc, n_acc, self.noise.accel_var))
-            self._covariance = sym_to_matrix(p)
+            xx, xy, xz, yy, yz, zz = kernel.covariance(
+                self.method, (w_mag, n_mag, self.noise.mag_var), (w_acc, n_acc, self.noise.accel_var)
+            )
+            self._covariance = np.array(((xx, xy, xz), (xy, yy, yz), (xz, yz, zz)))
         return self._covariance
 
 
@@ -162,12 +166,17 @@ def solve(
 
 
 def _iterate(step, q: tuple, obs: tuple, budget: int, tolerance: float) -> tuple[tuple, int, bool]:
-    """Steps (4)–(7): at most ``budget`` corrections; returns ``(q, corrections, converged)``."""
-    previous = math.nan
+    """Steps (4)–(7): at most ``budget`` corrections; returns ``(q, corrections, converged)``.
+
+    Once Eq. 34 is seen to converge slowly (:func:`.kernel.slow`) the rest are Newton corrections
+    (the safeguard of :func:`.kernel.scalar_weight_step`; ``ml`` is Newton throughout).
+    """
+    previous, newton = math.nan, False
     for k in range(1, budget + 1):
-        q, angle = step(q, obs)
+        q, angle = step(q, obs, newton)
         if kernel.converged(angle, previous, tolerance):
             return q, k, True
+        newton = newton or kernel.slow(angle, previous)
         previous = angle
     return q, budget, False
 

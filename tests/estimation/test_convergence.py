@@ -122,3 +122,20 @@ def test_stale_warm_start_falls_back_to_triad(rng):
         r = solve(acc[0], mag[0], MAG_REF_UT, PAPER_NOISE, q0=stale)
         assert r.converged and cv.angle_between(r.q, cold.q) < 1e-9
         assert r.iterations <= WARM_START_BUDGET + 3  # warm attempt + at most 3 from TRIAD
+
+
+def test_inconsistent_vectors_still_converge_to_the_optimum(rng):
+    # A magnetic disturbance: the magnetometer's direction is off by up to 90°. Eq. 34 alone then crawls
+    # (its rate is the size of the residuals: CGN fails 5 % of these even in 60 iterations, IGN needs
+    # up to 7); with the Newton safeguard (kernel.slow) every sample reaches scipy's optimum in ≤ 5.
+    q_true = cv.quat_normalize(rng.normal(size=(2000, 4)))
+    acc, mag = simulate(q_true, rng)
+    disturbance = cv.quat_from_rotvec(unit_rows(rng.normal(size=(2000, 3))) * np.radians(rng.uniform(0, 90, (2000, 1))))
+    mag = cv.rotate_body_to_ned(disturbance, mag)
+    cos = np.sum(unit_rows(acc) * unit_rows(mag), axis=1)
+    acc, mag = acc[np.abs(cos) < np.cos(np.radians(6.0))], mag[np.abs(cos) < np.cos(np.radians(6.0))]  # not collinear
+    res = solve_batch(acc, mag, MAG_REF_UT, PAPER_NOISE, full_output=True)
+    assert len(acc) > 1500 and res.converged.all() and res.iterations.max() <= 4
+    assert cv.angle_between(res.q, scipy_optimum(acc, mag)).max() < 1e-9
+    cgn = solve_batch(acc, mag, MAG_REF_UT, PAPER_NOISE, method="cgn", full_output=True)
+    assert cgn.converged.all() and cgn.iterations.max() <= 5
