@@ -10,9 +10,10 @@ Per input sample (:meth:`FrontEnd.push`, plain floats: the per-message cost is w
 3. calibration and mounting (:mod:`.calibration`, :mod:`.mounting`) as one affine map per sensor;
 4. the 2nd-order Butterworth low-pass (:mod:`.lowpass`) per axis, designed for the measured input rate
    (mean of the last ``rate_window`` intervals; re-designed when it moves by more than ``rate_tolerance``,
-   restarting at the steady state of the last output), started at the steady state of the first sample.
-   Accelerometer and gyroscope share the IMU's times; the magnetometer runs on its own times (it may be
-   slower: PX4's ~87 Hz beside a 250 Hz IMU);
+   continuing from the last two inputs and outputs, so without a jump), started at the steady state of
+   the first sample. It treats the samples of a segment as evenly spaced: jitter and a dropped message
+   shift its delay by up to one input interval (5 ms at 200 Hz). Accelerometer and gyroscope share the
+   IMU's times; the magnetometer runs on its own times (it may be slower: PX4's ~87 Hz beside a 250 Hz IMU);
 5. resampling at every tick ``k / output_rate_hz`` of the vehicle clock: the tick's value is the linear
    interpolation of the filtered stream between the two input samples around it. A gap longer than
    ``input_timeout_s`` restarts the filter and the ticks (never bridged), counted and flagged ``RESET``.
