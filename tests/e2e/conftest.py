@@ -91,8 +91,10 @@ def assert_all_outputs_valid(v: FakeVehicle) -> None:
     assert np.max(np.abs(np.linalg.norm(q, axis=1) - 1.0)) < UNIT_NORM_TOLERANCE
 
 
-def assert_healthy(v: FakeVehicle, max_error_deg: float, outputs: int = 25) -> None:
-    """``outputs`` more outputs arrive and all are within ``max_error_deg`` of the truth."""
+def assert_healthy(v: FakeVehicle, max_error_deg: float, outputs: int = 25, settle: int = 0) -> None:
+    """``outputs`` more outputs arrive (after ``settle`` outputs) and all are within ``max_error_deg``."""
+    if settle:
+        wait_outputs(v, settle)
     index = len(v.attitude_log)
     wait_outputs(v, outputs)
     s = v.score(index)

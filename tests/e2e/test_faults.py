@@ -1,0 +1,300 @@
+"""Faults and bad input against one running service: it never dies, never sends a NaN or a non-unit
+quaternion, counts what it refused, and is back to a correct attitude right after each fault.
+
+One daemon serves the whole module (a fresh one per case would cost ~1.5 s each for nothing: every case
+ends by checking the service is healthy again, so the next starts from a clean state). The link is PX4
+HIGHRES_IMU, whose float fields can carry NaN and inf.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from mavattitude.link.mavlink2 import force_mavlink2, mavlink2, mavutil
+from mavattitude.sensors.units import ImuSample
+from mavattitude.sim import scenarios
+from mavattitude.sim.trajectory import Hold, Script
+from mavattitude.sim.vehicle import FakeVehicle, VehicleConfig
+
+from .conftest import (
+    EVENT_TIMEOUT_S,
+    Flight,
+    assert_all_outputs_valid,
+    assert_healthy,
+    counter,
+    flight,
+    wait_counter,
+    wait_outputs,
+)
+
+pytestmark = pytest.mark.e2e
+
+MESSAGE = "HIGHRES_IMU"
+RATE_HZ = 200.0
+INPUT_TIMEOUT_S = 0.3
+# Paper noise, static: the error is ≈ 0.3° RMS; 2° is far outside it and far inside any real failure.
+HEALTHY_DEG = 2.0
+
+
+@pytest.fixture(scope="module")
+def link() -> Iterator[Flight]:
+    service = {"input": {"input_timeout_s": INPUT_TIMEOUT_S}}
+    with flight(
+        scenarios.static(3600.0), scenarios.paper_sensors(RATE_HZ), service, profile="px4", message=MESSAGE
+    ) as f:
+        yield f
+        vehicle, svc = f
+        assert svc.running, "the service died:\n" + svc.log_tail()
+        assert svc.stop() == 0
+        assert_all_outputs_valid(vehicle)
+
+
+def _packet(v: FakeVehicle) -> bytes:
+    """A valid HIGHRES_IMU packet of the vehicle's truth now (packed, not sent)."""
+    t = v.script_time()
+    truth = v.script.sample([t])
+    sample = ImuSample(
+        v.vehicle_time(t),
+        tuple(truth.specific_force_mps2[0]),
+        tuple(truth.gyr_radps[0]),
+        tuple(truth.mag_uT[0]),
+        MESSAGE,
+    )
+    return bytes(v.encode(sample).pack(v.conn.mav))
+
+
+def _replace(**values: tuple[float, float, float] | None):  # type: ignore[no-untyped-def]
+    """A fault that replaces the named fields of every row."""
+    return lambda rows: [dataclasses.replace(r, **values) for r in rows]
+
+
+def _replace_where(pick, **values):  # type: ignore[no-untyped-def]
+    """A fault that replaces the named fields of the rows ``pick`` selects."""
+    return lambda rows: [dataclasses.replace(r, **values) if pick(r) else r for r in rows]
+
+
+def _inject(v: FakeVehicle, fault, duration_s: float) -> None:  # type: ignore[no-untyped-def]
+    done = v.inject(fault, duration_s)
+    assert done.wait(EVENT_TIMEOUT_S), "the fault window never closed"
+
+
+def test_garbage_bytes(link: Flight) -> None:
+    v, svc = link
+    rng = np.random.default_rng(5)
+    before = counter(svc, "bad_data")
+    for _ in range(20):
+        # Random bytes with MAVLink 2 magics sprinkled in, so the parser starts (and fails) frames.
+        junk = bytearray(rng.integers(0, 256, 200, dtype=np.uint8).tobytes())
+        junk[::25] = b"\xfd" * len(junk[::25])
+        v.send_bytes(bytes(junk))
+    wait_counter(svc, "bad_data", before + 1)
+    assert_healthy(v, HEALTHY_DEG)
+
+
+def test_truncated_frames_and_bad_crc(link: Flight) -> None:
+    v, svc = link
+    before = counter(svc, "bad_data")
+    for _ in range(5):
+        v.send_bytes(_packet(v)[:30])  # a datagram that ends mid-frame
+    for _ in range(5):
+        bad = bytearray(_packet(v))
+        bad[-1] ^= 0xFF  # CRC high byte
+        v.send_bytes(bytes(bad))
+    # Each truncated datagram and each bad checksum is one bad frame.
+    wait_counter(svc, "bad_data", before + 10)
+    assert_healthy(v, HEALTHY_DEG)
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+def test_non_finite_values_are_dropped(link: Flight, value: float) -> None:
+    v, svc = link
+    before = counter(svc, "rejected.nonfinite")
+    index = len(v.attitude_log)
+    _inject(v, _replace(acc_mps2=(value, 0.0, -9.8)), 0.1)
+    # 0.1 s at 200 Hz: about 20 samples, each dropped before the filter.
+    assert wait_counter(svc, "rejected.nonfinite", before + 15) <= before + 25
+    assert_healthy(v, HEALTHY_DEG)
+    # Dropping 0.1 s is bridged by interpolation (< input_timeout_s): no output was lost or bent.
+    assert v.score(index).angle_max_deg < HEALTHY_DEG
+
+
+def test_saturated_accelerometer_is_dropped(link: Flight) -> None:
+    v, svc = link
+    before = counter(svc, "rejected.saturated_acc")
+    _inject(v, _replace(acc_mps2=(400.0, 0.0, -9.8)), 0.1)  # beyond the 16 g full scale
+    wait_counter(svc, "rejected.saturated_acc", before + 15)
+    assert_healthy(v, HEALTHY_DEG)
+
+
+def test_isolated_zero_frames_do_not_bend_the_attitude(link: Flight) -> None:
+    v, svc = link
+    index = len(v.attitude_log)
+    received = counter(svc, "received")
+    # Every 10th sample of 0.5 s reads exactly zero on both sensors (a glitching bus). The fault sees the
+    # samples in small chunks, so it picks them by sample time, not by position.
+    zero = (0.0, 0.0, 0.0)
+    tenth = _replace_where(lambda r: round(r.script_s * RATE_HZ) % 10 == 0, acc_mps2=zero, mag_uT=zero)
+    _inject(v, tenth, 0.5)
+    assert_healthy(v, HEALTHY_DEG)
+    assert counter(svc, "received") > received
+    # A zero frame dips the filtered vectors by ≤ 1/4 for a tick; their directions, hence the attitude,
+    # do not move beyond the noise.
+    s = v.score(index)
+    assert s.broken == 0 and s.angle_max_deg < HEALTHY_DEG, s
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="known bug (reported): a sustained zero vector is only down-weighted, not refused; the low-pass "
+    "undershoot through zero then yields ~180° attitudes, and estimation.kernel.sym_solve can raise "
+    "ZeroDivisionError, which kills the service",
+)
+@pytest.mark.parametrize("sensor", ["acc_mps2", "mag_uT"])
+def test_sustained_zero_vector_is_refused_not_turned_into_an_attitude(sensor: str) -> None:
+    service = {"input": {"input_timeout_s": INPUT_TIMEOUT_S}}
+    script = scenarios.static(3600.0)
+    with flight(script, scenarios.paper_sensors(RATE_HZ), service, profile="px4", message=MESSAGE) as (v, svc):
+        wait_outputs(v, 10)
+        index = len(v.attitude_log)
+        for _ in range(3):  # 3 × 0.4 s of a dead sensor, with good data between
+            _inject(v, _replace(**{sensor: (0.0, 0.0, 0.0)}), 0.4)
+            wait_outputs(v, 25, timeout_s=3.0)  # 0.5 s of outputs when alive; a dead service fails fast
+        assert svc.running, "the service died:\n" + svc.log_tail()
+        s = v.score(index)
+    # Outputs while a sensor reads zero must be refused; any that are sent must be right (10° leaves room
+    # for the filter's transition at each edge of the dead time).
+    assert s.broken == 0
+    assert s.angle_max_deg < 10.0, s
+
+
+def test_collinear_acc_and_mag_is_refused_and_reported(link: Flight) -> None:
+    v, svc = link
+    before = counter(svc, "rejected.DegenerateGeometryError")
+    texts = len(v.statustexts)
+    mag = np.asarray(scenarios.DEFAULT_MAG_NED_UT)  # level: body = NED
+    along = tuple(-9.80665 * mag / np.linalg.norm(mag))
+    _inject(v, _replace(acc_mps2=along), 0.4)
+    wait_counter(svc, "rejected.DegenerateGeometryError", before + 5)
+    assert v.wait_until(lambda: any("collinear" in t for t in v.statustexts[texts:]), EVENT_TIMEOUT_S)
+    # The low-pass blends the last collinear samples with good ones for ~0.1 s (its settling time at
+    # 10 Hz): those few ticks are neither refused nor right. 10 outputs (0.2 s) later all is well.
+    assert_healthy(v, HEALTHY_DEG, settle=10)
+
+
+def test_repeated_timestamps_are_dropped_as_duplicates(link: Flight) -> None:
+    v, svc = link
+    before = counter(svc, "rejected.duplicate")
+    _inject(v, lambda rows: [r for row in rows for r in (row, row)], 0.2)  # every sample twice
+    wait_counter(svc, "rejected.duplicate", before + 30)
+    assert_healthy(v, HEALTHY_DEG)
+
+
+def test_time_going_back_a_little_is_dropped_as_out_of_order(link: Flight) -> None:
+    v, svc = link
+    before = counter(svc, "rejected.out_of_order")
+    index = len(v.attitude_log)
+    v.jump_clock(-0.2)  # within the clock's reorder window: 0.2 s of samples look stale
+    wait_counter(svc, "rejected.out_of_order", before + 30)
+    assert_healthy(v, HEALTHY_DEG)
+    assert v.score(index).broken == 0
+
+
+def test_time_jumping_forward_restarts_the_filter(link: Flight) -> None:
+    v, svc = link
+    before = counter(svc, "gap_resets")
+    v.jump_clock(5.0)  # a 5 s hole in vehicle time: never bridged
+    wait_counter(svc, "gap_resets", before + 1)
+    assert_healthy(v, HEALTHY_DEG)
+
+
+def test_vehicle_reboot(link: Flight) -> None:
+    v, svc = link
+    before = counter(svc, "reboots")
+    requests = counter(svc, "interval_requests")
+    v.reboot()  # boot time restarts at 0 and the IMU stream is off again, as on a real autopilot
+    # The service's periodic re-request turns the stream back on; the clock going back is a reboot.
+    wait_counter(svc, "interval_requests", requests + 1)
+    wait_counter(svc, "reboots", before + 1)
+    assert_healthy(v, HEALTHY_DEG)
+
+
+def test_5khz_burst(link: Flight) -> None:
+    v, svc = link
+    received = counter(svc, "received")
+    sent = v.imu_sent
+    index = len(v.attitude_log)
+    v.set_rate(MESSAGE, 5000.0)  # until the service re-asserts its 200 Hz (request_repeat_s = 1 s)
+    assert v.wait_until(lambda: v.stream_rate(MESSAGE) == RATE_HZ, EVENT_TIMEOUT_S)
+    burst_sent = v.imu_sent - sent
+    assert burst_sent > 1000  # the burst really happened
+    assert_healthy(v, HEALTHY_DEG)
+    wait_counter(svc, "received", received + 0.9 * burst_sent)  # UDP on loopback may drop a few
+    s = v.score(index)
+    # The output stays on its 50 Hz ticks of the vehicle clock whatever the input rate.
+    assert s.output_rate_hz == pytest.approx(50.0, abs=0.5)
+    assert s.broken == 0
+
+
+def test_silence_stops_output_then_resumes_within_100ms(link: Flight) -> None:
+    v, svc = link
+    lost = counter(svc, "input_lost")
+    texts = len(v.statustexts)
+    v.pause_imu(True)
+    paused_at = v.script_time()
+    # The service says so (STATUSTEXT + counter) after input_timeout_s ...
+    assert v.wait_until(lambda: len(v.statustexts) > texts, EVENT_TIMEOUT_S)
+    wait_counter(svc, "input_lost", lost + 1)
+    # ... and sends nothing describing the silent time.
+    silent_index = len(v.attitude_log)
+    _, t_out, _ = v.outputs_since(0)
+    assert np.all(t_out <= paused_at + 0.02), "an output described the silent time"
+    sent_before = v.imu_sent
+    v.pause_imu(False)
+    assert v.wait_for_outputs(silent_index + 1, EVENT_TIMEOUT_S)
+    mono, _, _ = v.outputs_since(silent_index)
+    first_send = v._sent_mono_s[sent_before]
+    assert mono[0] - first_send < 0.100, f"resumed {1e3 * (mono[0] - first_send):.0f} ms after the first sample"
+    assert_healthy(v, HEALTHY_DEG)
+
+
+def test_second_vehicle_is_ignored(link: Flight) -> None:
+    v, svc = link
+    ignored = counter(svc, "ignored")
+    service_address = v.peers()[0]
+    upside_down = Script([Hold(3600.0)], scenarios.DEFAULT_MAG_NED_UT, q0=(0.0, 1.0, 0.0, 0.0))
+    other = VehicleConfig(
+        f"udpout:{service_address[0]}:{service_address[1]}",
+        profile="px4",
+        message=MESSAGE,
+        system_id=2,
+        stream_on_start=True,
+    )
+    index = len(v.attitude_log)
+    with FakeVehicle(upside_down, scenarios.paper_sensors(RATE_HZ), other):
+        wait_counter(svc, "ignored", ignored + 100)
+        wait_outputs(v, 25)
+    # Its heartbeats and upside-down IMU were ignored: our attitude never moved.
+    s = v.score(index)
+    assert s.broken == 0 and s.angle_max_deg < HEALTHY_DEG
+
+
+def test_ground_station_changing_the_rate_is_overridden(link: Flight) -> None:
+    v, _svc = link
+    gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{v.port}", source_system=255, source_component=190)
+    force_mavlink2(gcs)
+    try:
+        msg_id = mavlink2.MAVLINK_MSG_ID_HIGHRES_IMU
+        gcs.mav.command_long_send(1, 1, mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, 0, msg_id, 100_000, 0, 0, 0, 0, 0)
+        assert v.wait_until(lambda: v.stream_rate(MESSAGE) == pytest.approx(10.0), EVENT_TIMEOUT_S)
+        commands = len(v.commands)
+        # The service asserts its rate again within request_repeat_s.
+        assert v.wait_until(lambda: any(c.get_srcComponent() == 191 for c in v.commands[commands:]), EVENT_TIMEOUT_S)
+        assert v.stream_rate(MESSAGE) == pytest.approx(RATE_HZ)
+        assert v.wait_for_outputs(len(v.attitude_log) + 25, 10), _svc.log_tail(40)
+        assert_healthy(v, HEALTHY_DEG)
+    finally:
+        gcs.close()
