@@ -48,7 +48,7 @@ HEARTBEAT_PERIOD_S = 1.0
 TICK_S = 0.05  # periodic work runs at least this often; also the longest wait on the link
 UNLOCKED_SYSTEM_ID = 1  # our system id before locking onto an autopilot in automatic mode
 ACK_TIMEOUT_S = 2.0
-REJECT_REASONS = ("decode", "pipeline_error", "invalid_output")
+REJECT_REASONS = ("decode", "pipeline_error", "internal_error", "invalid_output")
 DEGENERATE = "DegenerateGeometryError"  # the pipeline's reject reason for collinear acc and mag
 POSITION_MESSAGE = "GLOBAL_POSITION_INT"
 POSITION_RATE_HZ = 1.0
@@ -281,6 +281,11 @@ class AttitudeService:
             outputs = self.pipeline.push(sample)
         except MavAttitudeError as exc:  # the pipeline counts what it refuses; anything it raises is kept alive
             self._reject("pipeline_error", exc)
+            return
+        except Exception:  # a bug below us: drop the sample and keep serving, with the traceback in the log
+            self.counters.rejected["internal_error"] += 1
+            if self._limiter.allow("log:internal_error"):
+                log.exception("internal error in the pipeline; sample dropped (please report this)")
             return
         if rejected[DEGENERATE] != degenerate_before:
             self._statustext("degenerate", "mavattitude: acc and mag near collinear, no attitude", "warning")

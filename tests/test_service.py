@@ -236,6 +236,28 @@ def test_degenerate_geometry_rejected_and_said_once(served):
     assert sum(1 for m in vehicle.received if m.get_type() == "STATUSTEXT" and "collinear" in m.text) == 1
 
 
+def test_a_bug_in_the_pipeline_drops_the_sample_not_the_service(served, caplog):
+    running, vehicle = served
+    caplog.set_level(logging.ERROR, logger="mavattitude.service")
+    lock_on(vehicle)
+    estimator = running.service.pipeline.estimator
+    working = estimator.estimate
+
+    def broken(*args, **kwargs):
+        raise ZeroDivisionError("injected")
+
+    estimator.estimate = broken  # fault injection into the real pipeline
+    vehicle.stream(100)
+    wait_until(vehicle, lambda: running.service.counters.rejected["internal_error"] >= 20)  # 0.5 s of input: ~25 ticks
+    estimator.estimate = working
+    vehicle.stream(100)
+    vehicle.wait_for("ATTITUDE_QUATERNION")
+    counters = running.finish()
+    tracebacks = [r for r in caplog.records if r.exc_info and r.exc_info[0] is ZeroDivisionError]
+    assert len(tracebacks) == 1  # rate-limited: statustext_interval_s is 60 s here
+    assert counters.emitted > 0
+
+
 def test_configured_system_id_and_no_requests():
     running = Running(make_config(**{"link.vehicle_system_id": 5, "link.request_messages": False}))
     other = Autopilot(system=1)
