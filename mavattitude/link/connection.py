@@ -5,7 +5,8 @@ with its ``time.monotonic()`` arrival stamp), the ``send_*`` methods encode and 
 and everything protocol-shaped the service needs to ask (is this an autopilot heartbeat? an ACK of our
 interval request?) is a method here, so pymavlink stays behind this module.
 
-Connection strings (pymavlink's): ``udpin:HOST:PORT`` (listen; replies go to whoever sent last),
+Connection strings (pymavlink's): ``udpin:HOST:PORT`` (listen; we send to every peer that sent a valid
+message in the last ``UDP_PEER_TIMEOUT_S``),
 ``udpout:HOST:PORT``, ``tcp:HOST:PORT`` (client), ``tcpin:HOST:PORT`` (server, one client at a time),
 or a serial device ``/dev/ttyACM0`` (baud from the argument, or ``/dev/ttyACM0,921600``). Port 0 on
 ``udpin``/``tcpin`` binds an ephemeral port (see :attr:`MavlinkLink.local_address`).
