@@ -1,12 +1,12 @@
 """The soak: the service as a real subprocess fed by the fake vehicle for a long (accelerated) run.
 
-``run_soak(duration_s=3600, rate_hz=200, speed=20)`` flies ``duration_s`` of vehicle time (a slow
-rotation with consumer-grade sensor errors) at ``speed`` × real time, with the IMU at ``rate_hz`` on the
-vehicle's clock. Every ``window_s`` of vehicle time it records the service's resident memory, the error
-statistics and the output rate of that window. The report says whether memory grew (beyond the first
-window, which includes start-up allocations), whether the error statistics drifted, and whether the
-output rate held: the targets of the issue are checked by the caller (``tools/bench.py soak``, and a
-short version in the tests).
+``run_soak(duration_s=3600, rate_hz=200, speed=20)`` flies ``duration_s`` of vehicle time (a level
+yaw spin, one turn per window, with consumer-grade sensor errors) at ``speed`` × real time, with the IMU
+at ``rate_hz`` on the vehicle's clock. Every ``window_s`` of vehicle time it records the service's
+resident memory, the error statistics and the output rate of that window. The report says whether
+memory grew (beyond the first window, which includes start-up allocations), whether the error
+statistics drifted, and whether the output rate held: the targets of the issue are checked by the
+caller (``tools/bench.py soak``, and a short version in the tests).
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from mavattitude.errors import MavAttitudeError
 from mavattitude.sim import scenarios
 from mavattitude.sim.daemon import ServiceProcess, deep_merge, service_config
 from mavattitude.sim.scoring import Score
+from mavattitude.sim.trajectory import Rotate, Script
 from mavattitude.sim.vehicle import FakeVehicle, VehicleConfig
 
 _START_TIMEOUT_S = 20.0
@@ -90,8 +91,11 @@ def run_soak(
     """Run the soak; raises :class:`MavAttitudeError` if the service never starts answering."""
     if not (duration_s > 0 and rate_hz > 0 and speed > 0 and 0 < window_s <= duration_s):
         raise MavAttitudeError("soak: duration, rate, speed must be positive and 0 < window ≤ duration")
-    script = scenarios.slow_rotation(duration_s + window_s)
-    vehicle_cfg = VehicleConfig("udpin:127.0.0.1:0", speed=speed, seed=seed)
+    # A level yaw spin, one turn per window: every window sees the same attitudes, so with steady errors
+    # (consumer sensors: noise plus small residual biases) the per-window statistics must not move.
+    spin = Rotate(duration_s + 2 * window_s, (0.0, 0.0, 2 * np.pi / window_s))
+    script = Script([spin], scenarios.DEFAULT_MAG_NED_UT)
+    vehicle_cfg = VehicleConfig("udpin:127.0.0.1:0", speed=speed, seed=seed, fly_when_asked=True)
     report = SoakReport(duration_s, rate_hz, speed, 0.0)
     with FakeVehicle(script, scenarios.consumer_sensors(rate_hz), vehicle_cfg) as vehicle:
         overrides = deep_merge(
@@ -108,7 +112,7 @@ def run_soak(
             if not vehicle.wait_for_outputs(1, _START_TIMEOUT_S):
                 raise MavAttitudeError("soak: the service sent no attitude:\n" + service.log_tail())
             first_index = 0
-            end_s = vehicle.script_time()
+            end_s = 0.0  # windows on the script clock, which starts with the IMU stream
             while end_s < duration_s and service.running:
                 end_s = min(duration_s, end_s + window_s)
                 _sleep_until(vehicle, end_s)
