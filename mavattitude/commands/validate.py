@@ -194,6 +194,7 @@ def _write_json(path: Path, results) -> None:  # type: ignore[no-untyped-def]
                 "method": ev.estimate.method,
                 "coverage": ev.estimate.coverage,
                 "elapsed_s": ev.estimate.elapsed_s,
+                "counters": dict(ev.estimate.counters),
                 **ev.score.columns(),
             }
             for ev in evaluations

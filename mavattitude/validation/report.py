@@ -20,16 +20,19 @@ END = "<!-- validate_real: results end -->"
 
 
 def rows(evaluations: Sequence[Evaluation]) -> tuple[list[str], list[list[str]]]:
-    """Header and cells: one row per path and method, score columns in degrees, coverage, run time."""
+    """Header and cells: one row per path and method, score columns in degrees, coverage, outputs that
+    hit the iteration bound, run time."""
     if not evaluations:
         return [], []
     metric = list(evaluations[0].score.columns())
-    header = ["path", "method", *metric, "coverage %", "time s"]
+    header = ["path", "method", *metric, "coverage %", "not converged", "time s"]
     body = []
     for ev in evaluations:
         est = ev.estimate
         cells = [est.path, est.method, *(_num(v) for v in ev.score.columns().values())]
-        body.append([*cells, f"{100 * est.coverage:.1f}", f"{est.elapsed_s:.1f}"])
+        not_converged = est.counters.get("not converged")
+        converged_cell = "–" if not_converged is None else str(not_converged)
+        body.append([*cells, f"{100 * est.coverage:.1f}", converged_cell, f"{est.elapsed_s:.1f}"])
     return header, body
 
 
