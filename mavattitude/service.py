@@ -74,7 +74,7 @@ class ServiceCounters:
     ack_timeouts: int = 0
     positions: int = 0  # vehicle positions handed to the pipeline (magnetic reference ``auto``)
     mean_iterations: float = float("nan")
-    latency_p50_ms: float = float("nan")  # arrival of the input datagram -> ATTITUDE_QUATERNION sent
+    latency_p50_ms: float = float("nan")  # input read from the socket -> ATTITUDE_QUATERNION handed to the OS
     latency_p99_ms: float = float("nan")
 
 
@@ -314,7 +314,7 @@ class AttitudeService:
             return
         if not sent:
             return
-        latency_s = time.monotonic() - t_rx
+        latency_s = self.link.last_send_s - t_rx
         self.counters.emitted += 1
         if len(self._latencies_s) < MAX_LATENCY_SAMPLES:
             self._latencies_s.append(latency_s)

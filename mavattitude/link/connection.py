@@ -25,7 +25,7 @@ import logging
 import math
 import socket
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -202,6 +202,23 @@ class _Udp(mavutil.mavudp):
         return msg
 
 
+class _StampedWriter:
+    """What pymavlink's ``MAVLink.send`` writes its packed bytes to: the connection's ``write``, with
+    the moment of the hand-over to the OS noted on the link (:attr:`MavlinkLink.last_send_s`).
+
+    Stamped before the write, because on a loaded machine the process woken by our datagram can
+    preempt us inside it: that time delays neither the packet nor our next one.
+    """
+
+    def __init__(self, write: Callable[[bytes], Any], link: MavlinkLink) -> None:
+        self._write = write
+        self._link = link
+
+    def write(self, buf: bytes) -> Any:
+        self._link.last_send_s = time.monotonic()
+        return self._write(buf)
+
+
 def _open_connection(endpoint: Endpoint, source_system: int, source_component: int) -> Any:
     ids = {"source_system": source_system, "source_component": source_component}
     if endpoint.kind == "tcp":
@@ -250,6 +267,7 @@ class MavlinkLink:
         self._retry_at = 0.0
         self._signing_clock_at = 0.0
         self._conn: Any = None
+        self.last_send_s = float("nan")  # time.monotonic() at which the last packet was handed to the OS
         try:
             self._open()
         except OSError as exc:
@@ -266,6 +284,7 @@ class MavlinkLink:
         except ValueError as exc:  # pymavlink's complaint about an address
             raise LinkError(f"cannot open {self.endpoint.kind}:{self.endpoint.address}: {exc}") from exc
         force_mavlink2(conn)
+        conn.mav.file = _StampedWriter(conn.write, self)
         conn.mav.seq = self._seq
         conn.on_truncated = self._count_truncated
         if self._signing_key is not None:
