@@ -3,78 +3,100 @@
 The paper (Liu et al. 2014) ends by noting that the accelerometer + magnetometer solution should aid a gyro,
 because under sustained acceleration the accelerometer no longer points along gravity. This module is that
 filter. Pure math: no I/O, no clock (time comes from the samples), no logging (events are counted in
-:attr:`FusedFilter.counters` for the caller to report).
+:attr:`FusedFilter.counters` for the caller to report). ``docs/fused.md`` has the same equations, the
+tuning and the measured figures.
 
 State and error state
 ---------------------
 Nominal state: attitude ``q`` (body → NED, scalar first) and gyro bias ``b`` (rad/s). Error state
-``x = [δθ, δb]`` (6), with the true attitude ``q_true = q ⊗ exp(δθ)`` (body-frame error angles, the
-paper's Eq. 14/28–30 up to sign) and ``b_true = b + δb``; ``P = E[x xᵀ]``.
+``x = [δθ, δb]`` (6), with ``q_true = q ⊗ exp(δθ)`` (body-frame error angles, the paper's Eq. 14/28–30)
+and ``b_true = b + δb``; ``P = E[x xᵀ]``.
 
-Propagation (every input sample ``k``, over ``Δt = t_k − t_{k−1}`` with ``ω = g_k − b`` from the calibrated gyro)::
+Propagation — every input sample ``k``, ``Δt = t_k − t_{k−1}``, ``ω = g_k − b`` (calibrated gyro)::
 
-    q ← q ⊗ exp(ω Δt)                            exp(φ) = [cos(|φ|/2), sin(|φ|/2) φ/|φ|]
-    δθ̇ = −[ω×] δθ − δb − n_g,    δḃ = n_b
+    q ← q ⊗ exp(ω Δt),   exp(φ) = [cos(|φ|/2), sin(|φ|/2) φ/|φ|]
+    δθ̇ = −[ω×] δθ − δb − n_g,   δḃ = n_b
 
-The quaternion increments are composed in plain floats at the input rate into ``Δq`` (the rotation since
-the last update); the covariance is propagated once per update interval ``T`` with the exact attitude
-block and a trapezoidal bias coupling::
+The increments are composed in plain floats into ``Δq`` (the rotation since the last update); ``P`` is
+propagated once per update interval ``T`` (``update_rate_hz``) with the exact attitude block and a
+trapezoidal bias coupling::
 
     Φ = [[A(Δq), −T (I + A(Δq)) / 2], [0, I]],   A(Δq) = R(Δq)ᵀ
     P ← Φ P Φᵀ + diag((σ_g² T + (s_g θ)²) I, σ_b² T I)
 
-where ``θ = Σ |ω| Δt`` is the angle turned in the interval (``s_g`` covers gyro scale-factor error).
+``θ = Σ |ω| Δt`` is the angle turned in the interval: ``s_g`` covers gyro scale-factor error, so the
+filter trusts the gyro less while it turns fast.
+
+Accelerometer pre-filter (quasi-inertial low-pass)
+--------------------------------------------------
+Zero-mean non-gravitational acceleration (hand motion, vibration, manoeuvres that end) averages out in
+an earth-fixed frame, not in the rotating body frame. With ``q_g`` the gyro-only attitude (propagated like
+``q`` but never corrected, so the filter's corrections do not feed back into it)::
+
+    a_I ← LP₂(R(q_g) a),   ã = A(q_g) a_I
+
+``LP₂`` a second-order Butterworth low-pass at the update rate, cut-off ``√2 / (2π τ_a)``
+(``accel_lowpass_s``; VQF's pre-filter, Laidig & Seel 2023). ``ã`` is what the accelerometer reads with
+the oscillating part of the acceleration removed; sustained acceleration passes and is handled by the
+rejection below.
 
 Measurement 1 — the IGN solution (both vectors usable)
 ------------------------------------------------------
-``q_m, P_m = solve(acc, mag, mag_ref, NoiseModel(σ_a', σ_m'), method="ign", q0=q)``, whose error model is
-``q_m = q_true ⊗ exp(ν)``, ``ν ~ N(0, P_m)`` (the sandwich covariance of NOTES.md). Innovation and update::
+``q_m = solve(ã, m, mag_ref, NoiseModel(σ_a', σ_m'), method="ign", q0=q).q`` with the error model
+``q_m = q_true ⊗ exp(ν)``, ``ν ~ N(0, P_m)``, ``P_m`` IGN's predicted (sandwich) covariance — for isotropic
+σ it is ``(Σᵢ (|Wᵢ|² I − Wᵢ Wᵢᵀ)/σᵢ²)⁻¹`` (:func:`ign_covariance`, equal to the estimation core's)::
 
     z = log(q* ⊗ q_m) ≈ δθ + ν,   H = [I 0],   R = P_m
     S = H P Hᵀ + R,   K = P Hᵀ S⁻¹,   x̂ = K z,   P ← (I − K H) P (I − K H)ᵀ + K R Kᵀ
     q ← q ⊗ exp(δθ̂),   b ← b + δb̂
 
-Measurement 2 — tilt only (magnetometer disturbed or missing)
--------------------------------------------------------------
-The unit specific force ``u = a / |a|`` against its prediction ``h = A(q) v_a`` (``v_a = acc_ref``)::
+Measurement 2 — tilt only (magnetometer disturbed, missing, or collinear with ``ã``)
+----------------------------------------------------------------------------------
+The unit specific force ``u = ã/|ã|`` against its prediction ``h = A(q) v_a`` (``v_a = acc_ref``)::
 
-    u ≈ A(q ⊗ exp(δθ)) v_a ≈ h + [h×] δθ,   z = u − h,   H = [[h×] 0],   R = σ_u² I,  σ_u = σ_a' / |a|
+    u ≈ h + [h×] δθ,   z = u − h,   H = [[h×] 0],   R = (σ_a'/|ã|)² I,   K_θ ← (I − h hᵀ) K_θ
 
-which has no component about the vertical: the heading coasts on the gyro.
+The projection keeps the correction off the vertical, so the heading coasts on the gyro (the Joseph form
+keeps ``P`` exact for this sub-optimal gain).
 
-Acceleration rejection (smooth)
--------------------------------
-The accelerometer's σ handed to both measurements is inflated, never switched off::
+Zero-rate update (rest)
+-----------------------
+With ``ḡ``, ``ā`` first-order low-passes (``rest_filter_s``) of gyro and accelerometer, the vehicle is at
+rest once ``|g − ḡ|``, ``|ḡ − b|`` < ``rest_gyro_threshold_radps`` and ``|a − ā|`` <
+``rest_accel_threshold_mps2`` have held for ``rest_min_s``; then ``z = ḡ − b``, ``H = [0 I]``,
+``R = σ_r² I``: the bias converges in seconds at start-up and in every pause.
 
-    σ_a'² = σ_a² + (k_n (|a| − g))² + (k_r g ε)²
+Acceleration rejection (smooth covariance inflation, never a switch)
+--------------------------------------------------------------------
+::
 
-with ``ε`` the IGN residual: the angle between the measured vectors minus the angle between their
-references (|dip error|), which is non-zero when the specific force is not gravity. With the
-magnetometer disturbed ``ε`` says nothing about the accelerometer and is not used.
+    σ_a'² = σ_a² + (k_n (|ã| − g))² + (k_r g ε)²
+
+``ε``: the IGN residual as an angle — the measured angle between ``ã`` and ``m`` minus the reference
+angle; not used when the magnetometer is disturbed (it would then accuse the accelerometer).
 
 Magnetic-disturbance rejection
 ------------------------------
-The field is checked against the reference, with the dip measured against the *predicted* vertical
-(so an accelerating vehicle does not look magnetically disturbed)::
+Field magnitude and dip against the reference, the dip measured against the *predicted* vertical::
 
-    d = max(| |m| − |m_ref| | / (τ_n |m_ref|),  |δ(m, q) − δ_ref| / τ_δ)
+    d = max(| |m| − |m_ref| | / (τ_n |m_ref|),  |δ(m, q) − δ_ref| / (τ_δ + 3 √tr P_θθ))
 
 ``d ≥ 1``: disturbed — the magnetometer updates nothing, measurement 2 runs, the heading coasts.
-``d < 1``: measurement 1 with ``σ_m'² = σ_m² (1 + (d / d₀)²) · ρ(t)``, where the recovery factor
-``ρ = 1 + (ρ₀ − 1) max(0, 1 − t_clean / T_r)`` falls linearly from ``ρ₀`` to 1 over ``T_r`` seconds of
-clean field, so the heading error accrued while coasting is taken back over seconds, without a jump.
+``d < 1``: measurement 1 with ``σ_m'² = σ_m² (1 + (d/d₀)²) ρ``; after a disturbance that lasted
+``T_c`` the recovery factor ``ρ = 1 + (ρ₀ − 1) min(1, T_c/T_r) max(0, 1 − t_clean/T_r)`` takes the
+heading error accrued while coasting back over seconds, without a jump.
 
-Start-up
---------
-The first sample with both vectors initialises ``q`` from IGN and ``P_θθ`` from its covariance,
-``P_bb = σ_b0² I``; at rest the updates then observe all three bias components (tilt observes the
-horizontal ones, heading the vertical one). A gap longer than ``max_gap_s`` restarts from IGN, keeping
-the bias estimate and its covariance.
+Start-up and gaps
+-----------------
+The first sample with both vectors initialises ``q`` (and ``q_g``) from IGN and ``P_θθ`` from its
+covariance, ``P_bb = σ_b0² I``. A gap longer than ``max_gap_s`` restarts from IGN, keeping the bias and
+its covariance.
 
 Output
 ------
 :meth:`FusedFilter.push` returns a :class:`FusedEstimate` for every ``output_rate_hz`` tick passed (50 Hz,
-the ATTITUDE_QUATERNION rate): the attitude carried to the tick time and the bias-corrected body rates.
+ATTITUDE_QUATERNION's rate): the attitude carried to the tick with the current rate, the bias-corrected
+body rates, the 3×3 attitude-error covariance and whether the magnetometer is being rejected.
 """
 
 from __future__ import annotations
@@ -116,8 +138,27 @@ def _normalize(q: Quat) -> Quat:
     return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
 
 
+def _norm(v: Sequence[float]) -> float:
+    return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+
+
 def _skew(x: float, y: float, z: float) -> Array:
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def _butterworth(tau_s: float, rate_hz: float) -> tuple[float, float, float, float, float]:
+    """Second-order Butterworth low-pass ``(b0, b1, b2, a1, a2)``, cut-off ``√2 / (2π τ)`` (VQF's choice)."""
+    if tau_s <= 0.0:
+        return (1.0, 0.0, 0.0, 0.0, 0.0)
+    k = math.tan(math.pi * min(math.sqrt(2.0) / (2.0 * math.pi * tau_s), 0.45 * rate_hz) / rate_hz)
+    norm = 1.0 / (1.0 + math.sqrt(2.0) * k + k * k)
+    b0 = k * k * norm
+    return (b0, 2.0 * b0, b0, 2.0 * (k * k - 1.0) * norm, (1.0 - math.sqrt(2.0) * k + k * k) * norm)
+
+
+def _attitude_h(h_theta: Array) -> Array:
+    """``H = [h_θ 0]``: a measurement of the attitude error only."""
+    return np.hstack([h_theta, np.zeros((h_theta.shape[0], 3))])
 
 
 def ign_covariance(acc: Sequence[float], mag: Sequence[float], sigma_acc: float, sigma_mag: float) -> Array:
@@ -146,28 +187,40 @@ class FusedSettings:
     gyro_noise_radps: float = 0.003  # σ_g, angle random walk, rad/s/√Hz
     gyro_scale_std: float = 0.002  # s_g, gyro scale-factor error, per rad turned
     gyro_bias_walk_radps2: float = 3e-5  # σ_b, bias random walk, rad/s/√s
-    gyro_bias_init_radps: float = 0.02  # σ_b0, start-up bias uncertainty, rad/s
-    accel_std_mps2: float = 0.3  # σ_a, per axis
-    accel_norm_gain: float = 3.0  # k_n: σ added per m/s² of | |a| − g |
-    accel_rate_gain: float = 0.0  # k_ω: σ added per rad/s of body rate
-    accel_residual_gain: float = 3.0  # k_r: σ added per g·rad of IGN residual
-    mag_std_uT: float = 3.0  # σ_m, per axis
+    gyro_bias_init_radps: float = 0.02  # σ_b0, start-up bias uncertainty, rad/s (≈ 1°/s)
+    accel_std_mps2: float = 0.2  # σ_a, per axis, of the pre-filtered specific force
+    accel_lowpass_s: float = 0.5  # τ_a of the quasi-inertial pre-filter (0: off)
+    accel_norm_gain: float = 6.0  # k_n: σ added per m/s² of | |ã| − g |
+    accel_residual_gain: float = 0.0  # k_r: σ added per g·rad of IGN residual
+    mag_std_uT: float = 2.5  # σ_m, per axis
     mag_norm_tolerance: float = 0.1  # τ_n, fraction of |m_ref| beyond which the field is disturbed
-    mag_dip_tolerance_deg: float = 5.0  # τ_δ
+    mag_dip_tolerance_deg: float = 10.0  # τ_δ
     mag_soft_fraction: float = 0.5  # d₀: inflation scale below the hard threshold
-    mag_recovery_factor: float = 10.0  # ρ₀: σ_m² multiplier just after a disturbance
+    mag_recovery_factor: float = 10.0  # ρ₀: σ_m² multiplier just after a long disturbance
     mag_recovery_s: float = 3.0  # T_r
+    rest_gyro_threshold_radps: float = math.radians(2.0)
+    rest_accel_threshold_mps2: float = 0.5
+    rest_min_s: float = 1.5
+    rest_filter_s: float = 0.5  # τ_r of the rest detector's low-passes
+    rest_gyro_std_radps: float = 0.002  # σ_r of the zero-rate pseudo-measurement (0: off)
     gravity_mps2: float = 9.80665
     update_rate_hz: float = 50.0
     output_rate_hz: float = 50.0
     max_gap_s: float = 0.5
-    split_updates: float = 0.0
 
     def __post_init__(self) -> None:
         for name, value in vars(self).items():
             if not math.isfinite(value) or value < 0.0:
                 raise InputError(f"FusedSettings.{name} must be finite and non-negative, got {value!r}")
-        for name in ("gravity_mps2", "update_rate_hz", "output_rate_hz", "max_gap_s", "mag_norm_tolerance"):
+        positive = (
+            "gravity_mps2",
+            "rest_filter_s",
+            "update_rate_hz",
+            "output_rate_hz",
+            "max_gap_s",
+            "mag_norm_tolerance",
+        )
+        for name in positive:
             if getattr(self, name) <= 0.0:
                 raise InputError(f"FusedSettings.{name} must be positive, got {getattr(self, name)!r}")
 
@@ -216,7 +269,6 @@ class FusedFilter:
         cos_ref = float(self.acc_ref @ self.mag_ref) / (norms[0] * norms[1])
         self._ref_angle = math.acos(max(-1.0, min(1.0, cos_ref)))
         self._ref_dip = math.asin(max(-1.0, min(1.0, -cos_ref)))
-        self._ref_heading = math.atan2(float(self.mag_ref[1]), float(self.mag_ref[0]))
         self._noise = NoiseModel(accel_std=(settings.accel_std_mps2,) * 3, mag_std=(settings.mag_std_uT,) * 3)
         self.counters: dict[str, int] = {
             "ign_updates": 0,
@@ -225,6 +277,7 @@ class FusedFilter:
             "degenerate": 0,
             "skipped_updates": 0,
             "restarts": 0,
+            "rest_updates": 0,
         }
         self._q: Quat | None = None
         self._bias = (0.0, 0.0, 0.0)
@@ -237,6 +290,14 @@ class FusedFilter:
         self._next_update_s = 0.0
         self._next_output_s = 0.0
         self._clean_since_s = -math.inf
+        self._disturbed_since_s = -math.inf
+        self._coast_s = 0.0
+        self._q_gyro: Quat = (1.0, 0.0, 0.0, 0.0)
+        self._acc_lp: list[list[float]] | None = None
+        self._biquad = _butterworth(settings.accel_lowpass_s, settings.update_rate_hz)
+        self._lp: list[float] | None = None  # low-passed gyro and accelerometer (rest detection)
+        self._still_since_s = math.inf
+        self._rest_alpha = 1.0 - math.exp(-self._update_period_s / settings.rest_filter_s)
         self._disturbed = False
 
     # --- public state -------------------------------------------------------------------------------
@@ -317,56 +378,68 @@ class FusedFilter:
         p[_DIAG_BIAS] += s.gyro_bias_walk_radps2**2 * t
         self._p = p
         self._q = self._current_q()
+        self._q_gyro = _normalize(quat_multiply_parts(self._q_gyro, iv.dq))
         self._interval = _Interval()
 
     # --- measurement updates ------------------------------------------------------------------------
     def _update(self, acc_mps2: ArrayLike, mag_uT: ArrayLike | None, time_s: float) -> None:
+        """Propagate ``P`` to now, then the zero-rate, IGN or tilt-only update (module docstring)."""
         self._propagate()
         s = self.settings
-        ax, ay, az = acc = (float(acc_mps2[0]), float(acc_mps2[1]), float(acc_mps2[2]))
-        acc_norm = math.sqrt(ax * ax + ay * ay + az * az)
-        if not math.isfinite(acc_norm) or acc_norm < 1e-3 * s.gravity_mps2:
+        raw = (float(acc_mps2[0]), float(acc_mps2[1]), float(acc_mps2[2]))
+        if not math.isfinite(raw[0] + raw[1] + raw[2]) or _norm(raw) < 1e-3 * s.gravity_mps2:
             self.counters["skipped_updates"] += 1
             return
+        if s.rest_gyro_std_radps > 0.0:
+            self._rest_update(raw, time_s)
+        acc = self._inertial_lowpass(raw)
+        acc_norm = _norm(acc)
         mag = None if mag_uT is None else (float(mag_uT[0]), float(mag_uT[1]), float(mag_uT[2]))
         d = math.inf if mag is None else self._mag_disturbance(mag)
         self._track_disturbance(d >= 1.0, time_s)
-        g = self._gyr_last
-        rate2 = (g[0] - self._bias[0]) ** 2 + (g[1] - self._bias[1]) ** 2 + (g[2] - self._bias[2]) ** 2
-        sigma_a2 = (
-            s.accel_std_mps2**2 + (s.accel_norm_gain * (acc_norm - s.gravity_mps2)) ** 2 + s.accel_rate_gain**2 * rate2
-        )
+        sigma_a2 = s.accel_std_mps2**2 + (s.accel_norm_gain * (acc_norm - s.gravity_mps2)) ** 2
         if mag is not None and d < 1.0:
             residual = self._vector_residual(acc, acc_norm, mag)
             sigma_a2 += (s.accel_residual_gain * s.gravity_mps2 * residual) ** 2
+        # Past half a radian of direction noise the accelerometer tells nothing the gyro does not know; the
+        # cap keeps the σ the solver accepts (σ/|vector| ≤ 1).
+        sigma_a = min(math.sqrt(sigma_a2), _MAX_UNIT_STD * acc_norm)
+        if mag is not None and d < 1.0:
             sigma_m2 = s.mag_std_uT**2 * (1.0 + (d / s.mag_soft_fraction) ** 2) * self._recovery_factor(time_s)
-            if s.split_updates:
-                self._tilt_update(acc, acc_norm, math.sqrt(sigma_a2))
-                self._heading_update(mag, math.sqrt(sigma_m2))
-                return
+            sigma_m = min(math.sqrt(sigma_m2), _MAX_UNIT_STD * _norm(mag))
             try:
-                self._ign_update(acc, mag, math.sqrt(sigma_a2), math.sqrt(sigma_m2))
+                self._ign_update(acc, mag, sigma_a, sigma_m)
                 return
             except DegenerateGeometryError:
                 self.counters["degenerate"] += 1
-        self._tilt_update(acc, acc_norm, math.sqrt(sigma_a2))
+        self._tilt_update(acc, acc_norm, sigma_a)
 
-    def _heading_update(self, mag: tuple[float, ...], sigma_m: float) -> None:
-        r = rotation_matrix_parts(self._q)
-        mn = r[0] * mag[0] + r[1] * mag[1] + r[2] * mag[2]
-        me = r[3] * mag[0] + r[4] * mag[1] + r[5] * mag[2]
-        horizontal = math.hypot(mn, me)
-        if horizontal < 1e-9:
-            return
-        z = self._ref_heading - math.atan2(me, mn)
-        z = (z + math.pi) % (2.0 * math.pi) - math.pi
-        h = np.array([[r[6], r[7], r[8]]])
-        self._correct(h, np.array([z]), np.array([[(sigma_m / horizontal) ** 2]]))
+    def _inertial_lowpass(self, acc: tuple[float, float, float]) -> tuple[float, float, float]:
+        """Specific force low-passed in the gyro-only (quasi-inertial) frame, expressed in the body frame."""
+        r = rotation_matrix_parts(self._q_gyro)
+        x = (
+            r[0] * acc[0] + r[1] * acc[1] + r[2] * acc[2],
+            r[3] * acc[0] + r[4] * acc[1] + r[5] * acc[2],
+            r[6] * acc[0] + r[7] * acc[1] + r[8] * acc[2],
+        )
+        if self._acc_lp is None:
+            self._acc_lp = [[v, v, v, v] for v in x]  # x1, x2, y1, y2 at steady state
+        b0, b1, b2, a1, a2 = self._biquad
+        y = []
+        for v, st in zip(x, self._acc_lp, strict=True):
+            out = b0 * v + b1 * st[0] + b2 * st[1] - a1 * st[2] - a2 * st[3]
+            st[1], st[0], st[3], st[2] = st[0], v, st[2], out
+            y.append(out)
+        return (
+            r[0] * y[0] + r[3] * y[1] + r[6] * y[2],
+            r[1] * y[0] + r[4] * y[1] + r[7] * y[2],
+            r[2] * y[0] + r[5] * y[1] + r[8] * y[2],
+        )
 
     def _mag_disturbance(self, mag: tuple[float, float, float]) -> float:
         """``d`` of the module docstring: ≥ 1 means disturbed; the dip uses the predicted vertical."""
         s = self.settings
-        norm = math.sqrt(mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2])
+        norm = _norm(mag)
         if not math.isfinite(norm) or norm == 0.0:
             return math.inf
         r = rotation_matrix_parts(self._q)
@@ -375,52 +448,91 @@ class FusedFilter:
         if s.mag_dip_tolerance_deg == 0.0:
             return d_norm
         dip = math.asin(max(-1.0, min(1.0, down)))
-        return max(d_norm, abs(dip - self._ref_dip) / math.radians(s.mag_dip_tolerance_deg))
+        # The predicted vertical is itself uncertain: widen the dip tolerance by 3σ of the attitude error.
+        p = self._p
+        tolerance = math.radians(s.mag_dip_tolerance_deg) + 3.0 * math.sqrt(p[0, 0] + p[1, 1] + p[2, 2])
+        return max(d_norm, abs(dip - self._ref_dip) / tolerance)
 
     def _vector_residual(self, acc: tuple[float, ...], acc_norm: float, mag: tuple[float, ...]) -> float:
         """IGN residual as an angle: measured angle between the vectors minus the reference angle."""
-        mag_norm = math.sqrt(mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2])
+        mag_norm = _norm(mag)
         cos_m = (acc[0] * mag[0] + acc[1] * mag[1] + acc[2] * mag[2]) / (acc_norm * mag_norm)
         return abs(math.acos(max(-1.0, min(1.0, cos_m))) - self._ref_angle)
 
     def _track_disturbance(self, disturbed: bool, time_s: float) -> None:
+        """Remember when a disturbance started and how long the last one lasted (the recovery ramp)."""
         if disturbed:
             self.counters["mag_disturbed"] += 1
+            if not self._disturbed:
+                self._disturbed_since_s = time_s
         elif self._disturbed:
             self._clean_since_s = time_s
+            self._coast_s = time_s - self._disturbed_since_s
         self._disturbed = disturbed
 
     def _recovery_factor(self, time_s: float) -> float:
+        """``ρ``: σ_m² multiplier after a disturbance, scaled by how long the heading coasted."""
         s = self.settings
         elapsed = time_s - self._clean_since_s
         if s.mag_recovery_s == 0.0 or not elapsed < s.mag_recovery_s:
             return 1.0
-        return 1.0 + (s.mag_recovery_factor - 1.0) * (1.0 - elapsed / s.mag_recovery_s)
+        depth = min(1.0, self._coast_s / s.mag_recovery_s)
+        return 1.0 + (s.mag_recovery_factor - 1.0) * depth * (1.0 - elapsed / s.mag_recovery_s)
 
     def _ign_update(self, acc: tuple[float, ...], mag: tuple[float, ...], sigma_a: float, sigma_m: float) -> None:
         noise = NoiseModel(accel_std=(sigma_a,) * 3, mag_std=(sigma_m,) * 3)
         r = solve(acc, mag, self.mag_ref, noise, acc_ref=self.acc_ref, q0=np.array(self._q))
         w, x, y, z = self._q
         innovation = _log(quat_multiply_parts((w, -x, -y, -z), tuple(r.q.tolist())))
-        self._correct(_EYE3, np.array(innovation), ign_covariance(acc, mag, sigma_a, sigma_m))
+        self._correct(_H_THETA, np.array(innovation), ign_covariance(acc, mag, sigma_a, sigma_m))
         self.counters["ign_updates"] += 1
 
     def _tilt_update(self, acc: tuple[float, ...], acc_norm: float, sigma_a: float) -> None:
+        """Measurement 2: the accelerometer direction only; its gain is kept off the vertical (heading coasts)."""
         r = rotation_matrix_parts(self._q)
         vx, vy, vz = self._v_acc
         h = (r[0] * vx + r[3] * vy + r[6] * vz, r[1] * vx + r[4] * vy + r[7] * vz, r[2] * vx + r[5] * vy + r[8] * vz)
-        z = np.array([acc[i] / acc_norm - h[i] for i in range(3)])
-        self._correct(_skew(*h), z, (sigma_a / acc_norm) ** 2 * _EYE3)
+        z = np.array([acc[0] / acc_norm - h[0], acc[1] / acc_norm - h[1], acc[2] / acc_norm - h[2]])
+        keep = _EYE3 - np.outer(h, h)
+        self._correct(_attitude_h(_skew(*h)), z, (sigma_a / acc_norm) ** 2 * _EYE3, keep)
         self.counters["tilt_updates"] += 1
 
-    def _correct(self, h_theta: Array, z: Array, r: Array) -> None:
-        """Kalman update with ``H = [h_theta 0]`` (Joseph form), then reset the error state into q and b."""
+    def _rest_update(self, acc: tuple[float, float, float], time_s: float) -> None:
+        """Zero-rate update of the bias once the gyro and accelerometer have been still for ``rest_min_s``."""
+        s = self.settings
+        g = self._gyr_last
+        if self._lp is None:
+            self._lp = [*g, *acc]
+        alpha = self._rest_alpha
+        lp = self._lp = [old + alpha * (new - old) for old, new in zip(self._lp, (*g, *acc), strict=True)]
+        b = self._bias
+        dev_g2 = (g[0] - lp[0]) ** 2 + (g[1] - lp[1]) ** 2 + (g[2] - lp[2]) ** 2
+        dev_a2 = (acc[0] - lp[3]) ** 2 + (acc[1] - lp[4]) ** 2 + (acc[2] - lp[5]) ** 2
+        rate2 = (lp[0] - b[0]) ** 2 + (lp[1] - b[1]) ** 2 + (lp[2] - b[2]) ** 2
+        th_g2 = s.rest_gyro_threshold_radps**2
+        if not (dev_g2 < th_g2 and rate2 < th_g2 and dev_a2 < s.rest_accel_threshold_mps2**2):
+            self._still_since_s = math.inf
+            return
+        self._still_since_s = min(self._still_since_s, time_s)
+        if time_s - self._still_since_s < s.rest_min_s:
+            return
+        z = np.array([lp[0] - b[0], lp[1] - b[1], lp[2] - b[2]])
+        self._correct(_H_BIAS, z, s.rest_gyro_std_radps**2 * _EYE3)
+        self.counters["rest_updates"] += 1
+
+    def _correct(self, h: Array, z: Array, r: Array, keep: Array | None = None) -> None:
+        """Kalman update with ``H`` (k×6, Joseph form), then reset the error state into q and b.
+
+        ``keep`` (3×3 projector) restricts the attitude part of the gain to a subspace; the Joseph form
+        keeps ``P`` exact for such a sub-optimal gain.
+        """
         p = self._p
-        ph = p[:, :3] @ h_theta.T  # P Hᵀ (6×3)
-        k = np.linalg.solve(h_theta @ ph[:3] + r, ph.T).T
+        ph = p @ h.T  # P Hᵀ (6×k)
+        k = np.linalg.solve(h @ ph + r, ph.T).T
+        if keep is not None:
+            k[:3] = keep @ k[:3]
         dx = (k @ z).tolist()
-        ikh = np.eye(6)
-        ikh[:, :3] -= k @ h_theta
+        ikh = _EYE6 - k @ h
         p = ikh @ p @ ikh.T + k @ r @ k.T
         self._p = 0.5 * (p + p.T)
         self._q = _normalize(quat_multiply_parts(self._q, _exp(dx[0], dx[1], dx[2])))
@@ -437,7 +549,8 @@ class FusedFilter:
             return []
         r = solve(acc, mag, self.mag_ref, self._noise, acc_ref=self.acc_ref)
         restart = self._q is not None
-        self._q = _normalize(tuple(float(v) for v in r.q))
+        self._q = self._q_gyro = _normalize(tuple(float(v) for v in r.q))
+        self._acc_lp = None
         p = np.zeros((6, 6))
         p[:3, :3] = r.covariance
         p[3:, 3:] = self._p[3:, 3:] if restart else np.eye(3) * self.settings.gyro_bias_init_radps**2
@@ -465,5 +578,9 @@ class FusedFilter:
         return out
 
 
+_MAX_UNIT_STD = 0.5  # rad: the largest direction noise handed to a measurement update
+_EYE6 = np.eye(6)
+_H_THETA = np.hstack([np.eye(3), np.zeros((3, 3))])
+_H_BIAS = np.hstack([np.zeros((3, 3)), np.eye(3)])
 _DIAG_THETA = (0, 1, 2), (0, 1, 2)
 _DIAG_BIAS = (3, 4, 5), (3, 4, 5)
