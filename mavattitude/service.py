@@ -200,7 +200,9 @@ class AttitudeService:
         if self._ack_due is not None and now >= self._ack_due:
             self._ack_due = None
             self.counters.ack_timeouts += 1
-            log.warning("no COMMAND_ACK for SET_MESSAGE_INTERVAL within %.0f s", ACK_TIMEOUT_S)
+            if self._last_ack != "TIMEOUT":  # said when the answer changes, like the ACK results
+                log.warning("no COMMAND_ACK for SET_MESSAGE_INTERVAL within %.0f s", ACK_TIMEOUT_S)
+            self._last_ack = "TIMEOUT"
         if not self._input_lost and self._last_input is not None:
             silent_s = now - self._last_input
             if silent_s > self.config.input.input_timeout_s:

@@ -148,7 +148,16 @@ def test_locks_on_requests_the_input_and_reads_the_ack(served):
     wait_until(vehicle, lambda: running.service.counters.acks.get("ACCEPTED") == 1)
     counters = running.finish()
     assert counters.interval_requests >= 2
-    assert counters.ack_timeouts == 0
+
+
+def test_missing_acks_counted_and_said_once(served, caplog):
+    running, vehicle = served
+    caplog.set_level(logging.WARNING, logger="mavattitude.service")
+    lock_on(vehicle)  # and never answer: each unanswered request times out after 2 s
+    wait_until(vehicle, lambda: running.service.counters.ack_timeouts >= 2, timeout_s=8.0)
+    counters = running.finish()
+    assert counters.interval_requests >= 2 and not counters.acks
+    assert sum("no COMMAND_ACK" in r.getMessage() for r in caplog.records) == 1
 
 
 def test_emits_attitude_quaternion_for_the_vehicle_time(served):
