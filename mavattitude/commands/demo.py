@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import time
 
 from mavattitude.commands.simulate import add_vehicle_arguments, vehicle_from_args
@@ -35,13 +36,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--interval", type=float, default=1.0, metavar="S", help="table row period, s (default 1)")
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt  # SIGTERM ends the demo as Ctrl-C does: both processes stopped, a summary
+
+
 def run(args: argparse.Namespace) -> int:
     if not args.interval > 0:
         raise MavAttitudeError(f"--interval must be positive, got {args.interval}")
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        return _demo(args)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _demo(args: argparse.Namespace) -> int:
     with vehicle_from_args(args, "udpin:127.0.0.1:0", stream_on_start=False) as vehicle:
         config = config_for(vehicle, estimator={"method": args.method})
         with ServiceProcess(config, log_level="WARNING") as service:
-            print(f"fake vehicle on udp 127.0.0.1:{vehicle.port}, service pid {service.pid}, script {args.script}")
+            print(
+                f"fake vehicle on udp 127.0.0.1:{vehicle.port}, service pid {service.pid}, script {args.script}",
+                flush=True,
+            )
             try:
                 _table(vehicle, service, args.duration, args.interval)
             except KeyboardInterrupt:

@@ -1,0 +1,85 @@
+"""`mavattitude demo` and `mavattitude simulate` as a user runs them: real processes, real UDP."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from mavattitude.sim.daemon import ServiceProcess, service_config
+from mavattitude.sim.scenarios import DEFAULT_MAG_NED_UT
+
+from .conftest import FAST_SERVICE, free_udp_port, merged
+
+pytestmark = pytest.mark.e2e
+
+CLI = [sys.executable, "-m", "mavattitude"]
+ROW = re.compile(r"^\s*(\d+)\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)")
+TIMED_ROW = re.compile(r"^\s*\d+\.\d\s+\d+\s+[\d.]+")  # a live row: "  3.0     50    0.248 ..."
+TIMEOUT_S = 60.0
+
+
+def _last_row(text: str) -> list[float]:
+    rows = [m.groups() for line in text.splitlines() if (m := ROW.match(line))]
+    assert rows, text
+    return [float(x) for x in rows[-1]]
+
+
+def test_demo_runs_finite_and_prints_the_error_table() -> None:
+    done = subprocess.run(
+        [*CLI, "demo", "--duration", "3", "--script", "static", "--sensors", "paper"],
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT_S,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "service exit code 0" in done.stdout
+    count, err_rms, *_ = _last_row(done.stdout)
+    # 3 s at 50 Hz, minus the start; paper noise static: ≈ 0.3° RMS (see test_profiles).
+    assert count > 100 and err_rms < 1.0, done.stdout
+
+
+def test_demo_is_ctrl_c_safe() -> None:
+    proc = subprocess.Popen(
+        [*CLI, "demo", "--duration", "600", "--script", "static", "--sensors", "paper"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,  # its own process group, as a terminal's foreground job
+    )
+    assert proc.stdout is not None
+    first = proc.stdout.readline()
+    service_pid = int(re.search(r"service pid (\d+)", first).group(1))  # type: ignore[union-attr]
+    table = [proc.stdout.readline() for _ in range(4)]  # header (2 lines), first rows: it is running
+    assert any(TIMED_ROW.match(line) for line in table), table
+    os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C reaches the whole foreground group
+    out, err = proc.communicate(timeout=TIMEOUT_S)
+    assert proc.returncode == 0, err
+    assert "service exit code 0" in out
+    assert not Path(f"/proc/{service_pid}").exists(), "the service outlived the demo"
+
+
+def test_simulate_serves_a_running_service() -> None:
+    port = free_udp_port()
+    sim = subprocess.Popen(
+        [*CLI, "simulate", "--connect", f"udpin:127.0.0.1:{port}", "--duration", "4", "--script", "static"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    config = service_config(
+        port, **merged(FAST_SERVICE, {"reference": {"magnetic": {"field_ned_uT": list(DEFAULT_MAG_NED_UT)}}})
+    )
+    with ServiceProcess(config) as svc:
+        out, err = sim.communicate(timeout=TIMEOUT_S)
+        assert svc.stop() == 0
+    assert sim.returncode == 0, err
+    count, err_rms, *_ = _last_row(out)
+    # Consumer sensors by default: ≈ 1° RMS from their residual biases.
+    assert count > 50 and err_rms < 3.0, out
+    assert f"ATTITUDE_QUATERNION received: {int(count)}" in out
