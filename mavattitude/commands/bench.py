@@ -485,7 +485,7 @@ EXPECTED_ROWS["soak"] = [
 @section("soak")
 def bench_soak(settings: Settings) -> list[Row]:
     soak = _require("mavattitude.sim.soak", "the soak runner (issue 5)")
-    duration_s, window_s = (160.0, 40.0) if settings.quick else (3600.0, 300.0)
+    duration_s, window_s = (80.0, 40.0) if settings.quick else (3600.0, 300.0)
     report = soak.run_soak(duration_s=duration_s, rate_hz=200.0, speed=20.0, window_s=window_s, seed=SEED)
     if len(report.windows) < 2:
         raise RuntimeError(f"the soak measured {len(report.windows)} window(s), too few to see growth")
