@@ -82,7 +82,10 @@ def cold_start_iterations(acc: np.ndarray, mag: np.ndarray, mag_ref, acc_ref, to
     w_acc, n_acc = kernel.scaled(tuple(acc.T), 1 / np.linalg.norm(acc, axis=1)), np.linalg.norm(acc, axis=1)
     w_mag, n_mag = kernel.scaled(tuple(mag.T), 1 / np.linalg.norm(mag, axis=1)), np.linalg.norm(mag, axis=1)
     v_acc, v_mag = (tuple(np.asarray(v, float) / np.linalg.norm(v)) for v in (acc_ref, mag_ref))
-    obs = kernel.observations("ign", (w_mag, n_mag, v_mag, NOISE.mag_var), (w_acc, n_acc, v_acc, NOISE.accel_var))
+    a_mag, a_acc = kernel.paper_weight(w_mag, n_mag, NOISE.mag_var), kernel.paper_weight(w_acc, n_acc, NOISE.accel_var)
+    obs = kernel.observations(
+        "ign", (w_mag, n_mag, v_mag, NOISE.mag_var, a_mag), (w_acc, n_acc, v_acc, NOISE.accel_var, a_acc)
+    )
     n = acc.shape[0]
     q = tuple(np.full(n, c) for c in (1.0, 0.0, 0.0, 0.0))
     its, done = np.full(n, cap), np.zeros(n, bool)

@@ -16,7 +16,15 @@ from ..errors import ConvergenceError, DegenerateGeometryError, InputError
 from . import kernel
 from .conventions import quat_from_rotation_matrix
 from .noise import NoiseModel
-from .solve import MAX_ITERATIONS, MIN_ANGLE_DEG, TOLERANCE_RAD, check_method, check_settings, geometry_message
+from .solve import (
+    MAX_ITERATIONS,
+    MIN_ANGLE_DEG,
+    TOLERANCE_RAD,
+    check_method,
+    check_settings,
+    geometry_message,
+    weights_message,
+)
 
 CHUNK = 4096
 
@@ -57,7 +65,8 @@ def solve_batch(
     mag_a = _samples("mag", mag, n)
     refs = {name: _samples(name, v, n) for name, v in (("acc_ref", acc_ref), ("mag_ref", mag_ref))}
     arrays = (acc_a, mag_a, refs["acc_ref"], refs["mag_ref"])
-    _check(*(np.broadcast_to(a, (n, 3)) for a in arrays), sin_min, min_angle_deg)
+    with np.errstate(all="ignore"):  # the checks themselves catch what overflows or is NaN
+        _check(*(np.broadcast_to(a, (n, 3)) for a in arrays), noise, sin_min, min_angle_deg)
     out = BatchResult(np.empty((n, 4)), np.empty(n, dtype=np.int64), np.empty(n, dtype=bool), np.empty(n))
     for start in range(0, n, CHUNK):
         sl = slice(start, min(start + CHUNK, n))
@@ -95,13 +104,19 @@ def _columns(a: NDArray[np.float64], sl: slice) -> tuple:
     return tuple(np.ascontiguousarray(a[sl].T))
 
 
-def _check(acc, mag, acc_ref, mag_ref, sin_min: float, min_angle_deg: float) -> None:
+def _check(acc, mag, acc_ref, mag_ref, noise: NoiseModel, sin_min: float, min_angle_deg: float) -> None:
     """The per-sample path's input checks over all samples at once, naming the first offender."""
-    units = {}
+    units, norms = {}, {}
     for name, a in (("acc", acc), ("mag", mag), ("acc_ref", acc_ref), ("mag_ref", mag_ref)):
         n = np.linalg.norm(a, axis=1)
         _fail(InputError, ~((n > 0.0) & (n < np.inf)), f"{name} must be finite and non-zero")  # NaN too
-        units[name] = a / n[:, None]
+        units[name], norms[name] = a / n[:, None], n
+    a_acc = kernel.paper_weight(tuple(units["acc"].T), norms["acc"], noise.accel_var)
+    a_mag = kernel.paper_weight(tuple(units["mag"].T), norms["mag"], noise.mag_var)
+    bad = ~kernel.weights_usable(a_mag, a_acc)
+    if bad.any():
+        first = int(np.flatnonzero(bad)[0])
+        _fail(InputError, bad, weights_message(float(a_mag[first]), float(a_acc[first])))
     for what, (a, b) in (("acc and mag", ("acc", "mag")), ("acc_ref and mag_ref", ("acc_ref", "mag_ref"))):
         s = np.linalg.norm(np.cross(units[a], units[b]), axis=1)
         bad = ~(s >= sin_min)
@@ -121,7 +136,10 @@ def _solve_chunk(chunk: list, noise: NoiseModel, method: str, max_iterations: in
     s_body = kernel.norm(kernel.cross(w_acc, w_mag))
     s_ref = kernel.norm(kernel.cross(v_acc, v_mag))
 
-    obs = kernel.observations(method, (w_mag, n_mag, v_mag, noise.mag_var), (w_acc, n_acc, v_acc, noise.accel_var))
+    a_mag, a_acc = kernel.paper_weight(w_mag, n_mag, noise.mag_var), kernel.paper_weight(w_acc, n_acc, noise.accel_var)
+    obs = kernel.observations(
+        method, (w_mag, n_mag, v_mag, noise.mag_var, a_mag), (w_acc, n_acc, v_acc, noise.accel_var, a_acc)
+    )
     r = np.stack(np.broadcast_arrays(*kernel.triad(w_acc, w_mag, v_acc, v_mag, s_body, s_ref)), -1)
     q = tuple(quat_from_rotation_matrix(r.reshape(-1, 3, 3)).T)
     ml = method == "ml"

@@ -119,9 +119,13 @@ def unit_covariance(w: Vec, n: Scalar, var: Vec) -> Sym:
 
 
 def paper_weight(w: Vec, n: Scalar, var: Vec) -> Scalar:
-    """Eq. 19–21: ``a = 1/κ² = 3 / tr(R_unit)`` with ``tr(R_unit) = (tr R − ŵᵀRŵ) / |Ŵ|²``."""
-    tr = var[0] + var[1] + var[2] - (var[0] * w[0] * w[0] + var[1] * w[1] * w[1] + var[2] * w[2] * w[2])
-    return 3.0 * n * n / tr
+    """Eq. 19–21: ``a = 1/κ² = 3 / tr(R_unit)`` with ``tr(R_unit) = (tr R − ŵᵀRŵ) / |Ŵ|²``.
+
+    ``tr R − ŵᵀRŵ = Σₖ varₖ (1 − ŵₖ²)`` is summed with ``1 − ŵₖ²`` written as the other two components
+    squared: no cancellation, so it stays positive however different the three variances are.
+    """
+    xx, yy, zz = w[0] * w[0], w[1] * w[1], w[2] * w[2]
+    return 3.0 * n * n / (var[0] * (yy + zz) + var[1] * (xx + zz) + var[2] * (xx + yy))
 
 
 def ml_weight(w: Vec, r_unit: Sym, a: Scalar) -> Sym:
@@ -246,20 +250,35 @@ def matrix_weight_step(q: Quat, obs: tuple, newton: Scalar = True) -> tuple[Quat
     return _normalised(quat_multiply_parts(q, (1.0, 0.5 * d[0], 0.5 * d[1], 0.5 * d[2]))), norm(d)
 
 
+# Sanity bounds on the Eq. 21 weights a = 3/tr(R_unit), i.e. on the unit-vector noise σ/|Ŵ|:
+# - a < 1: the noise is as large as the vector itself, which has no direction left;
+# - a > 3e20: σ/|Ŵ| < 1e-10, finer than any sensor resolves (σ in other units than the vector);
+# - weights 1e8 apart: one unit-vector noise 1e4× the other's (legitimate sensors stay below ~1e6
+#   apart; beyond ~1e12 the lighter vector's information is lost to rounding next to the heavier one's).
+MIN_WEIGHT, MAX_WEIGHT, MAX_WEIGHT_RATIO = 1.0, 3e20, 1e8
+
+
+def weights_usable(a1: Scalar, a2: Scalar) -> Scalar:
+    """True where both weights are within the bounds above (false for NaN)."""
+    in_range = (a1 >= MIN_WEIGHT) & (a1 <= MAX_WEIGHT) & (a2 >= MIN_WEIGHT) & (a2 <= MAX_WEIGHT)
+    return in_range & (a1 <= MAX_WEIGHT_RATIO * a2) & (a2 <= MAX_WEIGHT_RATIO * a1)
+
+
 def observations(method: str, mag: tuple, acc: tuple) -> tuple:
-    """The solver's ``((ŵ₁, v₁, weight₁), (ŵ₂, v₂, weight₂))`` from ``(ŵ, |Ŵ|, v̂, var)`` per sensor.
+    """The solver's ``((ŵ₁, v₁, weight₁), (ŵ₂, v₂, weight₂))`` from ``(ŵ, |Ŵ|, v̂, var, a)`` per sensor,
+    ``a`` the paper's weight (:func:`paper_weight`).
 
     ``ign`` and ``triad``: the paper's scalar weights (Eq. 21); ``cgn``: equal weights; ``ml``: the
     matrix weights of :func:`ml_weight`.
     """
     out = []
-    for w, n, v, var in (mag, acc):
+    for w, n, v, var, a in (mag, acc):
         if method == "cgn":
             weight = 1.0
         elif method == "ml":
-            weight = ml_weight(w, unit_covariance(w, n, var), paper_weight(w, n, var))
+            weight = ml_weight(w, unit_covariance(w, n, var), a)
         else:
-            weight = paper_weight(w, n, var)
+            weight = a
         out.append((w, v, weight))
     return tuple(out)
 

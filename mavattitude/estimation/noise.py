@@ -24,8 +24,8 @@ def _sigmas(name: str, value: float | Sequence[float]) -> tuple[float, float, fl
         sig = tuple(float(s) for s in np.broadcast_to(np.asarray(value, dtype=float), (3,)))
     except (TypeError, ValueError) as exc:
         raise InputError(f"{name} must be one σ or three per-axis σ (x, y, z), got {value!r}") from exc
-    if not all(math.isfinite(s) and s > 0.0 for s in sig):
-        raise InputError(f"{name} must be finite and > 0 on every axis, got {sig}")
+    if not all(s > 0.0 and 0.0 < s * s < math.inf for s in sig):  # σ² must neither overflow nor underflow
+        raise InputError(f"{name} must be finite and > 0 on every axis (1e-150 < σ < 1e150), got {sig}")
     return sig  # type: ignore[return-value]
 
 

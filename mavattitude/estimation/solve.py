@@ -99,6 +99,21 @@ def geometry_message(what: str, sin_angle: float, min_angle_deg: float) -> str:
     )
 
 
+def weights_message(a_mag: float, a_acc: float) -> str:
+    """Why :func:`.kernel.weights_usable` refused a pair: relative unit-vector noise of each vector."""
+    rel_acc, rel_mag = (_relative_noise(a) for a in (a_acc, a_mag))
+    return (
+        f"unusable noise-to-signal: σ/|vector| ≈ {rel_acc:.1e} for acc and {rel_mag:.1e} for mag; each must be "
+        f"between 1e-10 and 1, and within 1e4 of the other (a vector buried in its noise, or a σ that is not "
+        f"in its measurement's units)"
+    )
+
+
+def _relative_noise(a: float) -> float:
+    """``κ = √(tr R_unit / 3) = a^(−½)``: a per-axis σ/|Ŵ|."""
+    return (1.0 / a) ** 0.5 if 0.0 < a < math.inf else (math.inf if a == 0.0 else 0.0)
+
+
 def _unit(name: str, v: ArrayLike) -> tuple[tuple[float, float, float], float]:
     """``(ŵ, |Ŵ|)`` of a 3-vector given as an array or a sequence (Eq. 3–4)."""
     try:
@@ -148,7 +163,12 @@ def solve(
     if not s_ref >= sin_min:
         raise DegenerateGeometryError(geometry_message("acc_ref and mag_ref", s_ref, min_angle_deg))
 
-    obs = kernel.observations(method, (w_mag, n_mag, v_mag, noise.mag_var), (w_acc, n_acc, v_acc, noise.accel_var))
+    a_mag, a_acc = kernel.paper_weight(w_mag, n_mag, noise.mag_var), kernel.paper_weight(w_acc, n_acc, noise.accel_var)
+    if not kernel.weights_usable(a_mag, a_acc):
+        raise InputError(weights_message(a_mag, a_acc))
+    obs = kernel.observations(
+        method, (w_mag, n_mag, v_mag, noise.mag_var, a_mag), (w_acc, n_acc, v_acc, noise.accel_var, a_acc)
+    )
     triad = quat_from_rotation_parts(kernel.triad(w_acc, w_mag, v_acc, v_mag, s_body, s_ref))
     q, iterations, done = triad, 0, method == "triad"
     if not done:

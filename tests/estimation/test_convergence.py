@@ -87,10 +87,10 @@ def test_identity_start_is_stuck_there_and_a_stale_warm_start_is_not_used():
     # is a stationary point of Eq. 34, so a cold start "converges" in one step to the wrong attitude.
     for q_true in principal_half_turns():
         acc, mag = cv.rotate_ned_to_body(q_true, ACC_REF), cv.rotate_ned_to_body(q_true, MAG_REF_UT)
-        obs = kernel.observations(
-            "ign",
-            (tuple(mag / np.linalg.norm(mag)), np.linalg.norm(mag), tuple(unit_rows(MAG_REF_UT)), PAPER_NOISE.mag_var),
-            (tuple(acc / np.linalg.norm(acc)), np.linalg.norm(acc), tuple(unit_rows(ACC_REF)), PAPER_NOISE.accel_var),
+        a_mag, a_acc = paper_weight(mag, PAPER_NOISE.mag_var), paper_weight(acc, PAPER_NOISE.accel_var)
+        obs = (
+            (tuple(mag / np.linalg.norm(mag)), tuple(unit_rows(MAG_REF_UT)), float(a_mag)),
+            (tuple(acc / np.linalg.norm(acc)), tuple(unit_rows(ACC_REF)), float(a_acc)),
         )
         _, angle = kernel.scalar_weight_step((1.0, 0.0, 0.0, 0.0), obs)
         assert angle < 1e-9  # stationary: the literal iteration would stop 180° away

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from mavattitude.errors import DegenerateGeometryError, InputError
@@ -104,3 +106,40 @@ def test_batch_equals_per_sample(rng):
             r = solve(acc[i], mag[i], MAG_REF_UT, PAPER_NOISE, method=method)
             assert cv.angle_between(res.q[i], r.q) < 1e-9  # the bound
             assert res.iterations[i] == r.iterations and res.converged[i] == r.converged
+
+
+def test_vector_buried_in_noise_or_sigma_in_wrong_units_is_refused():
+    acc, mag = (0.0, 0.0, -9.8), (20.0, 0.0, 40.0)
+    # Magnetometer σ of 100 µT on a 45 µT field: no direction left. (The message's figure is
+    # κ = √(tr R_unit / 3) = √(2/3)·σ/|Ŵ| for an isotropic σ: 8.3e-4 and 1.8.)
+    with pytest.raises(InputError, match=r"σ/\|vector\| ≈ 8\.3e-04 for acc and 1\.8e\+00 for mag"):
+        solve(acc, mag, MAG_REF_UT, NoiseModel(accel_std=0.01, mag_std=100.0))
+    # σ given in tesla while the field is in µT: a unit-vector noise of 1e-8, 1e5× finer than the
+    # accelerometer's — beyond the 1e4 allowed between the two.
+    with pytest.raises(InputError, match="not in its measurement's units"):
+        solve(acc, mag, MAG_REF_UT, NoiseModel(accel_std=0.01, mag_std=3e-7))
+    with pytest.raises(InputError, match="not in its measurement's units"):
+        solve_batch([acc], [mag], MAG_REF_UT, NoiseModel(accel_std=0.01, mag_std=3e-7))
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.tuples(*[st.floats(width=64)] * 3),
+    st.tuples(*[st.floats(width=64)] * 3),
+    st.sampled_from(METHODS),
+    st.floats(min_value=1e-12, max_value=1e12),
+)
+def test_any_input_gives_an_answer_or_a_typed_error(acc, mag, method, sigma):
+    # Arbitrary floats, NaN and ±inf included: either InputError (or its subclass) or a finite unit
+    # quaternion with a finite covariance, the same from both paths. Never NaN, never another exception.
+    noise = NoiseModel(accel_std=sigma, mag_std=1.0)
+    try:
+        r = solve(acc, mag, MAG_REF_UT, noise, method=method)
+    except InputError:
+        with pytest.raises(InputError):
+            solve_batch([acc], [mag], MAG_REF_UT, noise, method=method)
+        return
+    assert abs(np.linalg.norm(r.q) - 1.0) < 1e-12 and np.isfinite(r.covariance).all() and np.isfinite(r.loss)
+    b = solve_batch([acc], [mag], MAG_REF_UT, noise, method=method, full_output=True)
+    assert b.converged[0] == r.converged
+    assert not r.converged or cv.angle_between(b.q[0], r.q) < 1e-9
