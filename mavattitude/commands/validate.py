@@ -66,8 +66,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--config",
         type=Path,
         metavar="FILE",
-        help="YAML config for the pipeline (filter, estimator, ...); the magnetic reference and the sensor "
-        "noise are always those measured at the recording's opening rest",
+        help="YAML config for the pipeline (filter, estimator, ...); its magnetic reference and sensor noise "
+        "are replaced by those measured at the recording's opening rest (unless given with --set)",
     )
     parser.add_argument(
         "--set",
@@ -75,7 +75,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="override one config key, YAML value, e.g. --set filter.cutoff_hz=5 (repeatable)",
+        help="override one config key, YAML value, e.g. --set filter.cutoff_hz=5 (repeatable); applied last, "
+        "so it also replaces the measured noise or magnetic reference",
     )
     parser.add_argument(
         "--peers",
@@ -119,7 +120,8 @@ def _peer_estimates(recording):  # type: ignore[no-untyped-def]
 
 
 def run(args: argparse.Namespace) -> int:
-    base = load_config(args.config, overrides=_settings(args.settings))
+    settings = _settings(args.settings)
+    base = load_config(args.config, overrides=settings)  # checked here, before any data is read
     methods = args.methods or list(METHODS)
     paths_run = args.paths_run or list(PATHS)
     files = [f for p in args.paths for f in find_recordings(p)]
@@ -130,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
         recordings[recording.name] = recording
         evaluations = results.setdefault(recording.name, [])
         for method in methods:
-            config = validation_config(recording, method, base)
+            config = validation_config(recording, method, base, **settings)
             for path in paths_run:
                 if path == "batch" and method not in BATCH_METHODS:
                     continue

@@ -20,9 +20,11 @@ from typing import Any
 import numpy as np
 
 from mavattitude.config import Config, load_config
+from mavattitude.errors import ConfigError
 from mavattitude.estimation import NoiseModel, solve_batch
 from mavattitude.estimation.conventions import Array
 from mavattitude.pipeline import AttitudePipeline
+from mavattitude.sensors.magref import MagneticReference
 from mavattitude.sensors.units import ImuSample
 from mavattitude.validation.loaders import Recording, truth_at
 from mavattitude.validation.metrics import BroadScore, Px4Score, broad_errors, euler_differences, score_broad, score_px4
@@ -63,14 +65,15 @@ class Evaluation:
 
 
 def validation_config(recording: Recording, method: str, base: Config | None = None, **overrides: Any) -> Config:
-    """``base`` (or the defaults) with the recording's references and ``method``; ``overrides`` are dotted keys."""
+    """``base`` (or the defaults) with the recording's measured references and ``method``, then
+    ``overrides`` (dotted keys, e.g. ``**{"filter.cutoff_hz": 5}``), which win over both."""
     ref = recording.reference
     layer = {
         "estimator.method": method,
         "reference.magnetic": {"field_ned_uT": [float(v) for v in ref.field_ned_uT]},
         "noise.accel_std_mps2": [float(v) for v in ref.acc_std_mps2],
         "noise.mag_std_uT": [float(v) for v in ref.mag_std_uT],
-        **{k.replace("__", "."): v for k, v in overrides.items()},
+        **overrides,
     }
     merged = {} if base is None else base.to_dict()
     return load_config(None, overrides=_flatten(merged) | layer, env={})
@@ -136,12 +139,15 @@ def estimate_stream(recording: Recording, config: Config, progress: Progress | N
 def estimate_batch(recording: Recording, config: Config) -> Estimate:
     """``solve_batch`` on the raw samples with the config's noise, references and method."""
     noise = NoiseModel(accel_std=config.noise.accel_std_mps2, mag_std=config.noise.mag_std_uT)
+    field_ned_uT = MagneticReference.from_config(config.reference.magnetic).reference.field_ned_uT
+    if field_ned_uT is None:
+        raise ConfigError("the batch path needs a fixed magnetic reference, not auto (no position in a recording)")
     start = time.monotonic()
     usable = observable(recording.acc_mps2, recording.mag_uT, config.estimator.min_angle_deg)
     result = solve_batch(
         recording.acc_mps2[usable],
         recording.mag_uT[usable],
-        recording.reference.field_ned_uT,
+        field_ned_uT,
         noise,
         method=config.estimator.method,
         acc_ref=(0.0, 0.0, -1.0),

@@ -5,9 +5,11 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from mavattitude.cli import EXIT_USER_ERROR, main
 from mavattitude.validation.plots import running_rms
+from mavattitude.validation.runner import estimate_batch, evaluate, validation_config
 from tests.validation.conftest import PX4
 
 
@@ -39,3 +41,17 @@ def test_running_rms_over_a_trailing_window() -> None:
     rms = running_rms(t, x, 0.45)  # windows of 5 samples (t − 0.45, t]
     assert rms[4] == 1.0 and rms[-1] == 3.0
     np.testing.assert_allclose(rms[12], np.sqrt((3 * 9 + 2 * 1) / 5))
+
+
+def test_set_wins_over_the_measured_references(recordings) -> None:
+    rec = recordings["px4"]
+    config = validation_config(rec, "ign", **{"noise.mag_std_uT": 2.0, "filter.cutoff_hz": 5})
+    assert config.noise.mag_std_uT == (2.0, 2.0, 2.0) and config.filter.cutoff_hz == 5.0
+    assert config.noise.accel_std_mps2 == tuple(rec.reference.acc_std_mps2)  # the rest stays measured
+    # The batch path uses the config's reference, so a --set reference reaches it: a field 10° east of
+    # north turns every heading 10° east of the autopilot's magnetic one (whose own offset is −0.2°).
+    east = validation_config(
+        rec.slice(10, 20), "triad", **{"reference.magnetic": {"declination_deg": 10.0, "inclination_deg": 63.5}}
+    )
+    score = evaluate(rec.slice(10, 20), estimate_batch(rec.slice(10, 20), east)).score  # at rest: ±0.1°
+    assert score.heading_mean_deg == pytest.approx(10.0 - 0.2, abs=0.5)
