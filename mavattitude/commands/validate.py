@@ -122,8 +122,14 @@ def _peer_estimates(recording):  # type: ignore[no-untyped-def]
 def run(args: argparse.Namespace) -> int:
     settings = _settings(args.settings)
     base = load_config(args.config, overrides=settings)  # checked here, before any data is read
-    methods = args.methods or list(METHODS)
-    paths_run = args.paths_run or list(PATHS)
+    runs = [
+        (method, path)
+        for method in args.methods or METHODS
+        for path in args.paths_run or PATHS
+        if path == "stream" or method in BATCH_METHODS  # the fused filter exists only as a stream
+    ]
+    if not runs:
+        raise ConfigError("nothing to run: the fused method has no batch path (use --path stream)")
     files = [f for p in args.paths for f in find_recordings(p)]
     results: dict[str, list[Evaluation]] = {}
     recordings = {}
@@ -131,18 +137,15 @@ def run(args: argparse.Namespace) -> int:
         recording = load_recording(file).slice(args.start, args.stop)
         recordings[recording.name] = recording
         evaluations = results.setdefault(recording.name, [])
-        for method in methods:
+        for method, path in runs:
             config = validation_config(recording, method, base, **settings)
-            for path in paths_run:
-                if path == "batch" and method not in BATCH_METHODS:
-                    continue
-                label = f"{recording.name} {path} {method}"
-                if path == "stream":
-                    estimate = estimate_stream(recording, config, _progress(label))
-                else:
-                    estimate = estimate_batch(recording, config)
-                print(f"\r{label}: done in {estimate.elapsed_s:.1f} s", file=sys.stderr, flush=True)
-                evaluations.append(evaluate(recording, estimate))
+            label = f"{recording.name} {path} {method}"
+            if path == "stream":
+                estimate = estimate_stream(recording, config, _progress(label))
+            else:
+                estimate = estimate_batch(recording, config)
+            print(f"\r{label}: done in {estimate.elapsed_s:.1f} s", file=sys.stderr, flush=True)
+            evaluations.append(evaluate(recording, estimate))
         if args.peers:
             for estimate in _peer_estimates(recording):
                 print(f"{recording.name} peer {estimate.method}: done in {estimate.elapsed_s:.1f} s", file=sys.stderr)

@@ -124,16 +124,20 @@ def estimate_stream(recording: Recording, config: Config, progress: Progress | N
         if progress is not None and i % 5000 == 0:
             progress(i, len(feed))
     elapsed = time.monotonic() - start
-    duration = recording.time_s[-1] - recording.time_s[0]
     return Estimate(
         path="stream",
         method=config.estimator.method,
         time_s=np.asarray(times, dtype=float),
         q=np.asarray(quats, dtype=float).reshape(-1, 4),
-        expected=int(duration * config.filter.output_rate_hz),
+        expected=_ticks_within(recording.time_s[0], recording.time_s[-1], config.filter.output_rate_hz),
         elapsed_s=elapsed,
         counters=_stream_counters(pipeline),
     )
+
+
+def _ticks_within(start_s: float, stop_s: float, rate_hz: float) -> int:
+    """How many output ticks ``k / rate_hz`` of the vehicle clock fall in ``[start_s, stop_s]``."""
+    return int(np.floor(stop_s * rate_hz) - np.ceil(start_s * rate_hz)) + 1
 
 
 def estimate_batch(recording: Recording, config: Config) -> Estimate:

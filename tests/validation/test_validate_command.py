@@ -32,6 +32,8 @@ def test_validate_user_errors_exit_2(tmp_path, capsys) -> None:
     assert "expected KEY=VALUE" in capsys.readouterr().err
     assert main(["validate", str(PX4), "--set", "filter.cutof_hz=5"]) == EXIT_USER_ERROR
     assert "did you mean cutoff_hz" in capsys.readouterr().err
+    assert main(["validate", str(PX4), "--method", "fused", "--path", "batch"]) == EXIT_USER_ERROR
+    assert "no batch path" in capsys.readouterr().err
 
 
 def test_running_rms_over_a_trailing_window() -> None:
