@@ -10,12 +10,14 @@ until the estimated error left is at most ``tolerance`` (:func:`.kernel.converge
 From TRIAD, Eq. 34 converges in 2 corrections over random attitudes (at most 4 in the maneuvering
 flight of tools/reproduce_paper.py): TRIAD fits the heavily weighted accelerometer exactly, and
 Gauss–Newton's linear rate on what is left is tiny. When the two vectors disagree badly (a magnetic
-disturbance) that rate is not tiny, and once it shows (:func:`.kernel.slow`) the remaining
-corrections are Newton's, to the same optimum (:func:`.kernel.scalar_weight_step`). A warm start ``q0`` (the previous
-sample's answer) is used only when its Wahba loss is not above TRIAD's (a stale or flipped one may sit
-at a stationary point of Eq. 34 180° away, NOTES.md) and only for ``WARM_START_BUDGET`` corrections: in a maneuver the
-previous answer's tilt error converges at Gauss–Newton's slow linear rate (0.15 per step measured in
-tools/reproduce_paper.py's flight), so the solver then restarts from TRIAD. All corrections count.
+disturbance) that rate is not tiny, and once it shows (:func:`.kernel.slow`) the remaining corrections
+are Newton's, to the same optimum (:func:`.kernel.scalar_weight_step`).
+
+A warm start ``q0`` (the previous sample's answer) is used only when its Wahba loss is not above
+TRIAD's (a stale or flipped one may sit at a stationary point of Eq. 34 180° away, NOTES.md), and only
+for ``WARM_START_BUDGET`` corrections: in a maneuver the previous answer's tilt error shrinks at
+Gauss–Newton's slow linear rate (0.15 per step in tools/reproduce_paper.py's flight), so the solver
+then restarts from TRIAD. All corrections count in ``iterations``.
 """
 
 from __future__ import annotations
@@ -147,8 +149,9 @@ def solve(
     level). ``mag_ref``, ``acc_ref``: the same quantities in NED (only their directions matter).
     ``q0``: warm start ``[w, x, y, z]`` or None. ``tolerance``: the attitude error (rad) left after the
     last Gauss–Newton correction, as estimated from the last two corrections. Raises :class:`InputError`
-    for unusable numbers and :class:`DegenerateGeometryError` when either pair is within
-    ``min_angle_deg`` of collinear.
+    for unusable numbers (zero, NaN or infinite vectors; a vector buried in its noise or a σ in other
+    units, :func:`.kernel.weights_usable`) and :class:`DegenerateGeometryError` when either pair is
+    within ``min_angle_deg`` of collinear.
     """
     check_method(method)
     sin_min = check_settings(max_iterations, tolerance, min_angle_deg)
