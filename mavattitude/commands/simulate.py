@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 import logging
-import threading
+import time
 
 from mavattitude.errors import MavAttitudeError
 from mavattitude.sensors.units import PROFILES
@@ -38,7 +38,7 @@ def add_vehicle_arguments(parser: argparse.ArgumentParser, default_duration_s: f
         type=float,
         default=default_duration_s,
         metavar="S",
-        help=f"how long to run, vehicle seconds (default {default_duration_s:g})",
+        help=f"how long to fly, vehicle seconds from the first IMU request (default {default_duration_s:g})",
     )
     parser.add_argument(
         "--sensors",
@@ -72,6 +72,7 @@ def vehicle_from_args(args: argparse.Namespace, connect: str, stream_on_start: b
         profile=args.profile,
         message=args.message or DEFAULT_MESSAGE[args.profile],
         stream_on_start=stream_on_start,
+        fly_when_asked=True,  # the script (and --duration) starts when the IMU is first asked for
         seed=args.seed,
     )
     return FakeVehicle(script, scenarios.sensors_named(args.sensors, args.rate), config)
@@ -94,11 +95,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     vehicle = vehicle_from_args(args, args.connect, args.stream_on_start)
-    done = threading.Event()
     with vehicle:
-        log.info("fake vehicle on %s: %s for %.0f s", args.connect, args.script, args.duration)
+        log.info("fake vehicle on %s: %s for %.0f s once asked for IMU", args.connect, args.script, args.duration)
         try:
-            done.wait(args.duration / vehicle.config.speed)
+            while vehicle.script_time() < args.duration:
+                time.sleep(0.1)  # pacing the end of the run, not a synchronisation
         except KeyboardInterrupt:
             log.info("interrupted")
     print(f"IMU messages sent: {vehicle.imu_sent}, ATTITUDE_QUATERNION received: {len(vehicle.attitude_log)}")

@@ -83,6 +83,9 @@ class ServiceProcess:
             stderr=subprocess.STDOUT,
             text=True,
             env=env,
+            # Its own process group: a terminal's Ctrl-C reaches the caller (the demo, a test), which
+            # then stops the service with one SIGTERM, instead of the service seeing two signals.
+            start_new_session=True,
         )
         self._reader = threading.Thread(target=self._read, name="service-log", daemon=True)
         self._reader.start()
