@@ -115,6 +115,7 @@ class FakeVehicle:
         self._send_lock = threading.Lock()
         self._cond = threading.Condition()
         self._stop = threading.Event()
+        self._drop_requested = threading.Event()
         self._threads: list[threading.Thread] = []
         self._epoch = _Epoch()
         self._imu_paused = False
@@ -156,8 +157,25 @@ class FakeVehicle:
 
     @property
     def port(self) -> int:
-        """The local port (for a ``udpin:…:0`` vehicle: the ephemeral port the service must reach)."""
-        return int(self.conn.port.getsockname()[1])
+        """The local port (for ``udpin:…:0``/``tcpin:…:0``: the ephemeral port the service must reach)."""
+        sock = self.conn.listen if isinstance(self.conn, mavutil.mavtcpin) else self.conn.port
+        return int(sock.getsockname()[1])
+
+    def drop_client(self) -> None:
+        """A ``tcpin`` vehicle closes its client's connection (a cable or router dropping the link)."""
+        if not isinstance(self.conn, mavutil.mavtcpin):
+            raise LinkError("only a tcpin vehicle has a client connection to drop")
+        self._drop_requested.set()  # done by the receive thread, which owns the socket it reads
+
+    def _drop_if_requested(self) -> None:
+        if not self._drop_requested.is_set():
+            return
+        self._drop_requested.clear()
+        with self._send_lock:
+            if self.conn.port is not None:
+                self.conn.port.close()
+                self.conn.port = None
+                self.conn.fd = self.conn.listen.fileno()
 
     def _default_streams(self) -> None:
         now = self.script_time()
@@ -363,9 +381,10 @@ class FakeVehicle:
 
     def _receive_loop(self) -> None:
         while not self._stop.is_set():
+            self._drop_if_requested()
             try:
                 msg = self.conn.recv_match(blocking=True, timeout=0.05)
-            except OSError as exc:
+            except (OSError, ValueError) as exc:  # ValueError: select on a connection just dropped
                 if self._stop.is_set():
                     return
                 log.debug("fake vehicle: receive error %s", exc)

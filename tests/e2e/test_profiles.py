@@ -28,7 +28,7 @@ CASES = [
 def test_profile_and_message(fly: Callable[..., Any], profile: str, message: str) -> None:
     script = scenarios.slow_rotation(120.0)
     with fly(script, scenarios.paper_sensors(200.0), profile=profile, message=message) as (vehicle, service):
-        wait_outputs(vehicle, 100)
+        wait_outputs(vehicle, 75)
         sent_before_stop = vehicle.imu_sent
         assert service.stop() == 0
         final = service.final_counters()
