@@ -198,7 +198,7 @@ class FusedSettings:
     accel_lowpass_s: float = 0.5  # τ_a of the quasi-inertial pre-filter (0: off)
     accel_norm_gain: float = 6.0  # k_n: σ added per m/s² of | |ã| − g |
     accel_residual_gain: float = 0.0  # k_r: σ added per g·rad of IGN residual
-    mag_std_uT: float = 4.0  # σ_m, per axis
+    mag_std_uT: float = 3.5  # σ_m, per axis
     mag_norm_tolerance: float = 0.1  # τ_n, fraction of |m_ref| beyond which the field is disturbed
     mag_dip_tolerance_deg: float = 10.0  # τ_δ
     mag_soft_fraction: float = 0.5  # d₀: inflation scale below the hard threshold
