@@ -71,6 +71,8 @@ class VehicleConfig:
     # Hold the script at its start until the IMU stream is first asked for (tests see the whole script);
     # the vehicle clock runs from boot regardless.
     fly_when_asked: bool = False
+    # ArduPilot's HIGHRES_IMU magnetometer is 10⁶ too large (a known bug): reproduce it when asked.
+    highres_mag_bug: bool = False
     seed: int = 0
     signing_key: bytes | None = None  # sign outgoing packets with this key
     home_lat_deg: float = 47.3977
@@ -125,6 +127,7 @@ class FakeVehicle:
         # Records (appended by the receive thread, read under self._cond).
         self.attitude_log: list[tuple[float, float, tuple[float, float, float, float], _Epoch, int]] = []
         self.statustexts: list[str] = []
+        self.thread_errors: list[str] = []
         self.commands: list[Any] = []
         self.heartbeats_from_peers: dict[tuple[int, int], int] = {}
         self.received: Counter[tuple[int, int, str]] = Counter()  # (system, component, type)
@@ -192,10 +195,22 @@ class FakeVehicle:
 
     def start(self) -> FakeVehicle:
         for target in (self._send_loop, self._receive_loop):
-            thread = threading.Thread(target=target, name=f"fake-vehicle-{target.__name__}", daemon=True)
+            thread = threading.Thread(
+                target=self._guarded, args=(target,), name=f"fake-vehicle-{target.__name__}", daemon=True
+            )
             thread.start()
             self._threads.append(thread)
         return self
+
+    def _guarded(self, loop: Callable[[], None]) -> None:
+        """Run a thread's loop; a crash is logged and kept in :attr:`thread_errors` for the tests to show."""
+        try:
+            loop()
+        except Exception as exc:
+            log.exception("fake vehicle: %s died", loop.__name__)
+            with self._cond:
+                self.thread_errors.append(f"{loop.__name__}: {type(exc).__name__}: {exc}")
+                self._cond.notify_all()
 
     def stop(self) -> None:
         self._stop.set()
@@ -275,6 +290,8 @@ class FakeVehicle:
 
     def encode(self, sample: ImuSample) -> Any:
         """The MAVLink message of an SI sample in this vehicle's profile."""
+        if self.config.highres_mag_bug and sample.message == "HIGHRES_IMU" and sample.mag_uT is not None:
+            sample = dataclasses.replace(sample, mag_uT=tuple(1e6 * b for b in sample.mag_uT))
         fields = encode(sample, self._profile)
         return getattr(mavlink2, f"MAVLink_{sample.message.lower()}_message")(**fields)
 

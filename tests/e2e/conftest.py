@@ -80,7 +80,9 @@ def wait_counter(svc: ServiceProcess, key: str, at_least: float, timeout_s: floa
 
 def wait_outputs(v: FakeVehicle, more: int, timeout_s: float = EVENT_TIMEOUT_S) -> None:
     target = len(v.attitude_log) + more
-    assert v.wait_for_outputs(target, timeout_s), f"fewer than {more} new outputs within {timeout_s} s"
+    assert v.wait_for_outputs(target, timeout_s), (
+        f"fewer than {more} new outputs within {timeout_s} s; vehicle thread errors: {v.thread_errors}"
+    )
 
 
 def assert_all_outputs_valid(v: FakeVehicle) -> None:

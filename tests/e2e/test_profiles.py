@@ -8,8 +8,17 @@ from typing import Any
 import pytest
 
 from mavattitude.sim import scenarios
+from mavattitude.sim.daemon import ServiceProcess, config_for
+from mavattitude.sim.vehicle import FakeVehicle, VehicleConfig
 
-from .conftest import assert_all_outputs_valid, wait_outputs
+from .conftest import (
+    EVENT_TIMEOUT_S,
+    FAST_SERVICE,
+    START_TIMEOUT_S,
+    assert_all_outputs_valid,
+    wait_counter,
+    wait_outputs,
+)
 
 pytestmark = pytest.mark.e2e
 
@@ -46,3 +55,19 @@ def test_profile_and_message(fly: Callable[..., Any], profile: str, message: str
     assert final["emitted"] == len(vehicle.attitude_log)
     assert final["received"] >= sent_before_stop - 10
     assert final["acks.accepted"] >= 1 and final["rejected.decode"] == 0
+
+
+def test_ardupilot_highres_magnetometer_bug_is_refused_not_flown() -> None:
+    # ArduPilot's HIGHRES_IMU magnetometer is 10⁶ too large: the service must refuse it with the reason,
+    # and send no attitude, rather than fly a wrong one.
+    config = VehicleConfig(
+        "udpin:127.0.0.1:0", profile="ardupilot", message="HIGHRES_IMU", highres_mag_bug=True, fly_when_asked=True
+    )
+    vehicle = FakeVehicle(scenarios.static(60.0), scenarios.paper_sensors(200.0), config)
+    with vehicle, ServiceProcess(config_for(vehicle, **FAST_SERVICE)) as service:
+        wait_counter(service, "rejected.decode", 100, timeout_s=START_TIMEOUT_S)
+        assert service.wait_for_line("10⁶ too large", EVENT_TIMEOUT_S) is not None
+        assert service.stop() == 0
+        final = service.final_counters()
+    assert vehicle.imu_sent >= 100
+    assert final["emitted"] == 0 and not vehicle.attitude_log
