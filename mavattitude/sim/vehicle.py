@@ -114,6 +114,7 @@ class FakeVehicle:
         self.config = config
         self._rng = np.random.default_rng(config.seed)
         self._profile = get_profile(config.profile)
+        self._profile.scale(config.message)  # SensorError now, for a message the profile cannot send
         self._send_lock = threading.Lock()
         self._cond = threading.Condition()
         self._stop = threading.Event()
