@@ -14,7 +14,8 @@ import os
 import platform
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
@@ -338,7 +339,64 @@ EXPECTED_ROWS["service"] = [
 ]
 
 START_TIMEOUT_S = 30.0  # a cold daemon start on a loaded 2-core machine takes a few seconds
-WARMUP_OUTPUTS = 25  # skip the first half second of outputs (imports, first allocations)
+WARMUP_OUTPUTS = 25  # the first half second of outputs (imports, first allocations) is not measured
+DRAIN_TIMEOUT_S = 5.0
+
+
+@contextmanager
+def service_against_vehicle(max_rate_hz: float, stats_interval_s: float, seconds: float) -> Iterator[tuple[Any, Any]]:
+    """The real daemon (a subprocess) and the fake vehicle on loopback UDP, the service answering.
+
+    The vehicle streams on its own (the config caps requests at 2 000 Hz) and the service only listens.
+    """
+    scenarios = _require("mavattitude.sim.scenarios", "the fake vehicle (issue 5)")
+    daemon = _require("mavattitude.sim.daemon", "the service harness (issue 5)")
+    vehicle_mod = _require("mavattitude.sim.vehicle", "the fake vehicle (issue 5)")
+    script = scenarios.slow_rotation(seconds + 120.0)
+    vehicle_cfg = vehicle_mod.VehicleConfig("udpin:127.0.0.1:0", stream_on_start=True, seed=SEED)
+    # The sensor model's timing jitter scales with its rate: the fastest rate's is valid at every rate.
+    with vehicle_mod.FakeVehicle(script, scenarios.consumer_sensors(max_rate_hz), vehicle_cfg) as vehicle:
+        config = daemon.config_for(
+            vehicle,
+            link={"request_messages": False, "request_rate_hz": 200.0},
+            output={"stats_interval_s": stats_interval_s},
+        )
+        with daemon.ServiceProcess(config) as service:
+            if not vehicle.wait_for_outputs(WARMUP_OUTPUTS, START_TIMEOUT_S):
+                raise RuntimeError("the service sent no attitude:\n" + service.log_tail())
+            yield vehicle, service
+            if service.stop() != 0:
+                raise RuntimeError("the service did not exit cleanly:\n" + service.log_tail())
+
+
+@dataclass(frozen=True)
+class LatencyRun:
+    latency_p50_ms: float  # the service's own, over one counters window of steady running
+    latency_p99_ms: float
+    vehicle_latency_p99_ms: float
+    cpu_share: float
+
+
+def measure_latency(seconds: float) -> LatencyRun:
+    """200 Hz for ``seconds`` of steady running, measured by one whole counters window of the service.
+
+    The service's counters window is ``seconds`` long: the first line closes the window with the
+    start-up in it, the next covers steady running only, and its p50/p99 are over all its outputs.
+    """
+    with service_against_vehicle(200.0, seconds, seconds) as (vehicle, service):
+        vehicle.set_rate(vehicle.config.message, 200.0)
+        first_line = service.wait_until(lambda: len(service.counters) >= 1, seconds + START_TIMEOUT_S)
+        if not first_line:
+            raise RuntimeError("the service logged no counters line:\n" + service.log_tail())
+        lines = len(service.counters)  # the window after the last line logged so far is all steady
+        first = len(vehicle.attitude_log)
+        cpu0, wall0 = _cpu_s(service.pid), time.monotonic()
+        if not service.wait_until(lambda: len(service.counters) > lines, seconds + DRAIN_TIMEOUT_S):
+            raise RuntimeError("the service's next counters line did not come:\n" + service.log_tail())
+        cpu_share = (_cpu_s(service.pid) - cpu0) / (time.monotonic() - wall0)
+        window = service.counters[lines]
+        score = vehicle.score(first)
+    return LatencyRun(window["latency_p50_ms"], window["latency_p99_ms"], score.latency_p99_ms, cpu_share)
 
 
 @dataclass(frozen=True)
@@ -349,11 +407,7 @@ class Phase:
     seconds: float
     sent: int
     received: int
-    latency_p50_ms: float  # the service's own: median of its counters windows' p50
-    latency_p99_ms: float  # the worst of its counters windows' p99 (an upper bound on the phase's p99)
-    vehicle_latency_p99_ms: float
     output_rate_hz: float
-    cpu_share: float
 
     @property
     def lost(self) -> int:
@@ -370,61 +424,27 @@ class Phase:
         return self.lost == 0 and abs(self.output_rate_hz - 50.0) <= 0.5
 
 
-def fly_service(phases: list[tuple[float, float]]) -> list[Phase]:
-    """The real daemon (a subprocess) against the fake vehicle, for each ``(rate_hz, seconds)`` in turn.
+def fly_rates(phases: list[tuple[float, float]]) -> list[Phase]:
+    """One service, the vehicle at each ``(rate_hz, seconds)`` in turn, with exact loss per phase.
 
-    The vehicle streams at the phase's rate on its own (config caps requests at 2 000 Hz) and the service
-    only listens. Between phases the stream pauses until the service has counted everything sent, so
-    each phase's loss is exact. Counters every 0.2 s give the service's latency per window.
+    Between phases the stream pauses until the service has counted everything sent; counters every
+    0.2 s make that quick.
     """
-    scenarios = _require("mavattitude.sim.scenarios", "the fake vehicle (issue 5)")
-    daemon = _require("mavattitude.sim.daemon", "the service harness (issue 5)")
-    vehicle_mod = _require("mavattitude.sim.vehicle", "the fake vehicle (issue 5)")
-    script = scenarios.slow_rotation(sum(seconds for _, seconds in phases) + 60.0)
-    vehicle_cfg = vehicle_mod.VehicleConfig("udpin:127.0.0.1:0", stream_on_start=True, seed=SEED)
+    total_s = sum(seconds for _, seconds in phases)
     results = []
-    # The sensor model's timing jitter scales with its rate: take the fastest phase's, so every rate is valid.
-    sensors = scenarios.consumer_sensors(max(rate for rate, _ in phases))
-    with vehicle_mod.FakeVehicle(script, sensors, vehicle_cfg) as vehicle:
-        config = daemon.config_for(
-            vehicle, link={"request_messages": False, "request_rate_hz": 200.0}, output={"stats_interval_s": 0.2}
-        )
-        with daemon.ServiceProcess(config) as service:
-            if not vehicle.wait_for_outputs(WARMUP_OUTPUTS, START_TIMEOUT_S):
-                raise RuntimeError("the service sent no attitude:\n" + service.log_tail())
-            message = vehicle.config.message
-            for rate_hz, seconds in phases:
-                sent0, received0 = _drained(vehicle, service)
-                vehicle.set_rate(message, rate_hz)
-                vehicle.pause_imu(False)
-                first, lines0 = len(vehicle.attitude_log) + WARMUP_OUTPUTS // 5, len(service.counters)
-                cpu0, wall0 = _cpu_s(service.pid), time.monotonic()
-                time.sleep(seconds)  # pacing: the vehicle streams in real time meanwhile
-                cpu_share = (_cpu_s(service.pid) - cpu0) / (time.monotonic() - wall0)
-                sent1, received1 = _drained(vehicle, service)
-                if sent1 == sent0:
-                    raise RuntimeError(f"the fake vehicle sent nothing at {rate_hz:g} Hz")
-                windows = [c for c in service.counters[lines0:] if np.isfinite(c.get("latency_p99_ms", np.nan))]
-                score = vehicle.score(first)
-                results.append(
-                    Phase(
-                        rate_hz,
-                        seconds,
-                        sent1 - sent0,
-                        received1 - received0,
-                        float(np.median([c["latency_p50_ms"] for c in windows])) if windows else float("nan"),
-                        float(np.max([c["latency_p99_ms"] for c in windows])) if windows else float("nan"),
-                        score.latency_p99_ms,
-                        score.output_rate_hz,
-                        cpu_share,
-                    )
-                )
-            if service.stop() != 0:
-                raise RuntimeError("the service did not exit cleanly:\n" + service.log_tail())
+    with service_against_vehicle(max(rate for rate, _ in phases), 0.2, total_s) as (vehicle, service):
+        for rate_hz, seconds in phases:
+            sent0, received0 = _drained(vehicle, service)
+            vehicle.set_rate(vehicle.config.message, rate_hz)
+            vehicle.pause_imu(False)
+            first = len(vehicle.attitude_log) + WARMUP_OUTPUTS // 5
+            time.sleep(seconds)  # pacing: the vehicle streams in real time meanwhile
+            sent1, received1 = _drained(vehicle, service)
+            if sent1 == sent0:
+                raise RuntimeError(f"the fake vehicle sent nothing at {rate_hz:g} Hz")
+            score = vehicle.score(first)
+            results.append(Phase(rate_hz, seconds, sent1 - sent0, received1 - received0, score.output_rate_hz))
     return results
-
-
-DRAIN_TIMEOUT_S = 5.0
 
 
 def _drained(vehicle: Any, service: Any) -> tuple[int, int]:
@@ -457,10 +477,10 @@ def bench_service(settings: Settings) -> list[Row]:
     if not Path("/proc/self/stat").exists():
         raise NotAvailable("needs Linux /proc to measure the service's CPU time")
     _require("mavattitude.service", "the service (issue 4)")
-    rates = [(200.0, settings.pick(2, 30)), (2000.0, settings.pick(2, 20))]
-    rates += [] if settings.quick else [(4000.0, 10.0), (8000.0, 10.0)]
-    at_200, at_2000, *beyond = fly_service(rates)
-    ladder = [at_2000, *beyond]
+    at_200 = measure_latency(settings.pick(2, 30))
+    rates = [(2000.0, settings.pick(2, 20))] + ([] if settings.quick else [(4000.0, 10.0), (8000.0, 10.0)])
+    ladder = fly_rates(rates)
+    at_2000 = ladder[0]
     best = max((f.rate_hz for f in ladder if f.sustained), default=float("nan"))
     tried = "; ".join(f"{f.rate_hz:g} Hz, sent {f.sent_rate_hz:.0f}/s, lost {f.lost}" for f in ladder)
     sec, names = "service", EXPECTED_ROWS["service"]
