@@ -130,7 +130,6 @@ class FakeVehicle:
         self.statustexts: list[str] = []
         self.thread_errors: list[str] = []
         self.commands: list[Any] = []
-        self.heartbeats_from_peers: dict[tuple[int, int], int] = {}
         self.received: Counter[tuple[int, int, str]] = Counter()  # (system, component, type)
         self._sent_t_s = array("d")
         self._sent_mono_s = array("d")
@@ -418,23 +417,15 @@ class FakeVehicle:
 
     def _handle(self, msg: Any, mono: float) -> None:
         kind = msg.get_type()
-        with self._cond:
+        with self._cond:  # every message wakes the waiters (a heartbeat at least once a second)
             self.received[(msg.get_srcSystem(), msg.get_srcComponent(), kind)] += 1
-        if kind == "ATTITUDE_QUATERNION":
-            q = (msg.q1, msg.q2, msg.q3, msg.q4)
-            with self._cond:
+            if kind == "ATTITUDE_QUATERNION":
+                q = (msg.q1, msg.q2, msg.q3, msg.q4)
                 self.attitude_log.append((mono, msg.time_boot_ms / 1000.0, q, self._epoch, msg.get_srcSystem()))
-                self._cond.notify_all()
-        elif kind == "STATUSTEXT":
-            with self._cond:
+            elif kind == "STATUSTEXT":
                 self.statustexts.append(msg.text)
-                self._cond.notify_all()
-        elif kind == "HEARTBEAT":
-            key = (msg.get_srcSystem(), msg.get_srcComponent())
-            with self._cond:
-                self.heartbeats_from_peers[key] = self.heartbeats_from_peers.get(key, 0) + 1
-                self._cond.notify_all()
-        elif kind == "COMMAND_LONG" and msg.target_system in (0, self.config.system_id):
+            self._cond.notify_all()
+        if kind == "COMMAND_LONG" and msg.target_system in (0, self.config.system_id):
             self._command(msg)
 
     def _command(self, msg: Any) -> None:
