@@ -81,6 +81,11 @@ Field magnitude and dip against the reference, the dip measured against the *pre
 
     d = max(| |m| − |m_ref| | / (τ_n |m_ref|),  |δ(m, q) − δ_ref| / (τ_δ + 3 √tr P_θθ))
 
+``|m_ref|`` is the magnitude as calibrated on the vehicle: learnt (a running mean) over the first
+``mag_reference_s`` of clean field from start-up, so a calibration scale that differs from the reference's
+(WMM's intensity, say) is not a permanent disturbance. A field disturbed for ``mag_relearn_s`` without a
+break is adopted as the new reference (magnitude and dip): the vehicle has moved, not the magnet.
+
 ``d ≥ 1``: disturbed — the magnetometer updates nothing, measurement 2 runs, the heading coasts.
 ``d < 1``: measurement 1 with ``σ_m'² = σ_m² (1 + (d/d₀)²) ρ``; after a disturbance that lasted
 ``T_c`` the recovery factor ``ρ = 1 + (ρ₀ − 1) min(1, T_c/T_r) max(0, 1 − t_clean/T_r)`` takes the
@@ -201,6 +206,8 @@ class FusedSettings:
     mag_std_uT: float = 3.5  # σ_m, per axis
     mag_norm_tolerance: float = 0.1  # τ_n, fraction of |m_ref| beyond which the field is disturbed
     mag_dip_tolerance_deg: float = 10.0  # τ_δ
+    mag_reference_s: float = 20.0  # τ_ref: the field's magnitude is learnt over this much clean field
+    mag_relearn_s: float = 60.0  # T_new: a field disturbed this long without a break becomes the new reference
     mag_soft_fraction: float = 0.5  # d₀: inflation scale below the hard threshold
     mag_recovery_factor: float = 10.0  # ρ₀: σ_m² multiplier just after a long disturbance
     mag_recovery_s: float = 3.0  # T_r
@@ -220,6 +227,8 @@ class FusedSettings:
                 raise InputError(f"FusedSettings.{name} must be finite and non-negative, got {value!r}")
         positive = (
             "gravity_mps2",
+            "mag_reference_s",
+            "mag_relearn_s",
             "rest_filter_s",
             "update_rate_hz",
             "output_rate_hz",
@@ -269,12 +278,13 @@ class FusedFilter:
         norms = float(np.linalg.norm(self.mag_ref)), float(np.linalg.norm(self.acc_ref))
         if not all(math.isfinite(n) and n > 0.0 for n in norms):
             raise InputError(f"references must be finite and non-zero, got {mag_ref!r} and {acc_ref!r}")
-        self._mag_ref_norm = norms[0]
+        self._norm_ref = norms[0]  # |m| and dip the disturbance check compares against (then learnt)
         self._v_acc = tuple(float(v) / norms[1] for v in self.acc_ref)
         # Reference angle between the two vectors, and the field's dip below the horizontal.
         cos_ref = float(self.acc_ref @ self.mag_ref) / (norms[0] * norms[1])
         self._ref_angle = math.acos(max(-1.0, min(1.0, cos_ref)))
-        self._ref_dip = math.asin(max(-1.0, min(1.0, -cos_ref)))
+        self._dip_ref = math.asin(max(-1.0, min(1.0, -cos_ref)))
+        self._field_n = 0.0
         self._noise = NoiseModel(accel_std=(settings.accel_std_mps2,) * 3, mag_std=(settings.mag_std_uT,) * 3)
         self.counters: dict[str, int] = {
             "ign_updates": 0,
@@ -284,6 +294,7 @@ class FusedFilter:
             "skipped_updates": 0,
             "restarts": 0,
             "rest_updates": 0,
+            "mag_relearned": 0,
         }
         self._q: Quat | None = None
         self._bias = (0.0, 0.0, 0.0)
@@ -407,8 +418,12 @@ class FusedFilter:
         acc = self._inertial_lowpass(raw)
         acc_norm = _norm(acc)
         mag = None if mag_uT is None else (float(mag_uT[0]), float(mag_uT[1]), float(mag_uT[2]))
-        d = math.inf if mag is None else self._mag_disturbance(mag)
-        self._track_disturbance(d >= 1.0, time_s)
+        d = math.inf
+        if mag is not None:
+            d, norm, dip = self._mag_check(mag)
+            self._track_disturbance(d >= 1.0, time_s)
+            if math.isfinite(d):
+                self._learn_field(norm, dip, d >= 1.0, time_s)
         sigma_a2 = s.accel_std_mps2**2 + (s.accel_norm_gain * (acc_norm - s.gravity_mps2)) ** 2
         if mag is not None and d < 1.0:
             residual = self._vector_residual(acc, acc_norm, mag)
@@ -448,22 +463,37 @@ class FusedFilter:
             r[2] * y[0] + r[5] * y[1] + r[8] * y[2],
         )
 
-    def _mag_disturbance(self, mag: tuple[float, float, float]) -> float:
-        """``d`` of the module docstring: ≥ 1 means disturbed; the dip uses the predicted vertical."""
+    def _mag_check(self, mag: tuple[float, float, float]) -> tuple[float, float, float]:
+        """``(d, |m|, dip)``: ``d`` of the module docstring (≥ 1 disturbed), the dip against the predicted vertical."""
         s = self.settings
         norm = _norm(mag)
         if not math.isfinite(norm) or norm == 0.0:
-            return math.inf
+            return math.inf, norm, 0.0
         r = rotation_matrix_parts(self._q)
-        down = (r[6] * mag[0] + r[7] * mag[1] + r[8] * mag[2]) / norm  # NED "down" of the unit field
-        d_norm = abs(norm - self._mag_ref_norm) / (s.mag_norm_tolerance * self._mag_ref_norm)
+        dip = math.asin(max(-1.0, min(1.0, (r[6] * mag[0] + r[7] * mag[1] + r[8] * mag[2]) / norm)))
+        d_norm = abs(norm - self._norm_ref) / (s.mag_norm_tolerance * self._norm_ref)
         if s.mag_dip_tolerance_deg == 0.0:
-            return d_norm
-        dip = math.asin(max(-1.0, min(1.0, down)))
+            return d_norm, norm, dip
         # The predicted vertical is itself uncertain: widen the dip tolerance by 3σ of the attitude error.
         p = self._p
         tolerance = math.radians(s.mag_dip_tolerance_deg) + 3.0 * math.sqrt(p[0, 0] + p[1, 1] + p[2, 2])
-        return max(d_norm, abs(dip - self._ref_dip) / tolerance)
+        return max(d_norm, abs(dip - self._dip_ref) / tolerance), norm, dip
+
+    def _learn_field(self, norm: float, dip: float, disturbed: bool, time_s: float) -> None:
+        """Learn the local field's magnitude over the first ``τ_ref`` of clean field; adopt a new field after ``T_new``.
+
+        The magnitude as calibrated on this vehicle (a scale that differs from the reference's, e.g. WMM, is
+        then not a permanent disturbance); the dip stays the reference's until a new field is adopted.
+        """
+        if disturbed:
+            if time_s - self._disturbed_since_s < self.settings.mag_relearn_s:
+                return
+            self.counters["mag_relearned"] += 1
+            self._disturbed_since_s, self._field_n, self._dip_ref = time_s, 0.0, dip
+        if self._field_n * self._update_period_s >= self.settings.mag_reference_s:
+            return
+        self._field_n += 1.0
+        self._norm_ref += (norm - self._norm_ref) / self._field_n
 
     def _vector_residual(self, acc: tuple[float, ...], acc_norm: float, mag: tuple[float, ...]) -> float:
         """IGN residual as an angle: measured angle between the vectors minus the reference angle."""
@@ -580,6 +610,9 @@ class FusedFilter:
         p[:3, :3] = r.covariance
         p[3:, 3:] = self._p[3:, 3:] if restart else np.eye(3) * self.settings.gyro_bias_init_radps**2
         self._p = p
+        if not restart:  # the magnitude as calibrated here, not as the reference says
+            self._norm_ref = _norm((float(mag[0]), float(mag[1]), float(mag[2])))
+            self._field_n = 1.0
         self._interval = _Interval()
         self._t_last = time_s
         self._gyr_last = gyr

@@ -189,6 +189,37 @@ def test_magnetic_disturbance_heading_coasts_and_recovers_without_a_jump() -> No
     assert np.abs(heading[ticks > stop_s + 10.0]).max() < 0.5
 
 
+def test_a_field_magnitude_off_the_reference_is_learnt_not_rejected() -> None:
+    """A magnetometer calibrated to another scale (20% over the reference's magnitude, beyond the 10%
+    tolerance): the magnitude is learnt at start-up, the field is used, the heading stays right."""
+    script = Script([Hold(5.0), Rotate(20.0, (0.1, -0.05, 0.2))], tuple(MAG_NED_UT))
+    t, acc, gyr, mag = _measure(script, _sensors())
+    f, out = _run(t, acc, gyr, 1.2 * mag)
+    assert f.counters["mag_disturbed"] == 0
+    late = [o for o in out if o.time_s > 15.0]
+    heading = np.degrees(heading_error(np.array([o.q for o in late]), script.attitude([o.time_s for o in late])))
+    assert np.abs(heading).max() < 0.5
+
+
+def test_a_lasting_new_field_becomes_the_reference() -> None:
+    """The vehicle moves into a different field (dip 17° steeper, for good): rejected at first, adopted
+    after ``mag_relearn_s``, and used again from then on."""
+    script = Script([Hold(30.0)], tuple(MAG_NED_UT))
+    t, acc, gyr, mag = _measure(script, _sensors())
+    steeper = cv.rotate_ned_to_body(
+        script.attitude(t), cv.rotate_body_to_ned(cv.quat_from_euler(0, 0.3, 0), MAG_NED_UT)
+    )
+    new_field = np.where(
+        (t >= 5.0)[:, None], steeper + (mag - cv.rotate_ned_to_body(script.attitude(t), MAG_NED_UT)), mag
+    )
+    f, out = _run(t, acc, gyr, new_field, dataclasses.replace(FusedSettings(), mag_relearn_s=10.0))
+    assert f.counters["mag_relearned"] == 1
+    disturbed = np.array([o.mag_disturbed for o in out])
+    ticks = np.array([o.time_s for o in out])
+    assert disturbed[(ticks > 5.5) & (ticks < 14.5)].all()
+    assert not disturbed[ticks > 16.0].any()
+
+
 def test_missing_magnetometer_keeps_tilt_from_the_accelerometer() -> None:
     script = Script([Hold(10.0), Rotate(10.0, (0.2, 0.1, -0.1))], tuple(MAG_NED_UT))
     t, acc, gyr, mag = _measure(script, _sensors())
