@@ -23,8 +23,9 @@ ENV PIP_DISABLE_PIP_VERSION_CHECK=1 \
     PIP_NO_CACHE_DIR=1 \
     PYTHONDONTWRITEBYTECODE=1 \
     PYTHONUNBUFFERED=1
-# The wheel's run-time dependencies (pymavlink, numpy, pyyaml, pygeomag) come from PyPI as wheels:
-# nothing to compile, so no compiler in either stage.
+# The wheel's run-time dependencies (pymavlink, fastcrc, numpy, pyyaml, pygeomag) come from PyPI; on
+# x86_64 all are prebuilt wheels, so neither stage has a compiler. The wheels are bind-mounted from the
+# build stage, never copied into a layer.
 RUN --mount=type=bind,from=build,source=/wheels,target=/wheels \
     pip install --no-cache-dir /wheels/*.whl \
     && groupadd --system --gid 10001 mavattitude \
