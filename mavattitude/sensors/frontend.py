@@ -6,7 +6,16 @@ Per input sample (:meth:`FrontEnd.push`, plain floats: the per-message cost is w
    restarts everything;
 2. screening of the raw sample: a non-finite or saturated (integer limit or sensor full scale)
    accelerometer or gyroscope drops the sample; a non-finite or saturated magnetometer drops the
-   magnetometer reading only; each counted by reason;
+   magnetometer reading only; each counted by reason. So does a *dead* vector, one too short for a live
+   sensor (``dead_fraction``: 5 % of g, or of ``|B₀|`` when known, else of the weakest surface field
+   on Earth, ``WEAKEST_FIELD_UT``): ``dead_acc`` drops the sample, ``dead`` the magnetometer reading.
+   A sensor on a glitching bus reads exactly zero; filtered, those zeros would not just shorten the
+   vector but make the low-pass undershoot through zero, flipping its direction (a 180° attitude). No
+   live accelerometer reads under 0.05 g except in free fall, where it shows no direction either (the
+   gyroscope's sample is lost with it: the accelerometer and gyroscope are one filtered stream). A
+   magnetometer reading all zeros in an integer message is no compass at all (``mag_uT`` is ``None``,
+   :mod:`.units`); in a float message it is this dead reading: either way no reading enters the filter,
+   and the ticks hold the last one, then have none (``MAG_HELD``, ``NO_MAG``);
 3. calibration and mounting (:mod:`.calibration`, :mod:`.mounting`) as one affine map per sensor;
 4. the 2nd-order Butterworth low-pass (:mod:`.lowpass`) per axis, designed for the measured input rate
    (mean of the last ``rate_window`` intervals; re-designed when it moves by more than ``rate_tolerance``,
@@ -25,6 +34,12 @@ Per input sample (:meth:`FrontEnd.push`, plain floats: the per-message cost is w
    become ``suspect_std_scale``.
 
 With ``filter_enabled`` false, steps 4–5 are skipped: every accepted input sample is one output.
+
+No check of the *filtered* vector against the dead floor is needed: with dead inputs refused, every
+input to the low-pass is a live vector, and the filter (Q = 1/√2, 4 % overshoot) can bring its output
+near zero or turn it around only if its input reverses within its ~0.1 s memory, which neither gravity
+nor the Earth's field does. Comparing the tick with the newest raw sample instead would refuse good
+ticks under vibration, which swings the raw vector by as much as g (what the filter is there to remove).
 
 :func:`process_batch` is the same computation vectorised over arrays (offline replay); fed the same
 samples, it gives the same ticks and flags, and values equal to rounding (~1e-12).
@@ -80,6 +95,7 @@ class FrontEndSettings:
     acc_norm_tolerance: float = 0.1  # fraction of g
     mag_norm_tolerance: float = 0.15  # fraction of |B₀|
     suspect_std_scale: float = 10.0  # σ multiplier of a flagged vector
+    dead_fraction: float = 0.05  # a raw |a| < this·g or |B| < this·|B₀| is a dead sensor: refused
     acc_full_scale_mps2: float = 16.0 * STANDARD_GRAVITY_MPS2
     gyr_full_scale_radps: float = math.radians(2000.0)
     mag_full_scale_uT: float = 800.0
@@ -158,6 +174,18 @@ def last_tick(t_s: float, rate_hz: float) -> int:
     while k / rate_hz > t_s:
         k -= 1
     return k
+
+
+#: |B₀| for the dead-magnetometer floor while the reference magnitude is unknown: the weakest field at
+#: the Earth's surface (the South Atlantic anomaly, ~22 µT; WMM2025).
+WEAKEST_FIELD_UT = 22.0
+
+
+def dead_floors2(settings: FrontEndSettings, expected_field_uT: float | None) -> tuple[float, float]:
+    """Squared magnitudes below which a raw accelerometer (m/s²) and magnetometer (µT) vector is dead."""
+    f = settings.dead_fraction
+    b0 = WEAKEST_FIELD_UT if expected_field_uT is None else expected_field_uT
+    return (f * settings.gravity_mps2) ** 2, (f * b0) ** 2
 
 
 CONTINUED, STARTED, GAP = 0, 1, 2
@@ -261,7 +289,7 @@ class FrontEnd:
     def __init__(self, settings: FrontEndSettings | None = None) -> None:
         self.settings = s = settings or FrontEndSettings()
         self.counters = FrontEndCounters()
-        self.expected_field_uT = s.expected_field_uT
+        self.set_expected_field_uT(s.expected_field_uT)
         affines = sensor_affines(s.calibration, mounting_matrix(s.mounting))
         self._acc = _affine_rows(*affines["acc"])
         self._gyr = _affine_rows(*affines["gyr"])
@@ -276,6 +304,7 @@ class FrontEnd:
     def set_expected_field_uT(self, magnitude_uT: float | None) -> None:
         """|B₀| of the magnetic reference (when it becomes known or changes), for the |B| screening."""
         self.expected_field_uT = magnitude_uT
+        self._acc_floor2, self._mag_floor2 = dead_floors2(self.settings, magnitude_uT)
 
     def push(self, sample: ImuSample) -> list[ProcessedSample]:
         """Take one decoded sample; return the output ticks it completes (usually 0 or 1, none while its
@@ -296,17 +325,19 @@ class FrontEnd:
         s = self.settings
         acc, gyr, mag = sample.acc_mps2, sample.gyr_radps, sample.mag_uT
         # one chained comparison per vector is the fast path (NaN fails it too); the reason only on failure
-        if sample.saturated or not (_within(acc, s.acc_full_scale_mps2) and _within(gyr, s.gyr_full_scale_radps)):
+        if (
+            sample.saturated
+            or not (_within(acc, s.acc_full_scale_mps2) and _within(gyr, s.gyr_full_scale_radps))
+            or _norm2(acc) < self._acc_floor2
+        ):
             reason = self._reject_reason(sample)
             if reason is not None:
                 c.rejected[reason] += 1
                 return []
         c.accepted += 1
         if mag is not None:
-            if ("mag" in sample.saturated or not _within(mag, s.mag_full_scale_uT)) and (
-                reason := "nonfinite" if not _finite(mag) else "saturated"
-            ):
-                c.mag_rejected[reason] += 1
+            if "mag" in sample.saturated or not _within(mag, s.mag_full_scale_uT) or _norm2(mag) < self._mag_floor2:
+                c.mag_rejected[self._mag_reject_reason(mag, sample.saturated)] += 1
             else:
                 status, redesigned = self._mag.push(t, _apply(self._mag_cal, mag))
                 c.mag_gap_resets += status == GAP
@@ -330,7 +361,16 @@ class FrontEnd:
             return "saturated_acc"
         if "gyr" in sample.saturated or not _within(gyr, s.gyr_full_scale_radps):
             return "saturated_gyr"
+        if _norm2(acc) < self._acc_floor2:
+            return "dead_acc"
         return None  # only the magnetometer is saturated
+
+    def _mag_reject_reason(self, mag: Vec3, saturated: frozenset[str]) -> str:
+        if not _finite(mag):
+            return "nonfinite"
+        if "mag" in saturated or not _within(mag, self.settings.mag_full_scale_uT):
+            return "saturated"
+        return "dead"
 
     def _emit(self, t: float) -> list[ProcessedSample]:
         s, imu = self.settings, self._imu
@@ -412,13 +452,21 @@ def _lerp(t0: float, y0: Sequence[float], t1: float, y1: Sequence[float], t: flo
     return [a + (b - a) * frac for a, b in zip(y0, y1, strict=True)]
 
 
+def _norm2(v: Sequence[float]) -> float:
+    return v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+
+
 def _norm(v: Sequence[float]) -> float:
-    return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    return math.sqrt(_norm2(v))
+
+
+def _norm2_rows(a: Array) -> Array:
+    """Squared row norms with the same operations, in the same order, as :func:`_norm2`."""
+    return a[:, 0] * a[:, 0] + a[:, 1] * a[:, 1] + a[:, 2] * a[:, 2]
 
 
 def _norm_rows(a: Array) -> Array:
-    """Row norms with the same operations, in the same order, as :func:`_norm`."""
-    return np.sqrt(a[:, 0] * a[:, 0] + a[:, 1] * a[:, 1] + a[:, 2] * a[:, 2])
+    return np.sqrt(_norm2_rows(a))
 
 
 def _vec(y: Sequence[float]) -> Vec3:
@@ -514,28 +562,40 @@ def process_batch(
     sat = {k: np.zeros(n, dtype=bool) for k in ("acc", "gyr", "mag")} | dict(saturated or {})
     c = FrontEndCounters(received=n)
     t, kept, epoch = _batch_clock(t, wrap_period_s, s.reorder_window_s, c)
+    b0 = expected_field_uT if expected_field_uT is not None else s.expected_field_uT
+    acc_floor2, mag_floor2 = dead_floors2(s, b0)
 
     ok_fin = _finite_rows(acc) & _finite_rows(gyr)
     # "not within" is "saturated" wherever the row is finite, which is the only place it is asked
     sat_acc = sat["acc"] | ~_within_rows(acc, s.acc_full_scale_mps2)
     sat_gyr = sat["gyr"] | ~_within_rows(gyr, s.gyr_full_scale_radps)
     mag_sat = sat["mag"] | ~_within_rows(mag, s.mag_full_scale_uT)
+    live = kept & ok_fin & ~sat_acc & ~sat_gyr
+    with np.errstate(invalid="ignore", over="ignore"):  # NaN and huge rows are not dead (and already refused)
+        acc_dead, mag_dead = _norm2_rows(acc) < acc_floor2, _norm2_rows(mag) < mag_floor2
     rejects = (
         ("nonfinite", kept & ~ok_fin),
         ("saturated_acc", kept & ok_fin & sat_acc),
         ("saturated_gyr", kept & ok_fin & ~sat_acc & sat_gyr),
+        ("dead_acc", live & acc_dead),
     )
     for reason, mask in rejects:
         if mask.any():
             c.rejected[reason] += int(mask.sum())
-    accepted = kept & ok_fin & ~sat_acc & ~sat_gyr
+    accepted = live & ~acc_dead
     c.accepted = int(accepted.sum())
     mag_fin = _finite_rows(mag)
     mag_in = accepted & mag_new
-    for reason, mask in (("nonfinite", mag_in & ~mag_fin), ("saturated", mag_in & mag_fin & mag_sat)):
+    mag_live = mag_in & mag_fin & ~mag_sat
+    mag_rejects = (
+        ("nonfinite", mag_in & ~mag_fin),
+        ("saturated", mag_in & mag_fin & mag_sat),
+        ("dead", mag_live & mag_dead),
+    )
+    for reason, mask in mag_rejects:
         if mask.any():
             c.mag_rejected[reason] += int(mask.sum())
-    mag_ok = mag_in & mag_fin & ~mag_sat
+    mag_ok = mag_live & ~mag_dead
 
     affines = sensor_affines(s.calibration, mounting_matrix(s.mounting))
     # from here on channels first, time contiguous: (6, n) for the IMU, (3, n) for the magnetometer
@@ -545,7 +605,6 @@ def process_batch(
     mag_body = _apply_batch(affines["mag"], _rows(mag, mag_ok))
     t_imu, t_mag = _rows(t, accepted), _rows(t, mag_ok)
     epoch_imu, epoch_mag = _rows(epoch, accepted), _rows(epoch, mag_ok)
-    b0 = expected_field_uT if expected_field_uT is not None else s.expected_field_uT
 
     pieces = []
     for e in range(int(epoch[-1]) + 1 if n else 0):

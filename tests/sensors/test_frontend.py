@@ -170,6 +170,77 @@ def test_screening_drops_bad_samples_and_flags_suspect_vectors() -> None:
     assert more[-1].flags & SampleFlag.ACC_NORM and more[-1].acc_std_scale == settings.suspect_std_scale
 
 
+def _dead_bursts(n: int, zero_acc: list[range], zero_mag: list[range]) -> list[ImuSample]:
+    """200 Hz at rest (level, a mid-latitude field) with the accelerometer or magnetometer reading exactly
+    zero over the given sample ranges (a dead sensor on a glitching bus)."""
+    rng = np.random.default_rng(11)
+    acc = rng.normal([0.0, 0.0, -G], 0.01, (n, 3))
+    mag = rng.normal(FIELD_UT, 0.25, (n, 3))
+    for r in zero_acc:
+        acc[r] = 0.0
+    for r in zero_mag:
+        mag[r] = 0.0
+    return _samples(10.0 + np.arange(n) * 0.005, acc, np.zeros((n, 3)), mag, message="HIGHRES_IMU")
+
+
+FIELD_UT = np.array([21.9, 0.0, 44.9])
+
+
+@pytest.mark.parametrize("filtered", [True, False])
+def test_a_dead_sensor_is_refused_before_the_filter_not_turned_into_a_flipped_vector(filtered: bool) -> None:
+    # 0.4 s of zeros (longer than the 0.3 s time-out: the filter restarts) and 0.1 s (shorter: bridged),
+    # on each sensor. Without the refusal the low-pass undershoots through zero and the vector flips.
+    n = 1400
+    zero_acc, zero_mag = [range(200, 280), range(500, 520)], [range(800, 880), range(1100, 1120)]
+    samples = _dead_bursts(n, zero_acc, zero_mag)
+    settings = FrontEndSettings(
+        input_timeout_s=0.3, expected_field_uT=float(np.linalg.norm(FIELD_UT)), filter_enabled=filtered
+    )
+    out, fe = _stream(settings, samples)
+    c = fe.counters
+    assert c.rejected == {"dead_acc": 100} and c.mag_rejected == {"dead": 100} and c.gap_resets == 1
+    acc = np.array([o.acc_mps2 for o in out])
+    mag = np.array([o.mag_uT for o in out if o.mag_uT is not None])
+    # Every tick is the live vector: 0.1 m/s² and 1.5 µT are 10σ and 6σ of the unfiltered noise.
+    assert np.max(np.abs(acc - [0.0, 0.0, -G])) < 0.1 and np.max(np.abs(mag - FIELD_UT)) < 1.5
+    assert not any(o.flags & (SampleFlag.ACC_NORM | SampleFlag.MAG_NORM) for o in out)
+    # The magnetometer's long silence is held for the 0.3 s time-out, then reported absent; its stream
+    # restarts after each long burst (a dead accelerometer drops its sample's magnetometer reading too).
+    assert any(o.flags & SampleFlag.NO_MAG for o in out) and c.mag_gap_resets == 2
+    batch = process_batch(settings, **batch_inputs(samples))
+    assert batch.counters.rejected == c.rejected and batch.counters.mag_rejected == c.mag_rejected
+    assert batch.time_s.tolist() == [o.time_s for o in out]
+    assert [o.flags for o in batch.samples()] == [o.flags for o in out]
+
+
+def test_isolated_zero_frames_are_refused_and_bridged() -> None:
+    n = 400
+    tenth = [range(i, i + 1) for i in range(5, n, 10)]
+    out, fe = _stream(FrontEndSettings(expected_field_uT=49.95), _dead_bursts(n, tenth, tenth))
+    assert fe.counters.rejected == {"dead_acc": 40} and fe.counters.gap_resets == 0
+    assert len(out) == 100 and all(o.mag_uT is not None for o in out)  # no tick lost: each hole is 10 ms
+    acc = np.array([o.acc_mps2 for o in out])
+    assert np.max(np.abs(acc - [0.0, 0.0, -G])) < 0.1  # 10σ of the unfiltered noise: untouched
+
+
+def test_the_dead_floor_is_a_fraction_of_g_and_of_the_known_field_else_of_the_weakest_field() -> None:
+    s = FrontEndSettings()
+    weak = (0.0, 0.0, 2.0)  # 2 µT: 4 % of a 50 µT reference, 9 % of the weakest field on Earth (22 µT)
+    for expected, dead in ((50.0, True), (None, False)):
+        fe = FrontEnd(FrontEndSettings(expected_field_uT=expected))
+        fe.push(ImuSample(1.0, (0.0, 0.0, -G), (0.0, 0.0, 0.0), weak, "HIGHRES_IMU"))
+        assert (fe.counters.mag_rejected == {"dead": 1}) is dead
+    fe = FrontEnd(s)
+    fe.set_expected_field_uT(50.0)  # the reference becoming known moves the floor
+    fe.push(ImuSample(1.0, (0.0, 0.0, -G), (0.0, 0.0, 0.0), weak, "HIGHRES_IMU"))
+    assert fe.counters.mag_rejected == {"dead": 1}
+    # 0.04 g is dead, 0.06 g is a (suspect) live reading: the floor is 5 % of g.
+    for i, (z, dead) in enumerate(((-0.04 * G, True), (-0.06 * G, False))):
+        fe.push(ImuSample(2.0 + i, (0.0, 0.0, z), (0.0, 0.0, 0.0), None, "HIGHRES_IMU"))
+        assert (fe.counters.rejected["dead_acc"] == 1) is True
+        assert fe.counters.accepted == 1 + (not dead)
+
+
 def test_slow_magnetometer_is_interpolated_on_its_own_times_and_held_then_dropped() -> None:
     # a PX4-like IMU at 250 Hz with the magnetometer new every third message (~83 Hz)
     n = 1000
@@ -224,7 +295,7 @@ def test_filter_disabled_passes_every_sample_calibrated_and_mounted() -> None:
 
 
 def _messy_input(seed: int, n: int = 6000):
-    """200 Hz with jitter, drops, a gap, a rate change, a slower magnetometer, NaN and out-of-order rows."""
+    """200 Hz with jitter, drops, a gap, a rate change, a slower magnetometer, NaN, zero and out-of-order rows."""
     rng = np.random.default_rng(seed)
     t = np.cumsum(rng.uniform(0.004, 0.006, n))
     t[n // 3 :] += 0.9  # a gap
@@ -233,6 +304,8 @@ def _messy_input(seed: int, n: int = 6000):
     gyr = rng.normal(0, 0.5, (n, 3))
     mag = rng.normal([20, 2, 40], 3.0, (n, 3))
     acc[100] = np.nan
+    acc[150:153] = 0.0  # a dead accelerometer
+    mag[162:175] = 0.0  # a dead magnetometer (new readings on every third row)
     samples = _samples(t, acc, gyr, mag, mag_every=3)
     samples[200], samples[201] = samples[201], samples[200]  # reordered datagrams
     samples.insert(300, samples[299])  # a duplicate
@@ -260,6 +333,7 @@ def test_batch_path_gives_the_streaming_output(filtered: bool) -> None:
         cb.received, cb.accepted, cb.emitted, cb.gap_resets, cb.redesigns
     )  # fmt: skip
     assert c.rejected == cb.rejected and c.flagged == cb.flagged and c.rejected["duplicate"] == 1
+    assert c.mag_rejected == cb.mag_rejected and c.rejected["dead_acc"] == 3 and c.mag_rejected["dead"] == 5
 
 
 def test_batch_edge_cases_empty_all_rejected_and_a_reboot() -> None:
@@ -291,10 +365,14 @@ def test_batch_equals_streaming_on_random_timing(seed: int, rate_hz: float, mag_
     t = 5.0 + np.cumsum(dt * rng.uniform(0.9, 1.1, n))  # jitter, drops, bursts, duplicates and gaps
     acc = rng.normal([0, 0, -G], 2.0, (n, 3))
     mag = rng.normal([20, 0, 40], 5.0, (n, 3))
+    acc[rng.random(n) < 0.05] = 0.0  # dead readings
+    mag[rng.random(n) < 0.05] = 0.0
     samples = _samples(t, acc, rng.normal(0, 1, (n, 3)), mag, mag_every=mag_every)
     settings_ = FrontEndSettings(expected_field_uT=44.7, filter_enabled=filtered)
-    stream, _ = _stream(settings_, samples)
-    got = process_batch(settings_, **batch_inputs(samples)).samples()
+    stream, fe = _stream(settings_, samples)
+    batch = process_batch(settings_, **batch_inputs(samples))
+    assert batch.counters.rejected == fe.counters.rejected and batch.counters.mag_rejected == fe.counters.mag_rejected
+    got = batch.samples()
     assert [o.time_s for o in got] == [o.time_s for o in stream]
     assert [o.flags for o in got] == [o.flags for o in stream]
     vec = lambda os: np.array([o.acc_mps2 + o.gyr_radps + (o.mag_uT or (np.nan,) * 3) for o in os])  # noqa: E731
