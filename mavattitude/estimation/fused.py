@@ -179,7 +179,11 @@ def ign_covariance(acc: Sequence[float], mag: Sequence[float], sigma_acc: float,
         x, y, z = v[0] / sigma, v[1] / sigma, v[2] / sigma
         xx, xy, xz = xx + y * y + z * z, xy - x * y, xz - x * z
         yy, yz, zz = yy + x * x + z * z, yz - y * z, zz + x * x + y * y
-    # Inverse of the symmetric information matrix by cofactors.
+    return _inverse_sym3(xx, xy, xz, yy, yz, zz)
+
+
+def _inverse_sym3(xx: float, xy: float, xz: float, yy: float, yz: float, zz: float) -> Array:
+    """Inverse of a symmetric positive-definite 3×3 matrix by cofactors (one numpy call, not a LAPACK one)."""
     c00, c01, c02 = yy * zz - yz * yz, xz * yz - xy * zz, xy * yz - xz * yy
     det = xx * c00 + xy * c01 + xz * c02
     c11, c12, c22 = xx * zz - xz * xz, xy * xz - xx * yz, xx * yy - xy * xy
@@ -196,11 +200,11 @@ class FusedSettings:
     """
 
     gyro_noise_radps: float = 0.003  # σ_g, angle random walk, rad/s/√Hz
-    gyro_scale_std: float = 0.002  # s_g, gyro scale-factor error, per rad turned
+    gyro_scale_std: float = 0.005  # s_g, gyro scale-factor error, per rad turned
     gyro_bias_walk_radps2: float = 3e-5  # σ_b, bias random walk, rad/s/√s
     gyro_bias_init_radps: float = 0.02  # σ_b0, start-up bias uncertainty, rad/s (≈ 1°/s)
     accel_std_mps2: float = 0.2  # σ_a, per axis, of the pre-filtered specific force
-    accel_lowpass_s: float = 0.5  # τ_a of the quasi-inertial pre-filter (0: off)
+    accel_lowpass_s: float = 0.7  # τ_a of the quasi-inertial pre-filter (0: off)
     accel_norm_gain: float = 6.0  # k_n: σ added per m/s² of | |ã| − g |
     accel_residual_gain: float = 0.0  # k_r: σ added per g·rad of IGN residual
     mag_std_uT: float = 3.5  # σ_m, per axis
@@ -532,7 +536,8 @@ class FusedFilter:
         r_m = ign_covariance(w_acc, w_mag, 1.0, 1.0)
         # H = [I 0]: S = P_θθ + R, K = P[:, θ] S⁻¹, P ← P − K P[θ, :].
         p = self._p
-        k = np.linalg.solve(p[:3, :3] + r_m, p[:3]).T
+        (sxx, sxy, sxz), (_, syy, syz), (_, _, szz) = (p[:3, :3] + r_m).tolist()
+        k = p[:, :3] @ _inverse_sym3(sxx, sxy, sxz, syy, syz, szz)
         p = p - k @ p[:3]
         self._p = 0.5 * (p + p.T)
         self._apply(k @ np.array(z_theta))
