@@ -221,6 +221,9 @@ def test_image_build_and_run_steps_in_a_plain_environment(tmp_path):
         assert result.returncode == 0, result.stderr
         assert "usage: mavattitude" in result.stdout
     assert "--config" in result.stdout  # the image's CMD passes it to `run`
+    # What the container reads at start, from the wheel's copy: an example config, loaded and validated.
+    result = _run([entrypoint, "check-config", ROOT / "configs" / "ardupilot.yaml"], cwd=tmp_path, env=env)
+    assert result.returncode == 0, result.stderr
 
 
 def _check_wheel_contents(wheel: Path) -> None:
