@@ -13,9 +13,13 @@ from .conftest import assert_all_outputs_valid, routed_flight, wait_outputs
 pytestmark = pytest.mark.e2e
 
 
-def test_through_mavproxy_the_service_works_and_the_router_injects_nothing(tmp_path: Path) -> None:
+@pytest.mark.parametrize(("profile", "message"), [("ardupilot", "RAW_IMU"), ("px4", "HIGHRES_IMU")])
+def test_through_mavproxy_the_service_works_and_the_router_injects_nothing(
+    tmp_path: Path, profile: str, message: str
+) -> None:
     script = scenarios.tour(60.0)
-    with routed_flight(script, scenarios.paper_sensors(200.0), tmp_path, speed=2.0) as (v, svc):
+    sensors = scenarios.paper_sensors(200.0)
+    with routed_flight(script, sensors, tmp_path, profile=profile, message=message, speed=2.0) as (v, svc):
         start = len(v.attitude_log)
         wait_outputs(v, 150)
         assert svc.stop() == 0
