@@ -115,7 +115,12 @@ from numpy.typing import ArrayLike
 
 from mavattitude.errors import DegenerateGeometryError, InputError
 from mavattitude.estimation import NoiseModel, solve
-from mavattitude.estimation.conventions import Array, quat_multiply_parts, rotation_matrix_parts
+from mavattitude.estimation.conventions import (
+    Array,
+    quat_multiply_parts,
+    rotate_ned_to_body_parts,
+    rotation_matrix_parts,
+)
 
 Quat = tuple[float, float, float, float]
 _EYE3 = np.eye(3)
@@ -323,10 +328,6 @@ class FusedFilter:
 
     # --- public state -------------------------------------------------------------------------------
     @property
-    def initialised(self) -> bool:
-        return self._q is not None
-
-    @property
     def q(self) -> Array:
         """Current attitude, body → NED, ``w ≥ 0``."""
         return np.array(self._current_q())
@@ -461,11 +462,7 @@ class FusedFilter:
             out = b0 * v + b1 * st[0] + b2 * st[1] - a1 * st[2] - a2 * st[3]
             st[1], st[0], st[3], st[2] = st[0], v, st[2], out
             y.append(out)
-        return (
-            r[0] * y[0] + r[3] * y[1] + r[6] * y[2],
-            r[1] * y[0] + r[4] * y[1] + r[7] * y[2],
-            r[2] * y[0] + r[5] * y[1] + r[8] * y[2],
-        )
+        return rotate_ned_to_body_parts(r, y)
 
     def _mag_check(self, mag: tuple[float, float, float]) -> tuple[float, float, float]:
         """``(d, |m|, dip)``: ``d`` of the module docstring (≥ 1 disturbed), the dip against the predicted vertical."""
@@ -545,9 +542,7 @@ class FusedFilter:
 
     def _tilt_update(self, acc: tuple[float, ...], acc_norm: float, sigma_a: float) -> None:
         """Measurement 2: the accelerometer direction only; its gain is kept off the vertical (heading coasts)."""
-        r = rotation_matrix_parts(self._q)
-        vx, vy, vz = self._v_acc
-        h = (r[0] * vx + r[3] * vy + r[6] * vz, r[1] * vx + r[4] * vy + r[7] * vz, r[2] * vx + r[5] * vy + r[8] * vz)
+        h = rotate_ned_to_body_parts(rotation_matrix_parts(self._q), self._v_acc)
         z = np.array([acc[0] / acc_norm - h[0], acc[1] / acc_norm - h[1], acc[2] / acc_norm - h[2]])
         keep = _EYE3 - np.outer(h, h)
         self._correct(_attitude_h(_skew(*h)), z, (sigma_a / acc_norm) ** 2 * _EYE3, keep)
