@@ -92,7 +92,9 @@ def compare(
     has_source = index < len(sent_t_s)
     latency = np.full(len(t_s), np.nan)
     latency[has_source] = recv_mono_s[has_source] - sent_mono_s[index[has_source]]
-    return Comparison(t_s, q_est, q_true, body_error_angles(q_est, q_true), latency)
+    with np.errstate(invalid="ignore", divide="ignore"):  # a broken estimate gives NaN angles, counted by score
+        errors = body_error_angles(q_est, q_true)
+    return Comparison(t_s, q_est, q_true, errors, latency)
 
 
 def score(c: Comparison) -> Score:
