@@ -16,7 +16,7 @@ import pytest
 from mavattitude.errors import InputError
 from mavattitude.estimation import NoiseModel, predicted_covariance, solve, solve_batch
 from mavattitude.estimation import conventions as cv
-from mavattitude.estimation.fused import FusedFilter, FusedSettings, _exp, _log, ign_covariance
+from mavattitude.estimation.fused import FusedFilter, FusedSettings, _butterworth, _exp, _log, ign_covariance
 from mavattitude.sim import scenarios
 from mavattitude.sim.scoring import heading_error, tilt_error
 from mavattitude.sim.sensors import AxisModel, SensorModel
@@ -86,6 +86,15 @@ def test_closed_form_ign_covariance_is_the_solvers_sandwich() -> None:
         assert np.allclose(ign_covariance(acc, mag, sa, sm), expected, rtol=1e-9, atol=0.0)
 
 
+def test_the_pre_filter_is_a_unit_gain_butterworth_with_the_stated_cut_off() -> None:
+    """Second-order Butterworth at the 50 Hz update rate: gain 1 at DC, 1/√2 at √2/(2π τ)."""
+    tau_s, rate_hz = 0.7, 50.0
+    b0, b1, b2, a1, a2 = _butterworth(tau_s, rate_hz)
+    z = np.exp(-2j * np.pi * np.array([0.0, math.sqrt(2.0) / (2.0 * math.pi * tau_s)]) / rate_hz)
+    gain = np.abs((b0 + b1 * z + b2 * z**2) / (1.0 + a1 * z + a2 * z**2))
+    assert gain == pytest.approx([1.0, 2**-0.5], abs=1e-12)
+
+
 # --- start-up, rest and bias -----------------------------------------------------------------------
 
 
@@ -109,6 +118,10 @@ def test_starts_from_ign_and_learns_the_gyro_bias_at_rest() -> None:
     q_true = script.attitude(np.array([o.time_s for o in out[-50:]]))
     err_deg = np.degrees(cv.angle_between(np.array([o.q for o in out[-50:]]), q_true))
     assert err_deg.max() < 0.3
+    # And the filter's own covariance bounds its error (it is conservative: its σ are effective noise).
+    body_err = cv.body_error_angles(np.array([o.q for o in out[-50:]]), q_true)
+    sd = np.sqrt(np.array([np.diag(o.covariance) for o in out[-50:]]))
+    assert np.all(np.abs(body_err) < 3.0 * sd)
 
 
 def test_bias_is_tracked_while_rotating() -> None:
