@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import importlib
+import logging
 import os
 import platform
 import sys
@@ -25,6 +27,9 @@ from typing import Any
 import numpy as np
 
 from mavattitude.errors import ConfigError
+from mavattitude.estimation import conventions as cv
+
+log = logging.getLogger(__name__)
 
 NAME = "bench"
 HELP = "measure solver, front end, service and filter performance; print one table (and write it as Markdown)"
@@ -96,10 +101,10 @@ def section(name: str) -> Callable[[Section], Section]:
     return register
 
 
-def _require(module: str, why: str):
+def _require(module: str, why: str) -> Any:
     """Import a module a section needs, or say it is not available and why."""
     try:
-        return __import__(module, fromlist=["_"])
+        return importlib.import_module(module)
     except ImportError as exc:
         raise NotAvailable(f"{why} ({exc})") from None
 
@@ -117,7 +122,8 @@ def run_section(name: str, settings: Settings) -> tuple[list[Row], bool]:
         return [Row(name, first, f"not available: {exc}")] + [
             Row(name, f, "not available (as above)") for f in rest
         ], False
-    except Exception as exc:  # reported in the table and in the exit code, never hidden
+    except Exception as exc:  # reported in the table, the log (with its traceback) and the exit code
+        log.exception("bench section %s failed", name)
         return [Row(name, "(section)", f"failed: {type(exc).__name__}: {exc}")], True
 
 
@@ -126,16 +132,25 @@ GRAVITY_MPS2 = 9.80665
 MAG_REF_NED_UT = (19.0, 1.5, 45.0)
 ACC_STD_MPS2 = 0.05
 MAG_STD_UT = 0.5
+GYRO_STD_RADPS = 0.003
 
 
-def random_samples(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Uniformly random attitudes and the noisy body-frame specific force and field they give."""
-    from mavattitude.estimation import conventions as cv
-
+def random_samples(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """The noisy body-frame specific force and field at ``n`` uniformly random attitudes."""
     q_true = cv.quat_normalize(rng.normal(size=(n, 4)))
     acc = cv.rotate_ned_to_body(q_true, (0.0, 0.0, -GRAVITY_MPS2)) + rng.normal(0.0, ACC_STD_MPS2, (n, 3))
     mag = cv.rotate_ned_to_body(q_true, MAG_REF_NED_UT) + rng.normal(0.0, MAG_STD_UT, (n, 3))
-    return q_true, acc, mag
+    return acc, mag
+
+
+def turning_stream(n: int, rate_hz: float, rate_radps: tuple[float, float, float], rng: np.random.Generator):
+    """``n`` samples at ``rate_hz`` of a constant-rate turn: times, and noisy body specific force, gyro, field."""
+    t = np.arange(n) / rate_hz
+    q_true = cv.quat_from_rotvec(np.outer(t, rate_radps))
+    acc = cv.rotate_ned_to_body(q_true, (0.0, 0.0, -GRAVITY_MPS2)) + rng.normal(0.0, ACC_STD_MPS2, (n, 3))
+    gyr = np.asarray(rate_radps) + rng.normal(0.0, GYRO_STD_RADPS, (n, 3))
+    mag = cv.rotate_ned_to_body(q_true, MAG_REF_NED_UT) + rng.normal(0.0, MAG_STD_UT, (n, 3))
+    return t, acc, gyr, mag
 
 
 EXPECTED_ROWS["solver"] = [
@@ -159,7 +174,7 @@ def bench_solver(settings: Settings) -> list[Row]:
     rng = np.random.default_rng(SEED)
     n = settings.pick(300, 3000)
     repeats = settings.pick(2, 5)
-    _, acc, mag = random_samples(n, rng)
+    acc, mag = random_samples(n, rng)
     noise = est.NoiseModel(accel_std=ACC_STD_MPS2, mag_std=MAG_STD_UT)
     acc_rows, mag_rows = list(acc), list(mag)  # one (3,) array per sample, as the pipeline hands them over
 
@@ -171,7 +186,7 @@ def bench_solver(settings: Settings) -> list[Row]:
     converged = np.mean([r.converged for r in results])
 
     n_batch = settings.pick(20_000, 200_000)
-    _, acc_b, mag_b = random_samples(n_batch, rng)
+    acc_b, mag_b = random_samples(n_batch, rng)
     batch_s = best_time_s(lambda: est.solve_batch(acc_b, mag_b, MAG_REF_NED_UT, noise), repeats)
     sec, names = "solver", EXPECTED_ROWS["solver"]
     return [
@@ -203,12 +218,10 @@ def bench_peers(settings: Settings) -> list[Row]:
     noise_mod = _require("mavattitude.estimation.noise", "the estimation core's noise model (issue 2)")
     ahrs_filters = _require("ahrs.filters", "the ahrs package, a test extra: pip install 'mavattitude[test]'")
     rotation = _require("scipy.spatial.transform", "scipy, a test extra: pip install 'mavattitude[test]'").Rotation
-    from mavattitude.estimation import conventions as cv
-
     rng = np.random.default_rng(SEED + 1)
     n = settings.pick(300, 3000)
     repeats = settings.pick(2, 5)
-    _, acc, mag = random_samples(n, rng)
+    acc, mag = random_samples(n, rng)
     noise = est.NoiseModel(accel_std=ACC_STD_MPS2, mag_std=MAG_STD_UT)
     acc_rows, mag_rows = list(acc), list(mag)
     ign_s = _per_sample(lambda i: est.solve(acc_rows[i], mag_rows[i], MAG_REF_NED_UT, noise), n, repeats)
@@ -255,18 +268,10 @@ EXPECTED_ROWS["fused"] = ["FusedFilter.push per 200 Hz input sample (gyro-aided 
 @section("fused")
 def bench_fused(settings: Settings) -> list[Row]:
     fused = _require("mavattitude.estimation.fused", "the gyro-aided filter (mavattitude/estimation/fused.py)")
-    from mavattitude.estimation import conventions as cv
-
     rng = np.random.default_rng(SEED)
     n = settings.pick(2_000, 20_000)
-    rate_hz = 200.0
-    # A slow constant turn: the filter propagates every sample and updates at its own 50 Hz.
-    rate_radps = np.array([0.1, -0.05, 0.2])
-    t = np.arange(n) / rate_hz
-    q_true = cv.quat_from_rotvec(t[:, None] * rate_radps)
-    acc = cv.rotate_ned_to_body(q_true, (0.0, 0.0, -GRAVITY_MPS2)) + rng.normal(0.0, ACC_STD_MPS2, (n, 3))
-    mag = cv.rotate_ned_to_body(q_true, MAG_REF_NED_UT) + rng.normal(0.0, MAG_STD_UT, (n, 3))
-    gyr = rate_radps + rng.normal(0.0, 0.003, (n, 3))
+    # A slow constant turn at 200 Hz: the filter propagates every sample and updates at its own 50 Hz.
+    t, acc, gyr, mag = turning_stream(n, 200.0, (0.1, -0.05, 0.2), rng)
     samples = [(float(t[i]), tuple(gyr[i]), tuple(acc[i]), tuple(mag[i])) for i in range(n)]
 
     def one_pass() -> None:
@@ -290,17 +295,12 @@ def bench_frontend(settings: Settings) -> list[Row]:
     frontend = _require("mavattitude.sensors.frontend", "the sensor front end (issue 3)")
     calibration = _require("mavattitude.sensors.calibration", "the sensor front end (issue 3)")
     mavlink2 = _require("mavattitude.link.mavlink2", "the MAVLink link layer (issue 4)").mavlink2
-    from mavattitude.estimation import conventions as cv
-
     rng = np.random.default_rng(SEED)
     n = settings.pick(2_000, 20_000)
     rate_hz = 200.0
-    t = np.arange(n) / rate_hz + rng.normal(0.0, 0.1 / rate_hz, n)  # 10% jitter, as a real link has
-    t.sort()
-    q_true = cv.quat_from_rotvec(np.outer(np.arange(n) / rate_hz, (0.03, -0.05, 0.08)))
-    acc = cv.rotate_ned_to_body(q_true, (0.0, 0.0, -GRAVITY_MPS2)) + rng.normal(0.0, ACC_STD_MPS2, (n, 3))
-    mag = cv.rotate_ned_to_body(q_true, MAG_REF_NED_UT) + rng.normal(0.0, MAG_STD_UT, (n, 3)) + (3.0, -2.0, 1.0)
-    gyr = rng.normal(0.0, 0.003, (n, 3))
+    t, acc, gyr, mag = turning_stream(n, rate_hz, (0.03, -0.05, 0.08), rng)
+    t = np.sort(t + rng.normal(0.0, 0.1 / rate_hz, n))  # 10% timing jitter, as a real link has
+    mag += (3.0, -2.0, 1.0)  # the hard iron the calibration below removes
     # A real calibration (hard and soft iron, accelerometer bias) so the calibrate step does its work.
     cal = calibration.Calibration.from_mapping(
         {
