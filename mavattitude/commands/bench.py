@@ -636,14 +636,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--quick",
         action="store_true",
-        help="a smoke run in seconds (small sample counts, short link runs) for CI; figures are rough",
+        help="a smoke run of about 20 s for CI (small samples, 2 s link runs, an 80 s soak at 20x); figures are "
+        "rough. The full run takes about 5 minutes: 30 s of latency at 200 Hz, input rates up to 8 kHz, one "
+        "simulated hour of soak at 20x",
     )
     parser.add_argument(
         "-o",
         "--output",
         type=Path,
         default=None,
-        help="also write the table and the machine's description as Markdown to this file (default: print only)",
+        help="also write the table, the machine's description and the method as Markdown to this file "
+        "(default: print only; tools/bench.py writes docs/benchmarks.md on a full run of every section)",
     )
 
 
