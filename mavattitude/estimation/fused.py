@@ -18,8 +18,9 @@ Propagation — every input sample ``k``, ``Δt = t_k − t_{k−1}``, ``ω = g_
     δθ̇ = −[ω×] δθ − δb − n_g,   δḃ = n_b
 
 The increments are composed in plain floats into ``Δq`` (the rotation since the last update); ``P`` is
-propagated once per update interval ``T`` (``update_rate_hz``) with the exact attitude block and a
-trapezoidal bias coupling::
+propagated once per update interval ``T`` (``update_rate_hz``; a due update waits up to half an interval
+for a sample that carries a magnetometer reading) with the exact attitude block and a trapezoidal bias
+coupling::
 
     Φ = [[A(Δq), −T (I + A(Δq)) / 2], [0, I]],   A(Δq) = R(Δq)ᵀ
     P ← Φ P Φᵀ + diag((σ_g² T + (s_g θ)²) I, σ_b² T I)
@@ -364,8 +365,10 @@ class FusedFilter:
         self._integrate(dt, gx, gy, gz)
         self._t_last = time_s
         self._gyr_last = gyr
-        if time_s >= self._next_update_s:
-            self._next_update_s = max(self._next_update_s + self._update_period_s, time_s)
+        # A due update waits up to half a period for a sample that carries a magnetometer reading.
+        due = self._next_update_s
+        if time_s >= due and (mag_uT is not None or time_s >= due + 0.5 * self._update_period_s):
+            self._next_update_s = max(due + self._update_period_s, time_s)
             self._update(acc_mps2, mag_uT, time_s)
         if time_s < self._next_output_s:
             return []
