@@ -246,6 +246,16 @@ def test_missing_magnetometer_keeps_tilt_from_the_accelerometer() -> None:
     assert f.counters["tilt_updates"] > 0
 
 
+def test_updates_wait_for_a_magnetometer_reading_when_it_comes_slower() -> None:
+    """A 67 Hz magnetometer in a 200 Hz stream (PX4's HIGHRES_IMU): the 50 Hz updates use it, not tilt only."""
+    script = Script([Hold(2.0), Rotate(8.0, (0.1, 0.1, 0.3))], tuple(MAG_NED_UT))
+    t, acc, gyr, mag = _measure(script, _sensors())
+    f = FusedFilter(FusedSettings(), MAG_NED_UT)
+    for i in range(len(t)):
+        f.push(t[i], gyr[i], acc[i], mag[i] if i % 3 == 0 else None)
+    assert f.counters["ign_updates"] > 0.95 * (f.counters["ign_updates"] + f.counters["tilt_updates"])
+
+
 # --- output and input contract -------------------------------------------------------------------
 
 
