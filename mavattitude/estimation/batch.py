@@ -19,6 +19,7 @@ from .noise import NoiseModel
 from .solve import (
     MAX_ITERATIONS,
     MIN_ANGLE_DEG,
+    SINGULAR_MESSAGE,
     TOLERANCE_RAD,
     check_method,
     check_settings,
@@ -55,7 +56,8 @@ def solve_batch(
     """Attitudes ``(N, 4)`` of N samples ``acc, mag (N, 3)``; ``mag_ref``/``acc_ref`` are ``(3,)`` or ``(N, 3)``.
 
     Arguments as for :func:`.solve.solve`. Bad samples raise (naming the first one) rather than being
-    skipped. If a sample does not converge, ``full_output=False`` raises :class:`ConvergenceError`;
+    skipped, those found singular while iterating too (:class:`DegenerateGeometryError`, as in ``solve``).
+    If a sample does not converge, ``full_output=False`` raises :class:`ConvergenceError`;
     ``full_output=True`` returns a :class:`BatchResult` with per-sample flags instead.
     """
     check_method(method)
@@ -68,12 +70,14 @@ def solve_batch(
     with np.errstate(all="ignore"):  # the checks themselves catch what overflows or is NaN
         _check(*(np.broadcast_to(a, (n, 3)) for a in arrays), noise, sin_min, min_angle_deg)
     out = BatchResult(np.empty((n, 4)), np.empty(n, dtype=np.int64), np.empty(n, dtype=bool), np.empty(n))
+    singular = np.zeros(n, dtype=bool)
     for start in range(0, n, CHUNK):
         sl = slice(start, min(start + CHUNK, n))
-        q, iterations, converged, loss = _solve_chunk(
+        q, iterations, converged, loss, singular[sl] = _solve_chunk(
             [_columns(a, sl) for a in arrays], noise, method, max_iterations, tolerance
         )
         out.q[sl], out.iterations[sl], out.converged[sl], out.loss[sl] = q, iterations, converged, loss
+    _fail(DegenerateGeometryError, singular, SINGULAR_MESSAGE)
     if full_output:
         return out
     if not out.converged.all():
@@ -131,7 +135,9 @@ def _fail(error: type[InputError], bad: NDArray[np.bool_], message: str) -> None
 
 
 def _solve_chunk(chunk: list, noise: NoiseModel, method: str, max_iterations: int, tolerance: float) -> tuple:
-    """Solve one chunk of checked samples; returns ``(q (n, 4), iterations, converged, loss)``."""
+    """Solve one chunk of checked samples; returns ``(q (n, 4), iterations, converged, loss, singular)``,
+    ``singular`` where a step had no positive definite normal matrix (NaN from the kernel; the row keeps
+    its last finite iterate and takes no further step)."""
     (w_acc, n_acc), (w_mag, n_mag), (v_acc, _), (v_mag, _) = (_unit(v) for v in chunk)
     s_body = kernel.norm(kernel.cross(w_acc, w_mag))
     s_ref = kernel.norm(kernel.cross(v_acc, v_mag))
@@ -149,19 +155,23 @@ def _solve_chunk(chunk: list, noise: NoiseModel, method: str, max_iterations: in
     step = kernel.matrix_weight_step if ml else kernel.scalar_weight_step
     previous = np.full(size, np.nan)
     newton = np.zeros(size, dtype=bool)
+    singular = np.zeros(size, dtype=bool)
     for _ in range(max_iterations):
         if done.all():
             break
         q_next, angle = step(q, obs, newton if newton.any() else False)
-        active = ~done  # as solve(): a converged sample takes no further correction
+        failed = ~done & np.isnan(angle)
+        active = ~done & ~failed  # as solve(): a converged sample takes no further correction
         q = tuple(np.where(active, b, a) for a, b in zip(q, q_next, strict=True))
         iterations += active
         converged = kernel.converged(angle, previous, tolerance)
         newton = newton | (~converged & kernel.slow(angle, previous))
-        done = done | (active & converged)
+        done = done | (active & converged) | failed
+        singular |= failed
         previous = angle
     qa = np.stack(q, -1)
-    return np.where(qa[:, :1] < 0.0, -qa, qa), iterations, done, kernel.wahba_loss(q, obs, ml)
+    loss = kernel.wahba_loss(q, obs, ml)
+    return np.where(qa[:, :1] < 0.0, -qa, qa), iterations, done & ~singular, loss, singular
 
 
 def _unit(raw: tuple) -> tuple[tuple, object]:

@@ -1,7 +1,7 @@
 """The paper's equations, written once, on components that are plain floats *or* equal-shape arrays.
 
 Vectors are 3-tuples, symmetric 3×3 matrices 6-tuples ``(xx, xy, xz, yy, yz, zz)``, quaternions 4-tuples.
-Only ``+ − × /``, ``** 0.5`` and comparisons joined by ``& |`` appear, so every function runs unchanged
+Only ``+ − × /``, powers and comparisons joined by ``& |`` appear, so every function runs unchanged
 on Python floats (the per-sample path in :mod:`.solve`, free of numpy's per-call overhead) and on
 ``(N,)`` arrays (the vectorised :mod:`.batch`). Both paths therefore evaluate the same equations in the same order.
 
@@ -23,6 +23,11 @@ written in the orthogonal basis ``Δq = q ⊗ [c, δ/2]`` the Jacobian ``H`` of 
 of Eq. 34 split into ``(Σ aᵢ (I − uᵢuᵢᵀ)) δ = Σ aᵢ ŵᵢ × uᵢ`` and ``c = Σ aᵢ (uᵢ·ŵᵢ − 1) / (2 Σ aᵢ)``, and
 Eq. 35 (``q + Δq``, normalised) is ``q ⊗ [1 + c, δ/2]`` normalised. This is the literal Eq. 34–35 (the
 tests check it against the 4×4 form), at a fraction of its cost; ``|δ|`` is the correction's angle.
+
+No function divides by zero. A 3×3 system is solved only where its matrix is positive definite
+(:func:`sym_solve`): Newton's Hessian, which is indefinite far from the optimum, gives way there to the
+Gauss–Newton matrix, positive definite for non-collinear vectors; where even that one is not, the step
+returns NaN, which the drivers (:mod:`.solve`, :mod:`.batch`) turn into a typed error.
 """
 
 from __future__ import annotations
@@ -64,10 +69,30 @@ def sym_det_adj(m: Sym) -> tuple[Scalar, Sym]:
     return xx * adj[0] + xy * adj[1] + xz * adj[2], adj
 
 
+_NAN = float("nan")
+
+
+def _nan_unless(ok: Scalar) -> Scalar:
+    """1.0 where ``ok``, NaN where not (``x⁰ = 1`` for every ``x``, NaN included): a mask in arithmetic."""
+    return _NAN ** (1 - ok)
+
+
+def positive_definite(m: Sym, det: Scalar, adj: Sym) -> Scalar:
+    """Sylvester's criterion, given :func:`sym_det_adj`: the leading minors ``xx``, ``xx·yy − xy²`` (the
+    adjugate's last entry) and ``det`` all positive; false for NaN."""
+    return (m[0] > 0.0) & (adj[5] > 0.0) & (det > 0.0)
+
+
+def _inverse_det(m: Sym) -> tuple[Scalar, Sym]:
+    """``1/det`` where ``m`` is positive definite, NaN elsewhere (never a division by zero), and the adjugate."""
+    det, adj = sym_det_adj(m)
+    return _nan_unless(positive_definite(m, det, adj)) / (det + (det == 0.0)), adj
+
+
 def sym_solve(m: Sym, b: Vec) -> Vec:
-    """``m⁻¹ b`` by the adjugate (Cramer's rule), exact enough for the well-posed 3×3 systems here."""
-    det, (axx, axy, axz, ayy, ayz, azz) = sym_det_adj(m)
-    inv = 1.0 / det
+    """``m⁻¹ b`` by the adjugate (Cramer's rule), exact enough for the well-posed 3×3 systems here; NaN
+    where ``m`` is not positive definite (every ``m`` solved here should be)."""
+    inv, (axx, axy, axz, ayy, ayz, azz) = _inverse_det(m)
     return (
         (axx * b[0] + axy * b[1] + axz * b[2]) * inv,
         (axy * b[0] + ayy * b[1] + ayz * b[2]) * inv,
@@ -76,9 +101,16 @@ def sym_solve(m: Sym, b: Vec) -> Vec:
 
 
 def sym_inverse(m: Sym) -> Sym:
-    det, adj = sym_det_adj(m)
-    inv = 1.0 / det
+    """``m⁻¹``; NaN where ``m`` is not positive definite."""
+    inv, adj = _inverse_det(m)
     return tuple(e * inv for e in adj)  # type: ignore[return-value]
+
+
+def newton_or_gauss_newton(newton: Scalar, hessian: Sym, gauss_newton: Sym) -> tuple[Scalar, Sym]:
+    """The Hessian where ``newton`` is asked and the Hessian is positive definite (Newton then heads for a
+    minimum), the Gauss–Newton matrix elsewhere; returns ``(newton actually used, matrix)``."""
+    use = newton & positive_definite(hessian, *sym_det_adj(hessian))
+    return use, tuple(gk + use * (hk - gk) for gk, hk in zip(gauss_newton, hessian, strict=True))
 
 
 def sym_matvec(m: Sym, v: Vec) -> Vec:
@@ -182,7 +214,9 @@ def scalar_weight_step(q: Quat, obs: tuple, newton: Scalar = False) -> tuple[Qua
     Where ``newton`` is true the normal matrix ``M = Σ aᵢ (I − uᵢuᵢᵀ)`` becomes the exact Hessian of the
     loss, ``Σ aᵢ ((ŵᵢ·uᵢ) I − ½(ŵᵢuᵢᵀ + uᵢŵᵢᵀ))`` (``M`` plus the residual curvature, as in
     :func:`matrix_weight_step`), and the radial part ``c`` is dropped: Newton's method, quadratic, to the
-    same optimum. For consistent vectors the two matrices agree to the size of the residuals.
+    same optimum. For consistent vectors the two matrices agree to the size of the residuals. Where the
+    Hessian is not positive definite (far from the optimum) the step stays Gauss–Newton's; where ``M`` is
+    not either (collinear in floating point), the returned quaternion and angle are NaN.
     """
     r = rotation_matrix_parts(q)
     (w1, v1, a1), (w2, v2, a2) = obs
@@ -210,7 +244,7 @@ def scalar_weight_step(q: Quat, obs: tuple, newton: Scalar = False) -> tuple[Qua
         s1, s2 = _outer_sym(w1, (x1, y1, z1)), _outer_sym(w2, (x2, y2, z2))
         diag = a1 * e1 + a2 * e2
         h = tuple((diag if k in (0, 3, 5) else 0.0) - 0.5 * (a1 * s1[k] + a2 * s2[k]) for k in range(6))
-        m = tuple(mk + newton * (hk - mk) for mk, hk in zip(m, h, strict=True))  # type: ignore[assignment]
+        newton, m = newton_or_gauss_newton(newton, h, m)  # type: ignore[arg-type]
         c = c * (1 - newton)
     d0, d1, d2 = sym_solve(m, (g0, g1, g2))
     q_next = quat_multiply_parts(q, (1.0 + c, 0.5 * d0, 0.5 * d1, 0.5 * d2))
@@ -225,10 +259,12 @@ def matrix_weight_step(q: Quat, obs: tuple, newton: Scalar = True) -> tuple[Quat
     plus the curvature ``Σ (pᵢ·uᵢ) I − ½(pᵢuᵢᵀ + uᵢpᵢᵀ)``, ``pᵢ = Wᵢrᵢ``. Without that term the iteration is
     only linear, at a rate of the size of the weighted residual (0.07 per step on a 2.4σ sample of the
     paper's scenario); with it, quadratic. ``q ← q ⊗ [1, δ/2]``, normalised. Returns like
-    :func:`scalar_weight_step`; always Newton (``newton`` is accepted for the drivers' uniform call).
+    :func:`scalar_weight_step`; Newton wherever the Hessian is positive definite, else Gauss–Newton
+    (``newton`` is accepted for the drivers' uniform call).
     """
     r = rotation_matrix_parts(q)
     h: Sym = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    gn_sum: Sym = h
     g: Vec = (0.0, 0.0, 0.0)
     for w, v, wm in obs:
         u = rotate_ned_to_body_parts(r, v)
@@ -246,6 +282,8 @@ def matrix_weight_step(q: Quat, obs: tuple, newton: Scalar = True) -> tuple[Quat
             pu - p[2] * u[2],
         )
         h = tuple(hk + gk + ck for hk, gk, ck in zip(h, gn, curv, strict=True))  # type: ignore[assignment]
+        gn_sum = tuple(sk + gk for sk, gk in zip(gn_sum, gn, strict=True))  # type: ignore[assignment]
+    _, h = newton_or_gauss_newton(True, h, gn_sum)
     d = sym_solve(h, g)
     return _normalised(quat_multiply_parts(q, (1.0, 0.5 * d[0], 0.5 * d[1], 0.5 * d[2]))), norm(d)
 

@@ -72,7 +72,10 @@ class SolveResult:
             xx, xy, xz, yy, yz, zz = kernel.covariance(
                 self.method, (w_mag, n_mag, self.noise.mag_var), (w_acc, n_acc, self.noise.accel_var)
             )
-            self._covariance = np.array(((xx, xy, xz), (xy, yy, yz), (xz, yz, zz)))
+            cov = np.array(((xx, xy, xz), (xy, yy, yz), (xz, yz, zz)))
+            if not np.isfinite(cov).all():  # a singular information matrix (kernel.sym_inverse)
+                raise DegenerateGeometryError("no covariance: " + SINGULAR_MESSAGE)
+            self._covariance = cov
         return self._covariance
 
 
@@ -99,6 +102,12 @@ def geometry_message(what: str, sin_angle: float, min_angle_deg: float) -> str:
         f"{what} are {angle:.2f}° from collinear (minimum {min_angle_deg:g}°): "
         "the rotation about their common direction is unobservable"
     )
+
+
+SINGULAR_MESSAGE = (
+    "the solver's normal matrix is singular: acc and mag (or their references) are collinear in floating "
+    "point for their weights, so the rotation about their common direction is unobservable"
+)
 
 
 def weights_message(a_mag: float, a_acc: float) -> str:
@@ -151,7 +160,8 @@ def solve(
     last Gauss–Newton correction, as estimated from the last two corrections. Raises :class:`InputError`
     for unusable numbers (zero, NaN or infinite vectors; a vector buried in its noise or a σ in other
     units, :func:`.kernel.weights_usable`) and :class:`DegenerateGeometryError` when either pair is
-    within ``min_angle_deg`` of collinear.
+    within ``min_angle_deg`` of collinear, or so close to it for their weights that the normal matrix is
+    singular in floating point.
     """
     check_method(method)
     sin_min = check_settings(max_iterations, tolerance, min_angle_deg)
@@ -192,11 +202,14 @@ def _iterate(step, q: tuple, obs: tuple, budget: int, tolerance: float) -> tuple
     """Steps (4)–(7): at most ``budget`` corrections; returns ``(q, corrections, converged)``.
 
     Once Eq. 34 is seen to converge slowly (:func:`.kernel.slow`) the rest are Newton corrections
-    (the safeguard of :func:`.kernel.scalar_weight_step`; ``ml`` is Newton throughout).
+    (the safeguard of :func:`.kernel.scalar_weight_step`; ``ml`` is Newton throughout). A step without a
+    positive definite normal matrix raises :class:`DegenerateGeometryError`.
     """
     previous, newton = math.nan, False
     for k in range(1, budget + 1):
         q, angle = step(q, obs, newton)
+        if angle != angle:  # NaN: no positive definite normal matrix (kernel module docstring)
+            raise DegenerateGeometryError(SINGULAR_MESSAGE)
         if kernel.converged(angle, previous, tolerance):
             return q, k, True
         newton = newton or kernel.slow(angle, previous)

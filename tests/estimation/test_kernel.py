@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from mavattitude.estimation import conventions as cv
 from mavattitude.estimation import kernel
@@ -87,3 +88,51 @@ def test_kernel_gives_the_same_numbers_on_floats_and_arrays(rng):
         r_float = kernel.unit_covariance(tuple(float(c[i]) for c in w_acc), float(n_acc[i]), PAPER_NOISE.accel_var)
         assert all(type(e) is float for e in r_float)
         np.testing.assert_array_equal([e[i] for e in r_arrays], r_float)
+
+
+def test_sym_solve_never_divides_by_zero_and_refuses_what_is_not_positive_definite():
+    singular, indefinite = (1.0, 0.0, 0.0, 0.0, 0.0, -1.0), (1.0, 0.0, 0.0, 2.0, 0.0, -3.0)
+    for m6 in (singular, indefinite, (0.0,) * 6):
+        assert np.isnan(kernel.sym_solve(m6, (1.0, 2.0, 3.0))).all()  # floats: no ZeroDivisionError
+        assert np.isnan(kernel.sym_inverse(m6)).all()
+    # Arrays: the same, row by row, without a warning (the suite does not filter them: they would show).
+    rows = tuple(np.array([a, b]) for a, b in zip(singular, (2.0, 0.0, 0.0, 2.0, 0.0, 2.0), strict=True))
+    with np.errstate(all="raise"):
+        x = np.array(kernel.sym_solve(rows, (np.ones(2),) * 3))
+    assert np.isnan(x[:, 0]).all() and x[:, 1] == pytest.approx([0.5, 0.5, 0.5])
+
+
+def _saddle_obs(weight):
+    """Observations at a stationary point 180° from the optimum for q = identity: the magnetometer's
+    predicted direction u₁ = −ŵ₁, the accelerometer's u₂ = ŵ₂. With equal scalar weights the Newton Hessian
+    Σ aᵢ((ŵᵢ·uᵢ)I − ½(ŵᵢuᵢᵀ + uᵢŵᵢᵀ)) = ŵ₁ŵ₁ᵀ − ŵ₂ŵ₂ᵀ is exactly singular (det = 0.0)."""
+    w1, w2 = (1.0, 0.0, 0.0), (0.0, 0.0, 1.0)
+    return ((w1, (-1.0, 0.0, 0.0), weight), (w2, w2, weight))
+
+
+def test_newton_step_with_a_singular_hessian_falls_back_to_gauss_newton():
+    # This used to raise ZeroDivisionError (1.0/det); the Gauss–Newton matrix diag(1, 2, 1) is positive
+    # definite, and the gradient is zero at a stationary point: no correction, a finite unit quaternion.
+    q, angle = kernel.scalar_weight_step((1.0, 0.0, 0.0, 0.0), _saddle_obs(1.0), newton=True)
+    assert angle == 0.0 and np.linalg.norm(q) == pytest.approx(1.0, abs=1e-15)
+    # Matrix weights (ML, always Newton): at W = I its Hessian is the same singular matrix.
+    identity = (1.0, 0.0, 0.0, 1.0, 0.0, 1.0)
+    q, angle = kernel.matrix_weight_step((1.0, 0.0, 0.0, 0.0), _saddle_obs(identity))
+    assert angle == 0.0 and np.linalg.norm(q) == pytest.approx(1.0, abs=1e-15)
+
+
+def test_newton_step_with_an_indefinite_hessian_still_descends():
+    # Just off that saddle the Hessian is indefinite: Newton's step would head for the saddle (or a
+    # maximum); the Gauss–Newton step taken instead lowers the loss.
+    obs = _saddle_obs(1.0)
+    q0 = tuple(cv.quat_from_rotvec(np.array([0.0, 0.05, 0.02])))
+    q1, _ = kernel.scalar_weight_step(q0, obs, newton=True)
+    assert kernel.wahba_loss(q1, obs, False) < kernel.wahba_loss(q0, obs, False)
+
+
+def test_a_step_without_a_positive_definite_normal_matrix_returns_nan():
+    # Collinear predicted directions (u₁ = u₂): even Gauss–Newton's Σ aᵢ(I − uᵢuᵢᵀ) is singular.
+    obs = (((0.0, 0.6, 0.8), (0.0, 0.0, 1.0), 1.0), ((0.0, 0.0, 1.0), (0.0, 0.0, 1.0), 1.0))
+    for newton in (False, True):
+        q, angle = kernel.scalar_weight_step((1.0, 0.0, 0.0, 0.0), obs, newton)
+        assert np.isnan(angle) and np.isnan(q).all()

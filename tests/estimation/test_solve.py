@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from mavattitude.errors import DegenerateGeometryError, InputError
+from mavattitude.errors import DegenerateGeometryError, InputError, MavAttitudeError
 from mavattitude.estimation import METHODS, NoiseModel, solve, solve_batch
 from mavattitude.estimation import conventions as cv
 from mavattitude.estimation.noise import paper_weight
@@ -143,3 +145,60 @@ def test_any_input_gives_an_answer_or_a_typed_error(acc, mag, method, sigma):
     b = solve_batch([acc], [mag], MAG_REF_UT, noise, method=method, full_output=True)
     assert b.converged[0] == r.converged
     assert not r.converged or cv.angle_between(b.q[0], r.q) < 1e-9
+
+
+def test_nearly_collinear_references_beyond_floating_point_are_refused_by_both_paths():
+    # min_angle_deg set far below what float64 resolves: references 1.8e-7° apart pass the angle check,
+    # but the normal matrix Σ aᵢ(I − uᵢuᵢᵀ) is singular in floating point. The solver used to divide by
+    # its determinant's rounding error and return an arbitrary rotation (with a negative "covariance").
+    ref = (3.0810171887114787e-07, 0.0, -50.0)
+    acc = (-0.5699176996906925, -8.481401123899932, -4.87657962009114)
+    mag = (-2.907743402903299, -43.27245486435094, -24.88050799954821)
+    noise = NoiseModel(accel_std=0.01, mag_std=0.3)
+    for method in ("ign", "cgn", "ml"):
+        with pytest.raises(DegenerateGeometryError, match="normal matrix is singular"):
+            solve(acc, mag, ref, noise, method=method, acc_ref=(0.0, 0.0, -9.8), min_angle_deg=1.7e-7)
+        with pytest.raises(DegenerateGeometryError, match=r"normal matrix is singular.*first: sample 1"):
+            refs = [MAG_REF_UT, ref]  # the first sample is well posed, the second is not
+            solve_batch([ACC_REF, acc], [MAG_REF_UT, mag], refs, noise, method=method, min_angle_deg=1.7e-7)
+
+
+# Arbitrary finite floats, mixed with small exact values: exact cancellations (a determinant of exactly
+# 0.0, a vector exactly reversed) come from those, not from random mantissas.
+_component = st.one_of(
+    st.floats(allow_nan=False, allow_infinity=False), st.sampled_from([0.0, 1.0, -1.0, 0.5, 2.0, -9.8, 20.0, 45.0])
+)
+_vector = st.tuples(_component, _component, _component)
+_sigma = st.tuples(*[st.floats(1e-6, 1e3)] * 3)
+
+
+@settings(max_examples=400, deadline=None)
+@given(
+    acc=_vector,
+    mag=_vector,
+    refs=st.tuples(_vector, _vector),
+    q0=st.none() | st.tuples(_component, _component, _component, _component),
+    method=st.sampled_from(METHODS),
+    sigmas=st.tuples(_sigma, _sigma),
+    min_angle_deg=st.floats(1e-9, 89.0),
+)
+def test_solve_on_any_finite_input_gives_a_unit_quaternion_or_a_typed_error(
+    acc, mag, refs, q0, method, sigmas, min_angle_deg
+):
+    # The service's promise rests on this: no ZeroDivisionError, OverflowError or NaN ever escapes the
+    # solver. Anything but a MavAttitudeError propagates and fails the test.
+    options = {"method": method, "acc_ref": refs[0], "min_angle_deg": min_angle_deg}
+    noise = NoiseModel(accel_std=sigmas[0], mag_std=sigmas[1])
+    try:
+        r = solve(acc, mag, refs[1], noise, q0=q0, **options)
+    except MavAttitudeError:
+        r = None
+    if r is not None:
+        assert np.isfinite(r.q).all() and abs(np.linalg.norm(r.q) - 1.0) < 1e-12 and np.isfinite(r.loss)
+        with contextlib.suppress(DegenerateGeometryError):  # refused on access (singular information), never NaN
+            assert np.isfinite(r.covariance).all()
+    try:
+        b = solve_batch([acc], [mag], refs[1], noise, full_output=True, **options)
+    except MavAttitudeError:
+        return
+    assert np.isfinite(b.q).all() and abs(np.linalg.norm(b.q[0]) - 1.0) < 1e-12 and np.isfinite(b.loss).all()
