@@ -281,19 +281,9 @@ class FusedFilter:
         acc_ref: ArrayLike = (0.0, 0.0, -1.0),
     ) -> None:
         self.settings = settings
-        self.mag_ref = np.asarray(mag_ref, dtype=float)
         self.acc_ref = np.asarray(acc_ref, dtype=float)
-        if self.mag_ref.shape != (3,) or self.acc_ref.shape != (3,):
-            raise InputError(f"references must be 3-vectors, got {mag_ref!r} and {acc_ref!r}")
-        norms = float(np.linalg.norm(self.mag_ref)), float(np.linalg.norm(self.acc_ref))
-        if not all(math.isfinite(n) and n > 0.0 for n in norms):
-            raise InputError(f"references must be finite and non-zero, got {mag_ref!r} and {acc_ref!r}")
-        self._norm_ref = norms[0]  # |m| and dip the disturbance check compares against (then learnt)
-        self._v_acc = tuple(float(v) / norms[1] for v in self.acc_ref)
-        # Reference angle between the two vectors, and the field's dip below the horizontal.
-        cos_ref = float(self.acc_ref @ self.mag_ref) / (norms[0] * norms[1])
-        self._ref_angle = math.acos(max(-1.0, min(1.0, cos_ref)))
-        self._dip_ref = math.asin(max(-1.0, min(1.0, -cos_ref)))
+        self._q: Quat | None = None
+        self.set_mag_ref(mag_ref)
         self._field_n = 0.0
         self._noise = NoiseModel(accel_std=(settings.accel_std_mps2,) * 3, mag_std=(settings.mag_std_uT,) * 3)
         self.counters: dict[str, int] = {
@@ -306,7 +296,6 @@ class FusedFilter:
             "rest_updates": 0,
             "mag_relearned": 0,
         }
-        self._q: Quat | None = None
         self._bias = (0.0, 0.0, 0.0)
         self._p = np.zeros((6, 6))
         self._t_last = 0.0
@@ -341,6 +330,25 @@ class FusedFilter:
     def covariance(self) -> Array:
         """6×6 covariance of ``[δθ (rad), δb (rad/s)]`` at the last update."""
         return self._p.copy()
+
+    def set_mag_ref(self, mag_ref: ArrayLike) -> None:
+        """A new NED field (e.g. WMM after a move): used from the next update on, the state kept.
+
+        Its magnitude is a start value only (it is learnt from the data, see the module docstring)."""
+        mag = np.asarray(mag_ref, dtype=float)
+        if mag.shape != (3,) or self.acc_ref.shape != (3,):
+            raise InputError(f"references must be 3-vectors, got {mag_ref!r} and {self.acc_ref!r}")
+        norms = float(np.linalg.norm(mag)), float(np.linalg.norm(self.acc_ref))
+        if not all(math.isfinite(n) and n > 0.0 for n in norms):
+            raise InputError(f"references must be finite and non-zero, got {mag_ref!r} and {self.acc_ref!r}")
+        self.mag_ref = mag
+        self._v_acc = tuple(float(v) / norms[1] for v in self.acc_ref)
+        # Reference angle between the two vectors, and the field's dip below the horizontal.
+        cos_ref = float(self.acc_ref @ mag) / (norms[0] * norms[1])
+        self._ref_angle = math.acos(max(-1.0, min(1.0, cos_ref)))
+        self._dip_ref = math.asin(max(-1.0, min(1.0, -cos_ref)))
+        if self._q is None:
+            self._norm_ref = norms[0]
 
     # --- the per-sample entry point -----------------------------------------------------------------
     def push(
