@@ -185,8 +185,11 @@ class FusedEstimator:
     def estimate(self, sample: ProcessedSample, mag_ref_ned_uT: Array) -> list[AttitudeOutput]:
         from mavattitude.estimation.fused import FusedFilter
 
-        if self._filter is None or self._mag_ref is None or not np.array_equal(self._mag_ref, mag_ref_ned_uT):
-            self._filter = FusedFilter(self.settings, mag_ref_ned_uT)
+        if self._filter is None or not np.array_equal(self._mag_ref, mag_ref_ned_uT):
+            if self._filter is None:
+                self._filter = FusedFilter(self.settings, mag_ref_ned_uT)
+            else:  # a new WMM field: the filter keeps its state (a restart would re-init from IGN mid-flight)
+                self._filter.set_mag_ref(mag_ref_ned_uT)
             self._mag_ref = np.array(mag_ref_ned_uT, dtype=float)
         estimates = self._filter.push(sample.time_s, sample.gyr_radps, sample.acc_mps2, sample.mag_uT)
         front = _flag_names(sample.flags & ~SampleFlag.RESET)
