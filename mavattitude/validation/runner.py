@@ -148,6 +148,9 @@ def estimate_batch(recording: Recording, config: Config) -> Estimate:
         raise ConfigError("the batch path needs a fixed magnetic reference, not auto (no position in a recording)")
     start = time.monotonic()
     usable = observable(recording.acc_mps2, recording.mag_uT, config.estimator.min_angle_deg)
+    # A vector shorter than its noise σ (|a| ≈ 0 in a throw) is refused by solve_batch for the whole batch.
+    usable &= np.linalg.norm(recording.acc_mps2, axis=1) > max(noise.accel_std)
+    usable &= np.linalg.norm(recording.mag_uT, axis=1) > max(noise.mag_std)
     result = solve_batch(
         recording.acc_mps2[usable],
         recording.mag_uT[usable],
@@ -167,7 +170,7 @@ def estimate_batch(recording: Recording, config: Config) -> Estimate:
         q=result.q,
         expected=len(recording),
         elapsed_s=time.monotonic() - start,
-        counters={"degenerate": int((~usable).sum()), "not converged": int((~result.converged).sum())},
+        counters={"unusable": int((~usable).sum()), "not converged": int((~result.converged).sum())},
     )
 
 
