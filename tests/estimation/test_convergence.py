@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from mavattitude.estimation import NoiseModel, kernel, solve, solve_batch
 from mavattitude.estimation import conventions as cv
-from mavattitude.estimation import kernel, solve, solve_batch
 from mavattitude.estimation.noise import paper_weight
 from mavattitude.estimation.solve import WARM_START_BUDGET
 
@@ -139,3 +139,20 @@ def test_inconsistent_vectors_still_converge_to_the_optimum(rng):
     assert cv.angle_between(res.q, scipy_optimum(acc, mag)).max() < 1e-9
     cgn = solve_batch(acc, mag, MAG_REF_UT, PAPER_NOISE, method="cgn", full_output=True)
     assert cgn.converged.all() and cgn.iterations.max() <= 5
+
+
+def test_ml_does_not_climb_to_a_stationary_point_on_inconsistent_vectors():
+    # docs/validation.md (BROAD trial 28, t = 47.334 s, |a| = 1.7 m/s² in a throw): ml's Newton step used
+    # to go uphill where its Hessian is indefinite and stop, "converged", 169° from ign at 5× ign's cost.
+    # With Gauss–Newton taken wherever the Hessian is not positive definite it ends at a minimum.
+    acc, mag, ref = (0.043853, -0.898477, 1.396003), (-24.956581, 37.427888, -8.257479), (15.467277, 0.0, 40.777277)
+    noise = NoiseModel(accel_std=(0.043557, 0.047570, 0.069974), mag_std=(0.700316, 0.721784, 0.671263))
+    ign = solve(acc, mag, ref, noise)
+    for q0 in (None, ign.q):
+        ml = solve(acc, mag, ref, noise, method="ml", q0=q0)
+        assert ml.converged and ml.loss <= kernel.wahba_loss(tuple(ign.q), ml._obs, True)
+        # A minimum: every small rotation of the answer (1 mrad, 26 directions) costs more.
+        turns = unit_rows(np.array([d for d in np.ndindex(3, 3, 3) if d != (1, 1, 1)], dtype=float) - 1.0)
+        for rotvec in 1e-3 * turns:
+            moved = cv.quat_multiply(ml.q, cv.quat_from_rotvec(rotvec))
+            assert kernel.wahba_loss(tuple(moved), ml._obs, True) > ml.loss
