@@ -508,12 +508,15 @@ class FakeVehicle:
         script_t = np.array([r[1] + r[3].boot_script_s - r[3].clock_offset_s for r in rows])
         return mono, script_t, np.array([r[2] for r in rows], dtype=float)
 
+    def sent_log(self) -> tuple[Array, Array]:
+        """``(script_time_s, send_mono_s)`` of every IMU message sent, in send order."""
+        with self._cond:
+            return np.array(self._sent_t_s), np.array(self._sent_mono_s)
+
     def comparison(self, index: int = 0, since_script_s: float = -np.inf) -> Comparison:
         mono, t, q = self.outputs_since(index)
         keep = t >= since_script_s
-        with self._cond:
-            sent_t = np.frombuffer(self._sent_t_s, dtype=float).copy()
-            sent_mono = np.frombuffer(self._sent_mono_s, dtype=float).copy()
+        sent_t, sent_mono = self.sent_log()
         order = np.argsort(sent_t, kind="stable")
         q_true = self.script.attitude(t[keep]) if keep.any() else np.empty((0, 4))
         return compare(t[keep], q[keep], mono[keep], q_true, sent_t[order], sent_mono[order])

@@ -244,19 +244,21 @@ def test_silence_stops_output_then_resumes_within_100ms(link: Flight) -> None:
     lost = counter(svc, "input_lost")
     texts = len(v.statustexts)
     v.pause_imu(True)
-    paused_at = v.script_time()
-    # The service says so (STATUSTEXT + counter) after input_timeout_s ...
-    assert v.wait_until(lambda: any("output stopped" in t for t in v.statustexts[texts:]), EVENT_TIMEOUT_S)
-    wait_counter(svc, "input_lost", lost + 1)
-    # ... and sends nothing describing the silent time.
-    silent_index = len(v.attitude_log)
-    _, t_out, _ = v.outputs_since(0)
-    assert np.all(t_out <= paused_at + 0.02), "an output described the silent time"
-    sent_before = v.imu_sent
-    v.pause_imu(False)
+    try:
+        paused_at = v.script_time()
+        # The service says so (STATUSTEXT, cut to MAVLink's 50 characters, + counter) after input_timeout_s
+        assert v.wait_until(lambda: any("mavattitude: no " in t for t in v.statustexts[texts:]), EVENT_TIMEOUT_S)
+        wait_counter(svc, "input_lost", lost + 1)
+        # ... and sends nothing describing the silent time.
+        silent_index = len(v.attitude_log)
+        _, t_out, _ = v.outputs_since(0)
+        assert np.all(t_out <= paused_at + 0.02), "an output described the silent time"
+        sent_before = v.imu_sent
+    finally:
+        v.pause_imu(False)
     assert v.wait_for_outputs(silent_index + 1, EVENT_TIMEOUT_S)
     mono, _, _ = v.outputs_since(silent_index)
-    first_send = v._sent_mono_s[sent_before]
+    first_send = v.sent_log()[1][sent_before]
     assert mono[0] - first_send < 0.100, f"resumed {1e3 * (mono[0] - first_send):.0f} ms after the first sample"
     assert_healthy(v, HEALTHY_DEG)
 
