@@ -24,7 +24,7 @@ of Eq. 34 split into ``(Σ aᵢ (I − uᵢuᵢᵀ)) δ = Σ aᵢ ŵᵢ × uᵢ`
 Eq. 35 (``q + Δq``, normalised) is ``q ⊗ [1 + c, δ/2]`` normalised. This is the literal Eq. 34–35 (the
 tests check it against the 4×4 form), at a fraction of its cost; ``|δ|`` is the correction's angle.
 
-No function divides by zero. A 3×3 system is solved only where its matrix is positive definite
+No 3×3 system divides by zero: one is solved only where its matrix is positive definite
 (:func:`sym_solve`): Newton's Hessian, which is indefinite far from the optimum, gives way there to the
 Gauss–Newton matrix, positive definite for non-collinear vectors; where even that one is not, the step
 returns NaN, which the drivers (:mod:`.solve`, :mod:`.batch`) turn into a typed error.
