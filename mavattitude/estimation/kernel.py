@@ -106,11 +106,17 @@ def sym_inverse(m: Sym) -> Sym:
     return tuple(e * inv for e in adj)  # type: ignore[return-value]
 
 
-def newton_or_gauss_newton(newton: Scalar, hessian: Sym, gauss_newton: Sym) -> tuple[Scalar, Sym]:
-    """The Hessian where ``newton`` is asked and the Hessian is positive definite (Newton then heads for a
-    minimum), the Gauss–Newton matrix elsewhere; returns ``(newton actually used, matrix)``."""
+def sym_add(a: Sym, b: Sym, k: Scalar = 1.0) -> Sym:
+    """``a + k b`` (written out: this is on the per-sample path)."""
+    return (a[0] + k * b[0], a[1] + k * b[1], a[2] + k * b[2], a[3] + k * b[3], a[4] + k * b[4], a[5] + k * b[5])
+
+
+def newton_or_gauss_newton(newton: Scalar, gauss_newton: Sym, curvature: Sym) -> tuple[Scalar, Sym]:
+    """The Hessian ``gauss_newton + curvature`` where ``newton`` is asked and it is positive definite (Newton
+    then heads for a minimum), the Gauss–Newton matrix elsewhere; returns ``(newton actually used, matrix)``."""
+    hessian = sym_add(gauss_newton, curvature)
     use = newton & positive_definite(hessian, *sym_det_adj(hessian))
-    return use, tuple(gk + use * (hk - gk) for gk, hk in zip(gauss_newton, hessian, strict=True))
+    return use, sym_add(gauss_newton, curvature, use)
 
 
 def sym_matvec(m: Sym, v: Vec) -> Vec:
@@ -244,7 +250,7 @@ def scalar_weight_step(q: Quat, obs: tuple, newton: Scalar = False) -> tuple[Qua
         s1, s2 = _outer_sym(w1, (x1, y1, z1)), _outer_sym(w2, (x2, y2, z2))
         diag = a1 * e1 + a2 * e2
         h = tuple((diag if k in (0, 3, 5) else 0.0) - 0.5 * (a1 * s1[k] + a2 * s2[k]) for k in range(6))
-        newton, m = newton_or_gauss_newton(newton, h, m)  # type: ignore[arg-type]
+        newton, m = newton_or_gauss_newton(newton, m, sym_add(h, m, -1.0))  # type: ignore[arg-type]
         c = c * (1 - newton)
     d0, d1, d2 = sym_solve(m, (g0, g1, g2))
     q_next = quat_multiply_parts(q, (1.0 + c, 0.5 * d0, 0.5 * d1, 0.5 * d2))
@@ -263,8 +269,8 @@ def matrix_weight_step(q: Quat, obs: tuple, newton: Scalar = True) -> tuple[Quat
     (``newton`` is accepted for the drivers' uniform call).
     """
     r = rotation_matrix_parts(q)
-    h: Sym = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    gn_sum: Sym = h
+    gn_sum: Sym = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    curv_sum: Sym = gn_sum
     g: Vec = (0.0, 0.0, 0.0)
     for w, v, wm in obs:
         u = rotate_ned_to_body_parts(r, v)
@@ -281,9 +287,8 @@ def matrix_weight_step(q: Quat, obs: tuple, newton: Scalar = True) -> tuple[Quat
             -0.5 * (p[1] * u[2] + u[1] * p[2]),
             pu - p[2] * u[2],
         )
-        h = tuple(hk + gk + ck for hk, gk, ck in zip(h, gn, curv, strict=True))  # type: ignore[assignment]
-        gn_sum = tuple(sk + gk for sk, gk in zip(gn_sum, gn, strict=True))  # type: ignore[assignment]
-    _, h = newton_or_gauss_newton(True, h, gn_sum)
+        gn_sum, curv_sum = sym_add(gn_sum, gn), sym_add(curv_sum, curv)
+    _, h = newton_or_gauss_newton(True, gn_sum, curv_sum)
     d = sym_solve(h, g)
     return _normalised(quat_multiply_parts(q, (1.0, 0.5 * d[0], 0.5 * d[1], 0.5 * d[2]))), norm(d)
 
