@@ -140,6 +140,11 @@ class ServiceProcess:
                 self._reader.join(timeout=timeout_s)
         return self.returncode
 
+    def latest_counters(self) -> dict[str, float]:
+        """The last counters line logged so far (empty before the first)."""
+        with self._cond:
+            return dict(self.counters[-1]) if self.counters else {}
+
     def final_counters(self) -> dict[str, float]:
         with self._cond:
             if not self.counters:

@@ -66,8 +66,7 @@ def fly() -> Callable[..., Any]:
 
 def counter(svc: ServiceProcess, key: str) -> float:
     """The latest value of a counter (0 when the counters line does not mention it yet)."""
-    with svc._cond:
-        return svc.counters[-1].get(key, 0.0) if svc.counters else 0.0
+    return svc.latest_counters().get(key, 0.0)
 
 
 def wait_counter(svc: ServiceProcess, key: str, at_least: float, timeout_s: float = EVENT_TIMEOUT_S) -> float:
