@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from mavattitude.errors import LinkError
+from mavattitude.errors import InputError, LinkError
 from mavattitude.estimation.conventions import Array
 from mavattitude.link.mavlink2 import force_mavlink2, mavlink2, mavutil, message_id
 from mavattitude.sensors.units import ImuSample, encode, get_profile, time_boot_ms
@@ -238,6 +238,8 @@ class FakeVehicle:
 
     def jump_clock(self, delta_s: float) -> None:
         """Shift the vehicle's timestamps by ``delta_s`` (negative: time goes back) from now on."""
+        if self.vehicle_time(self.script_time()) + delta_s < 0:
+            raise InputError(f"jump_clock({delta_s}) would take the vehicle clock below zero (use reboot())")
         with self._cond:
             self._epoch = dataclasses.replace(self._epoch, clock_offset_s=self._epoch.clock_offset_s + delta_s)
 

@@ -7,6 +7,7 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
+from mavattitude.errors import InputError
 from mavattitude.estimation.conventions import quat_multiply
 from mavattitude.link.mavlink2 import force_mavlink2, mavlink2, mavutil
 from mavattitude.sensors.units import decode, get_profile
@@ -93,3 +94,14 @@ def test_records_and_scores_attitude_it_receives(vehicle: FakeVehicle, gcs: obje
     assert score.output_rate_hz == pytest.approx(50.0, rel=1e-6)
     # Outputs describe times already sent: the enabling IMU went out before the output arrived.
     assert 0.0 < score.latency_p50_ms < 1000.0
+
+
+def test_clock_faults_are_checked(vehicle: FakeVehicle) -> None:
+    with pytest.raises(InputError, match="below zero"):
+        vehicle.jump_clock(-1e6)
+    vehicle.jump_clock(2.5)
+    assert vehicle.vehicle_time(10.0) == pytest.approx(12.5)
+    vehicle.reboot()
+    now = vehicle.script_time()
+    assert vehicle.vehicle_time(now + 1.0) == pytest.approx(1.0, abs=0.01)  # boot time restarts, offset gone
+    assert vehicle.stream_rate("RAW_IMU") is None  # back to silent, like a freshly booted ArduPilot
