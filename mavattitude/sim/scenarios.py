@@ -12,7 +12,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from typing import TypeVar
 
 import numpy as np
 
@@ -26,6 +27,8 @@ PAPER_MAG_BODY_UT = np.array([89.3847, 44.7538, 536.8714]) * 0.1  # 1e-7 T = 0.1
 PAPER_GRAVITY_BODY_MPS2 = np.array([4.9000, 2.9027, 7.9752])
 PAPER_MAG_STD_UT = (0.2, 0.3, 0.25)  # R1 = diag(2², 3², 2.5²)·1e-14 T²
 PAPER_ACCEL_STD_MPS2 = (0.010, 0.009, 0.0095)  # R2 = diag(10², 9², 9.5²)·1e-6 (m/s²)²
+
+T = TypeVar("T")
 
 # A mid-latitude field for the other scripts (declination 0°, inclination ≈ 64°, 50 µT).
 DEFAULT_MAG_NED_UT = (21.9, 0.0, 44.9)
@@ -120,11 +123,16 @@ SCRIPTS: dict[str, Callable[[float], Script]] = {
 }
 
 
-def script_named(name: str, duration_s: float) -> Script:
+def _named(table: Mapping[str, Callable[[float], T]], what: str, name: str, value: float) -> T:
     try:
-        return SCRIPTS[name](duration_s)
+        make = table[name]
     except KeyError:
-        raise InputError(f"unknown script {name!r}; known: {', '.join(SCRIPTS)}") from None
+        raise InputError(f"unknown {what} {name!r}; known: {', '.join(table)}") from None
+    return make(value)
+
+
+def script_named(name: str, duration_s: float) -> Script:
+    return _named(SCRIPTS, "script", name, duration_s)
 
 
 # --- sensor presets ------------------------------------------------------------------------------------
@@ -177,7 +185,4 @@ SENSORS: dict[str, Callable[[float], SensorModel]] = {
 
 
 def sensors_named(name: str, rate_hz: float) -> SensorModel:
-    try:
-        return SENSORS[name](rate_hz)
-    except KeyError:
-        raise InputError(f"unknown sensor preset {name!r}; known: {', '.join(SENSORS)}") from None
+    return _named(SENSORS, "sensor preset", name, rate_hz)
