@@ -525,7 +525,7 @@ def bench_soak(settings: Settings) -> list[Row]:
         raise RuntimeError(f"the service exited {report.exit_code} after the soak: {report.summary()}")
     sec, names = "soak", EXPECTED_ROWS["soak"]
     return [
-        _row(sec, names[0], duration_s, "s"),
+        Row(sec, names[0], f"{duration_s:.0f} s"),
         _row(sec, names[1], report.rss_growth_mb, "MB", 5.0),
         _row(sec, names[2], report.error_drift_deg, "°"),
         _row(sec, names[3], report.output_rates_hz[0], "Hz"),
