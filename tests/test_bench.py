@@ -8,6 +8,7 @@ there with a number or an honest reason, and that a broken part fails the run.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import re
 import subprocess
 import sys
@@ -92,3 +93,14 @@ def bench_args(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser()
     bench.add_arguments(parser)
     return parser.parse_args(argv)
+
+
+def test_tools_bench_writes_the_record_only_on_a_full_run_of_every_section():
+    spec = importlib.util.spec_from_file_location("tools_bench", ROOT / "tools" / "bench.py")
+    assert spec is not None and spec.loader is not None
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    assert tool.bench_argv([]) == ["bench", "--output", str(ROOT / "docs" / "benchmarks.md")]
+    assert tool.bench_argv(["--quick"]) == ["bench", "--quick"]  # a smoke run never overwrites the record
+    assert tool.bench_argv(["soak"]) == ["bench", "soak"]  # nor does one section
+    assert tool.bench_argv(["-o", "x.md"]) == ["bench", "-o", "x.md"]
