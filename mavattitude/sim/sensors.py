@@ -12,6 +12,7 @@ Sample times run at ``rate_hz`` with optional Gaussian jitter (kept monotonic) a
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -70,6 +71,14 @@ class SensorModel:
             raise InputError(f"drop_probability must be in [0, 1), got {self.drop_probability}")
         if self.jitter_std_s < 0 or self.jitter_std_s * self.rate_hz > 0.25:
             raise InputError("jitter_std_s must be ≥ 0 and under a quarter of the sample period")
+
+    def at_rate(self, rate_hz: float) -> SensorModel:
+        """The same sensors streamed at another rate (a SET_MESSAGE_INTERVAL arrived).
+
+        Jitter is scheduling noise in seconds, so it is kept, but capped at the quarter period this model
+        can represent without reordering samples: a ground station raising the rate must not crash the vehicle.
+        """
+        return dataclasses.replace(self, rate_hz=rate_hz, jitter_std_s=min(self.jitter_std_s, 0.25 / rate_hz))
 
     def sample_times(self, start_s: float, stop_s: float, rng: np.random.Generator) -> Array:
         """Sample times in ``[start_s, stop_s)``: nominal grid + jitter, minus dropped samples."""

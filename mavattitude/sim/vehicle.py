@@ -319,7 +319,7 @@ class FakeVehicle:
                 self._stop.wait(min(delay, _MAX_SLEEP_S))
 
     def _send_imu_until(self, msg_id: int, stream: _Stream, now_s: float) -> None:
-        sensors = dataclasses.replace(self.sensors, rate_hz=stream.rate_hz)
+        sensors = self.sensors.at_rate(stream.rate_hz)
         t = sensors.sample_times(stream.next_t_s, now_s, self._rng)
         stream.next_t_s = max(stream.next_t_s, np.ceil(now_s * stream.rate_hz) / stream.rate_hz)
         if not len(t):

@@ -53,6 +53,19 @@ def test_sample_times_rate_jitter_and_drops() -> None:
         SensorModel(rate_hz=0.0)
 
 
+def test_a_higher_rate_caps_the_jitter_instead_of_failing() -> None:
+    # 1 ms of jitter is legal at 200 Hz (a fifth of the period) but not at 2 kHz (two periods): a ground
+    # station raising the rate must get the largest jitter the model keeps ordered, a quarter period.
+    slow = SensorModel(rate_hz=200.0, jitter_std_s=1e-3)
+    with pytest.raises(InputError, match="quarter of the sample period"):
+        SensorModel(rate_hz=2000.0, jitter_std_s=1e-3)
+    fast = slow.at_rate(2000.0)
+    assert fast.rate_hz == 2000.0 and fast.jitter_std_s == pytest.approx(0.25 / 2000.0)
+    assert slow.at_rate(100.0).jitter_std_s == slow.jitter_std_s  # within the bound: kept as it is
+    t = fast.sample_times(0.0, 1.0, np.random.default_rng(7))
+    assert np.all(np.diff(t) > 0)
+
+
 def test_tilt_and_heading_errors_separate() -> None:
     q_true = quat_from_euler(0.3, -0.4, 2.0)
     yaw_err = quat_multiply(quat_from_rotvec([0.0, 0.0, 0.05]), q_true)  # NED-frame yaw error 0.05 rad
