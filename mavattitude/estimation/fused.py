@@ -167,6 +167,52 @@ def _butterworth(tau_s: float, rate_hz: float) -> tuple[float, float, float, flo
     return (b0, 2.0 * b0, b0, 2.0 * (k * k - 1.0) * norm, (1.0 - math.sqrt(2.0) * k + k * k) * norm)
 
 
+# 3×3 blocks as row-major 9-tuples of floats: the covariance algebra of every update runs on these (a numpy
+# call costs about a microsecond, which on 3×3 and 6×6 matrices is more than the arithmetic).
+Mat3 = tuple[float, float, float, float, float, float, float, float, float]
+
+
+def _mm(a: Mat3, b: Mat3) -> Mat3:
+    """``a b``."""
+    a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
+    b0, b1, b2, b3, b4, b5, b6, b7, b8 = b
+    return (
+        a0 * b0 + a1 * b3 + a2 * b6, a0 * b1 + a1 * b4 + a2 * b7, a0 * b2 + a1 * b5 + a2 * b8,
+        a3 * b0 + a4 * b3 + a5 * b6, a3 * b1 + a4 * b4 + a5 * b7, a3 * b2 + a4 * b5 + a5 * b8,
+        a6 * b0 + a7 * b3 + a8 * b6, a6 * b1 + a7 * b4 + a8 * b7, a6 * b2 + a7 * b5 + a8 * b8,
+    )  # fmt: skip
+
+
+def _transpose(a: Mat3) -> Mat3:
+    return (a[0], a[3], a[6], a[1], a[4], a[7], a[2], a[5], a[8])
+
+
+def _axpy(a: Mat3, k: float, b: Mat3) -> Mat3:
+    """``a + k b``."""
+    return (
+        a[0] + k * b[0], a[1] + k * b[1], a[2] + k * b[2],
+        a[3] + k * b[3], a[4] + k * b[4], a[5] + k * b[5],
+        a[6] + k * b[6], a[7] + k * b[7], a[8] + k * b[8],
+    )  # fmt: skip
+
+
+def _symmetric(a: Mat3, diag: float = 0.0) -> Mat3:
+    """``(a + aᵀ)/2 + diag I``: removes the rounding asymmetry of a covariance update."""
+    xy, xz, yz = 0.5 * (a[1] + a[3]), 0.5 * (a[2] + a[6]), 0.5 * (a[5] + a[7])
+    return (a[0] + diag, xy, xz, xy, a[4] + diag, yz, xz, yz, a[8] + diag)
+
+
+def _matvec(a: Mat3, x: Sequence[float]) -> tuple[float, float, float]:
+    return (
+        a[0] * x[0] + a[1] * x[1] + a[2] * x[2],
+        a[3] * x[0] + a[4] * x[1] + a[5] * x[2],
+        a[6] * x[0] + a[7] * x[1] + a[8] * x[2],
+    )
+
+
+_ZERO3: Mat3 = (0.0,) * 9  # type: ignore[assignment]
+
+
 def _attitude_h(h_theta: Array) -> Array:
     """``H = [h_θ 0]``: a measurement of the attitude error only."""
     return np.hstack([h_theta, np.zeros((h_theta.shape[0], 3))])
@@ -180,20 +226,32 @@ def ign_covariance(acc: Sequence[float], mag: Sequence[float], sigma_acc: float,
     collapses to ``P = (Σᵢ (|wᵢ|² I − wᵢ wᵢᵀ))⁻¹`` with ``wᵢ = Wᵢ/σᵢ`` — the same matrix (tested), in
     plain floats.
     """
-    xx = xy = xz = yy = yz = zz = 0.0
-    for v, sigma in ((acc, sigma_acc), (mag, sigma_mag)):
-        x, y, z = v[0] / sigma, v[1] / sigma, v[2] / sigma
-        xx, xy, xz = xx + y * y + z * z, xy - x * y, xz - x * z
-        yy, yz, zz = yy + x * x + z * z, yz - y * z, zz + x * x + y * y
-    return _inverse_sym3(xx, xy, xz, yy, yz, zz)
+    a = (acc[0] / sigma_acc, acc[1] / sigma_acc, acc[2] / sigma_acc)
+    m = (mag[0] / sigma_mag, mag[1] / sigma_mag, mag[2] / sigma_mag)
+    return np.array(_ign_covariance_parts(a, m)).reshape(3, 3)
 
 
-def _inverse_sym3(xx: float, xy: float, xz: float, yy: float, yz: float, zz: float) -> Array:
-    """Inverse of a symmetric positive-definite 3×3 matrix by cofactors (one numpy call, not a LAPACK one)."""
+def _ign_covariance_parts(a: Sequence[float], m: Sequence[float]) -> Mat3:
+    """:func:`ign_covariance` for vectors already in units of their σ, as a 9-tuple."""
+    ax, ay, az = a
+    mx, my, mz = m
+    return _inverse_sym3(
+        ay * ay + az * az + my * my + mz * mz,
+        -ax * ay - mx * my,
+        -ax * az - mx * mz,
+        ax * ax + az * az + mx * mx + mz * mz,
+        -ay * az - my * mz,
+        ax * ax + ay * ay + mx * mx + my * my,
+    )
+
+
+def _inverse_sym3(xx: float, xy: float, xz: float, yy: float, yz: float, zz: float) -> Mat3:
+    """Inverse of a symmetric positive-definite 3×3 matrix by cofactors."""
     c00, c01, c02 = yy * zz - yz * yz, xz * yz - xy * zz, xy * yz - xz * yy
-    det = xx * c00 + xy * c01 + xz * c02
-    c11, c12, c22 = xx * zz - xz * xz, xy * xz - xx * yz, xx * yy - xy * xy
-    return np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]]) / det
+    k = 1.0 / (xx * c00 + xy * c01 + xz * c02)
+    c00, c01, c02 = c00 * k, c01 * k, c02 * k
+    c11, c12, c22 = (xx * zz - xz * xz) * k, (xy * xz - xx * yz) * k, (xx * yy - xy * xy) * k
+    return (c00, c01, c02, c01, c11, c12, c02, c12, c22)
 
 
 @dataclass(frozen=True)
@@ -297,7 +355,8 @@ class FusedFilter:
             "mag_relearned": 0,
         }
         self._bias = (0.0, 0.0, 0.0)
-        self._p = np.zeros((6, 6))
+        # P = [[P_θθ, P_θb], [P_θbᵀ, P_bb]] as three 9-tuples (see _mm)
+        self._p_tt = self._p_tb = self._p_bb = _ZERO3
         self._t_last = 0.0
         self._gyr_last = (0.0, 0.0, 0.0)
         self._interval = _Interval()
@@ -329,7 +388,19 @@ class FusedFilter:
     @property
     def covariance(self) -> Array:
         """6×6 covariance of ``[δθ (rad), δb (rad/s)]`` at the last update."""
-        return self._p.copy()
+        return self._p_matrix()
+
+    def _p_matrix(self) -> Array:
+        """``P`` as a 6×6 array."""
+        tt, tb, bb = (np.array(m).reshape(3, 3) for m in (self._p_tt, self._p_tb, self._p_bb))
+        return np.block([[tt, tb], [tb.T, bb]])
+
+    def _set_p(self, p: Array) -> None:
+        """Store a 6×6 ``P`` (symmetrised) as the three blocks."""
+        p = 0.5 * (p + p.T)
+        self._p_tt = tuple(p[:3, :3].ravel().tolist())
+        self._p_tb = tuple(p[:3, 3:].ravel().tolist())
+        self._p_bb = tuple(p[3:, 3:].ravel().tolist())
 
     def set_mag_ref(self, mag_ref: ArrayLike) -> None:
         """A new NED field (e.g. WMM after a move): used from the next update on, the state kept.
@@ -402,20 +473,18 @@ class FusedFilter:
         s, iv = self.settings, self._interval
         t = iv.duration_s
         r = rotation_matrix_parts(iv.dq)  # R(Δq), row-major; A(Δq) = R(Δq)ᵀ
-        c = -0.5 * t
-        phi = np.array(
-            [
-                [r[0], r[3], r[6], c * (1.0 + r[0]), c * r[3], c * r[6]],
-                [r[1], r[4], r[7], c * r[1], c * (1.0 + r[4]), c * r[7]],
-                [r[2], r[5], r[8], c * r[2], c * r[5], c * (1.0 + r[8])],
-                [0.0, 0.0, 0.0, 1.0, 0.0, 0.0],
-                [0.0, 0.0, 0.0, 0.0, 1.0, 0.0],
-                [0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
-            ]
-        )
+        a, c = _transpose(r), -0.5 * t
+        # Φ = [[A, c (I + A)], [0, I]] by blocks: with X = [A, c (I + A)] P = A Y + c [P_θbᵀ, P_bb],
+        # Y = [P_θθ + c P_θbᵀ, P_θb + c P_bb]: P_θb ← X_b, P_θθ ← (X_θ + c X_b) Aᵀ + c X_b.
+        tt, tb, bb = self._p_tt, self._p_tb, self._p_bb
+        bt = _transpose(tb)
+        x_t = _axpy(_mm(a, _axpy(tt, c, bt)), c, bt)
+        x_b = _axpy(_mm(a, _axpy(tb, c, bb)), c, bb)
         q_theta = s.gyro_noise_radps**2 * t + (s.gyro_scale_std * iv.angle_rad) ** 2
         q_bias = s.gyro_bias_walk_radps2**2 * t
-        self._p = phi @ self._p @ phi.T + np.diag((q_theta, q_theta, q_theta, q_bias, q_bias, q_bias))
+        self._p_tt = _symmetric(_axpy(_mm(_axpy(x_t, c, x_b), r), c, x_b), q_theta)
+        self._p_tb = x_b
+        self._p_bb = _symmetric(bb, q_bias)
         self._q = self._current_q()
         self._q_gyro = _normalize(quat_multiply_parts(self._q_gyro, iv.dq))
         self._interval = _Interval()
@@ -487,8 +556,8 @@ class FusedFilter:
         if s.mag_dip_tolerance_deg == 0.0:
             return d_norm, norm, dip
         # The predicted vertical is itself uncertain: widen the dip tolerance by 3σ of the attitude error.
-        p = self._p
-        tolerance = math.radians(s.mag_dip_tolerance_deg) + 3.0 * math.sqrt(p[0, 0] + p[1, 1] + p[2, 2])
+        p = self._p_tt
+        tolerance = math.radians(s.mag_dip_tolerance_deg) + 3.0 * math.sqrt(p[0] + p[4] + p[8])
         return max(d_norm, abs(dip - self._dip_ref) / tolerance), norm, dip
 
     def _learn_field(self, norm: float, dip: float, disturbed: bool, time_s: float) -> None:
@@ -541,14 +610,17 @@ class FusedFilter:
         r = solve(w_acc, w_mag, self.mag_ref, _UNIT_NOISE, acc_ref=self.acc_ref, q0=self._q)
         w, x, y, z = self._q
         z_theta = _log(quat_multiply_parts((w, -x, -y, -z), tuple(r.q.tolist())))
-        r_m = ign_covariance(w_acc, w_mag, 1.0, 1.0)
-        # H = [I 0]: S = P_θθ + R, K = P[:, θ] S⁻¹, P ← P − K P[θ, :].
-        p = self._p
-        (sxx, sxy, sxz), (_, syy, syz), (_, _, szz) = (p[:3, :3] + r_m).tolist()
-        k = p[:, :3] @ _inverse_sym3(sxx, sxy, sxz, syy, syz, szz)
-        p = p - k @ p[:3]
-        self._p = 0.5 * (p + p.T)
-        self._apply(k @ np.array(z_theta))
+        r_m = _ign_covariance_parts(w_acc, w_mag)
+        # H = [I 0]: S = P_θθ + R, K = P[:, θ] S⁻¹ = [K_θ; K_b], P ← P − K P[θ, :].
+        tt, tb, bb = self._p_tt, self._p_tb, self._p_bb
+        s_inv = _inverse_sym3(
+            tt[0] + r_m[0], tt[1] + r_m[1], tt[2] + r_m[2], tt[4] + r_m[4], tt[5] + r_m[5], tt[8] + r_m[8]
+        )
+        k_t, k_b = _mm(tt, s_inv), _mm(_transpose(tb), s_inv)
+        self._p_tt = _symmetric(_axpy(tt, -1.0, _mm(k_t, tt)))
+        self._p_tb = _axpy(tb, -1.0, _mm(k_t, tb))
+        self._p_bb = _symmetric(_axpy(bb, -1.0, _mm(k_b, tb)))
+        self._apply_parts(_matvec(k_t, z_theta), _matvec(k_b, z_theta))
         self.counters["ign_updates"] += 1
 
     def _tilt_update(self, acc: tuple[float, ...], acc_norm: float, sigma_a: float) -> None:
@@ -588,22 +660,21 @@ class FusedFilter:
         ``keep`` (3×3 projector) restricts the attitude part of the gain to a subspace; the Joseph form
         keeps ``P`` exact for such a sub-optimal gain.
         """
-        p = self._p
+        p = self._p_matrix()
         ph = p @ h.T  # P Hᵀ (6×k)
         k = np.linalg.solve(h @ ph + r, ph.T).T
         if keep is not None:
             k[:3] = keep @ k[:3]
         ikh = _EYE6 - k @ h
-        p = ikh @ p @ ikh.T + k @ r @ k.T
-        self._p = 0.5 * (p + p.T)
-        self._apply(k @ z)
+        self._set_p(ikh @ p @ ikh.T + k @ r @ k.T)
+        dx = (k @ z).tolist()
+        self._apply_parts(dx[:3], dx[3:])
 
-    def _apply(self, dx_array: Array) -> None:
-        """Reset: move the estimated error state into the nominal ``q`` and ``b``."""
-        dx = dx_array.tolist()
-        self._q = _normalize(quat_multiply_parts(self._q, _exp(dx[0], dx[1], dx[2])))
+    def _apply_parts(self, d_theta: Sequence[float], d_bias: Sequence[float]) -> None:
+        """Reset: move the estimated error state ``[δθ, δb]`` into the nominal ``q`` and ``b``."""
+        self._q = _normalize(quat_multiply_parts(self._q, _exp(d_theta[0], d_theta[1], d_theta[2])))
         b = self._bias
-        self._bias = (b[0] + dx[3], b[1] + dx[4], b[2] + dx[5])
+        self._bias = (b[0] + d_bias[0], b[1] + d_bias[1], b[2] + d_bias[2])
 
     # --- start-up and output ------------------------------------------------------------------------
     def _start(
@@ -617,10 +688,9 @@ class FusedFilter:
         restart = self._q is not None
         self._q = self._q_gyro = _normalize(tuple(float(v) for v in r.q))
         self._acc_lp = None
-        p = np.zeros((6, 6))
-        p[:3, :3] = r.covariance
-        p[3:, 3:] = self._p[3:, 3:] if restart else np.eye(3) * self.settings.gyro_bias_init_radps**2
-        self._p = p
+        self._p_tt, self._p_tb = tuple(r.covariance.ravel().tolist()), _ZERO3
+        if not restart:
+            self._p_bb = _symmetric(_ZERO3, self.settings.gyro_bias_init_radps**2)
         if not restart:  # the magnitude as calibrated here, not as the reference says
             self._norm_ref = _norm((float(mag[0]), float(mag[1]), float(mag[2])))
             self._field_n = 1.0
@@ -641,7 +711,7 @@ class FusedFilter:
         while self._next_output_s <= time_s:
             back = self._next_output_s - time_s
             q_tick = np.array(_normalize(quat_multiply_parts(q_now, _exp(wx * back, wy * back, wz * back))))
-            cov = self._p[:3, :3].copy()
+            cov = np.array(self._p_tt).reshape(3, 3)
             out.append(FusedEstimate(self._next_output_s, q_tick, rates, cov, np.array(b), self._disturbed))
             self._next_output_s += self._output_period_s
         return out
