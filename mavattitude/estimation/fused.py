@@ -413,6 +413,7 @@ class FusedFilter:
         if not all(math.isfinite(n) and n > 0.0 for n in norms):
             raise InputError(f"references must be finite and non-zero, got {mag_ref!r} and {self.acc_ref!r}")
         self.mag_ref = mag
+        self._mag_ref_t, self._acc_ref_t = tuple(mag.tolist()), tuple(self.acc_ref.tolist())  # solve's fast path
         self._v_acc = tuple(float(v) / norms[1] for v in self.acc_ref)
         # Reference angle between the two vectors, and the field's dip below the horizontal.
         cos_ref = float(self.acc_ref @ mag) / (norms[0] * norms[1])
@@ -487,7 +488,7 @@ class FusedFilter:
         self._p_bb = _symmetric(bb, q_bias)
         self._q = self._current_q()
         self._q_gyro = _normalize(quat_multiply_parts(self._q_gyro, iv.dq))
-        self._interval = _Interval()
+        iv.dq, iv.duration_s, iv.angle_rad = (1.0, 0.0, 0.0, 0.0), 0.0, 0.0
 
     # --- measurement updates ------------------------------------------------------------------------
     def _update(self, acc_mps2: ArrayLike, mag_uT: ArrayLike | None, time_s: float) -> None:
@@ -604,10 +605,12 @@ class FusedFilter:
 
     def _ign_update(self, acc: tuple[float, ...], mag: tuple[float, ...], sigma_a: float, sigma_m: float) -> None:
         """Measurement 1. The vectors go to the solver in units of their own σ with a unit noise model: the
-        same solution (only σ/|W| matters to IGN) without building a NoiseModel per update."""
+        same solution (only σ/|W| matters to IGN) without building a NoiseModel per update. No warm start
+        from ``q``: TRIAD converges as fast (2.0 corrections per update against 2.07 from ``q``) and the
+        warm start's two loss evaluations cost a quarter of the solve (bench turning stream at 50 Hz)."""
         w_acc = (acc[0] / sigma_a, acc[1] / sigma_a, acc[2] / sigma_a)
         w_mag = (mag[0] / sigma_m, mag[1] / sigma_m, mag[2] / sigma_m)
-        r = solve(w_acc, w_mag, self.mag_ref, _UNIT_NOISE, acc_ref=self.acc_ref, q0=self._q)
+        r = solve(w_acc, w_mag, self._mag_ref_t, _UNIT_NOISE, acc_ref=self._acc_ref_t)
         w, x, y, z = self._q
         z_theta = _log(quat_multiply_parts((w, -x, -y, -z), tuple(r.q.tolist())))
         r_m = _ign_covariance_parts(w_acc, w_mag)
@@ -637,8 +640,15 @@ class FusedFilter:
         g = self._gyr_last
         if self._lp is None:
             self._lp = [*g, *acc]
-        alpha = self._rest_alpha
-        lp = self._lp = [old + alpha * (new - old) for old, new in zip(self._lp, (*g, *acc), strict=True)]
+        k, lp = self._rest_alpha, self._lp
+        lp = self._lp = [
+            lp[0] + k * (g[0] - lp[0]),
+            lp[1] + k * (g[1] - lp[1]),
+            lp[2] + k * (g[2] - lp[2]),
+            lp[3] + k * (acc[0] - lp[3]),
+            lp[4] + k * (acc[1] - lp[4]),
+            lp[5] + k * (acc[2] - lp[5]),
+        ]
         b = self._bias
         dev_g2 = (g[0] - lp[0]) ** 2 + (g[1] - lp[1]) ** 2 + (g[2] - lp[2]) ** 2
         dev_a2 = (acc[0] - lp[3]) ** 2 + (acc[1] - lp[4]) ** 2 + (acc[2] - lp[5]) ** 2
