@@ -170,17 +170,25 @@ def _butterworth(tau_s: float, rate_hz: float) -> tuple[float, float, float, flo
 # 3×3 blocks as row-major 9-tuples of floats: the covariance algebra of every update runs on these (a numpy
 # call costs about a microsecond, which on 3×3 and 6×6 matrices is more than the arithmetic).
 Mat3 = tuple[float, float, float, float, float, float, float, float, float]
+_ZERO3: Mat3 = (0.0,) * 9  # type: ignore[assignment]
 
 
-def _mm(a: Mat3, b: Mat3) -> Mat3:
-    """``a b``."""
+def _mm(a: Mat3, b: Mat3, k: float = 0.0, c: Mat3 | None = None) -> Mat3:
+    """``a b + k c`` (one call where the updates need both: a call costs as much as the sum)."""
     a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
     b0, b1, b2, b3, b4, b5, b6, b7, b8 = b
+    c0, c1, c2, c3, c4, c5, c6, c7, c8 = _ZERO3 if c is None else c
     return (
-        a0 * b0 + a1 * b3 + a2 * b6, a0 * b1 + a1 * b4 + a2 * b7, a0 * b2 + a1 * b5 + a2 * b8,
-        a3 * b0 + a4 * b3 + a5 * b6, a3 * b1 + a4 * b4 + a5 * b7, a3 * b2 + a4 * b5 + a5 * b8,
-        a6 * b0 + a7 * b3 + a8 * b6, a6 * b1 + a7 * b4 + a8 * b7, a6 * b2 + a7 * b5 + a8 * b8,
-    )  # fmt: skip
+        a0 * b0 + a1 * b3 + a2 * b6 + k * c0,
+        a0 * b1 + a1 * b4 + a2 * b7 + k * c1,
+        a0 * b2 + a1 * b5 + a2 * b8 + k * c2,
+        a3 * b0 + a4 * b3 + a5 * b6 + k * c3,
+        a3 * b1 + a4 * b4 + a5 * b7 + k * c4,
+        a3 * b2 + a4 * b5 + a5 * b8 + k * c5,
+        a6 * b0 + a7 * b3 + a8 * b6 + k * c6,
+        a6 * b1 + a7 * b4 + a8 * b7 + k * c7,
+        a6 * b2 + a7 * b5 + a8 * b8 + k * c8,
+    )
 
 
 def _transpose(a: Mat3) -> Mat3:
@@ -190,10 +198,16 @@ def _transpose(a: Mat3) -> Mat3:
 def _axpy(a: Mat3, k: float, b: Mat3) -> Mat3:
     """``a + k b``."""
     return (
-        a[0] + k * b[0], a[1] + k * b[1], a[2] + k * b[2],
-        a[3] + k * b[3], a[4] + k * b[4], a[5] + k * b[5],
-        a[6] + k * b[6], a[7] + k * b[7], a[8] + k * b[8],
-    )  # fmt: skip
+        a[0] + k * b[0],
+        a[1] + k * b[1],
+        a[2] + k * b[2],
+        a[3] + k * b[3],
+        a[4] + k * b[4],
+        a[5] + k * b[5],
+        a[6] + k * b[6],
+        a[7] + k * b[7],
+        a[8] + k * b[8],
+    )
 
 
 def _symmetric(a: Mat3, diag: float = 0.0) -> Mat3:
@@ -208,9 +222,6 @@ def _matvec(a: Mat3, x: Sequence[float]) -> tuple[float, float, float]:
         a[3] * x[0] + a[4] * x[1] + a[5] * x[2],
         a[6] * x[0] + a[7] * x[1] + a[8] * x[2],
     )
-
-
-_ZERO3: Mat3 = (0.0,) * 9  # type: ignore[assignment]
 
 
 def _attitude_h(h_theta: Array) -> Array:
@@ -479,11 +490,11 @@ class FusedFilter:
         # Y = [P_θθ + c P_θbᵀ, P_θb + c P_bb]: P_θb ← X_b, P_θθ ← (X_θ + c X_b) Aᵀ + c X_b.
         tt, tb, bb = self._p_tt, self._p_tb, self._p_bb
         bt = _transpose(tb)
-        x_t = _axpy(_mm(a, _axpy(tt, c, bt)), c, bt)
-        x_b = _axpy(_mm(a, _axpy(tb, c, bb)), c, bb)
+        x_t = _mm(a, _axpy(tt, c, bt), c, bt)
+        x_b = _mm(a, _axpy(tb, c, bb), c, bb)
         q_theta = s.gyro_noise_radps**2 * t + (s.gyro_scale_std * iv.angle_rad) ** 2
         q_bias = s.gyro_bias_walk_radps2**2 * t
-        self._p_tt = _symmetric(_axpy(_mm(_axpy(x_t, c, x_b), r), c, x_b), q_theta)
+        self._p_tt = _symmetric(_mm(_axpy(x_t, c, x_b), r, c, x_b), q_theta)
         self._p_tb = x_b
         self._p_bb = _symmetric(bb, q_bias)
         self._q = self._current_q()
@@ -614,16 +625,18 @@ class FusedFilter:
         w, x, y, z = self._q
         z_theta = _log(quat_multiply_parts((w, -x, -y, -z), tuple(r.q.tolist())))
         r_m = _ign_covariance_parts(w_acc, w_mag)
-        # H = [I 0]: S = P_θθ + R, K = P[:, θ] S⁻¹ = [K_θ; K_b], P ← P − K P[θ, :].
+        # H = [I 0]: S = P_θθ + R, K = P[:, θ] S⁻¹ = [K_θ; K_b], P ← P − K P[θ, :], x̂ = K z. Written with
+        # G = −K (from (−S)⁻¹, which is exactly −S⁻¹) so that each block is one ``a b + c``.
         tt, tb, bb = self._p_tt, self._p_tb, self._p_bb
-        s_inv = _inverse_sym3(
-            tt[0] + r_m[0], tt[1] + r_m[1], tt[2] + r_m[2], tt[4] + r_m[4], tt[5] + r_m[5], tt[8] + r_m[8]
+        neg_s_inv = _inverse_sym3(
+            -tt[0] - r_m[0], -tt[1] - r_m[1], -tt[2] - r_m[2], -tt[4] - r_m[4], -tt[5] - r_m[5], -tt[8] - r_m[8]
         )
-        k_t, k_b = _mm(tt, s_inv), _mm(_transpose(tb), s_inv)
-        self._p_tt = _symmetric(_axpy(tt, -1.0, _mm(k_t, tt)))
-        self._p_tb = _axpy(tb, -1.0, _mm(k_t, tb))
-        self._p_bb = _symmetric(_axpy(bb, -1.0, _mm(k_b, tb)))
-        self._apply_parts(_matvec(k_t, z_theta), _matvec(k_b, z_theta))
+        g_t, g_b = _mm(tt, neg_s_inv), _mm(_transpose(tb), neg_s_inv)
+        self._p_tt = _symmetric(_mm(g_t, tt, 1.0, tt))
+        self._p_tb = _mm(g_t, tb, 1.0, tb)
+        self._p_bb = _symmetric(_mm(g_b, tb, 1.0, bb))
+        neg_z = (-z_theta[0], -z_theta[1], -z_theta[2])
+        self._apply_parts(_matvec(g_t, neg_z), _matvec(g_b, neg_z))
         self.counters["ign_updates"] += 1
 
     def _tilt_update(self, acc: tuple[float, ...], acc_norm: float, sigma_a: float) -> None:
