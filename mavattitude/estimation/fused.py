@@ -224,6 +224,29 @@ def _matvec(a: Mat3, x: Sequence[float]) -> tuple[float, float, float]:
     )
 
 
+def _block_update(
+    p_mm: Mat3, p_om: Mat3, p_oo: Mat3, r: Mat3, z: Sequence[float]
+) -> tuple[Mat3, Mat3, Mat3, tuple[float, float, float], tuple[float, float, float]]:
+    """Kalman update for a direct measurement of one 3-block ``m`` of the error state (``H`` = [I 0] or [0 I]).
+
+    ``S = P_mm + R``, ``K = P[:, m] S⁻¹``, ``P ← P − K P[m, :]``, ``x̂ = K z``; the other block is ``o``
+    (``p_om`` its rows, ``m``'s columns). Returns ``(P_mm, P_om, P_oo, x̂_m, x̂_o)``. Written with
+    ``G = −K`` (from ``(−S)⁻¹``, which is exactly ``−S⁻¹``) so that each block is one ``a b + c``.
+    """
+    neg_s_inv = _inverse_sym3(
+        -p_mm[0] - r[0], -p_mm[1] - r[1], -p_mm[2] - r[2], -p_mm[4] - r[4], -p_mm[5] - r[5], -p_mm[8] - r[8]
+    )
+    g_m, g_o = _mm(p_mm, neg_s_inv), _mm(p_om, neg_s_inv)
+    neg_z = (-z[0], -z[1], -z[2])
+    return (
+        _symmetric(_mm(g_m, p_mm, 1.0, p_mm)),
+        _mm(g_o, p_mm, 1.0, p_om),
+        _symmetric(_mm(g_o, _transpose(p_om), 1.0, p_oo)),
+        _matvec(g_m, neg_z),
+        _matvec(g_o, neg_z),
+    )
+
+
 def _attitude_h(h_theta: Array) -> Array:
     """``H = [h_θ 0]``: a measurement of the attitude error only."""
     return np.hstack([h_theta, np.zeros((h_theta.shape[0], 3))])
@@ -624,19 +647,12 @@ class FusedFilter:
         r = solve(w_acc, w_mag, self._mag_ref_t, _UNIT_NOISE, acc_ref=self._acc_ref_t)
         w, x, y, z = self._q
         z_theta = _log(quat_multiply_parts((w, -x, -y, -z), tuple(r.q.tolist())))
-        r_m = _ign_covariance_parts(w_acc, w_mag)
-        # H = [I 0]: S = P_θθ + R, K = P[:, θ] S⁻¹ = [K_θ; K_b], P ← P − K P[θ, :], x̂ = K z. Written with
-        # G = −K (from (−S)⁻¹, which is exactly −S⁻¹) so that each block is one ``a b + c``.
-        tt, tb, bb = self._p_tt, self._p_tb, self._p_bb
-        neg_s_inv = _inverse_sym3(
-            -tt[0] - r_m[0], -tt[1] - r_m[1], -tt[2] - r_m[2], -tt[4] - r_m[4], -tt[5] - r_m[5], -tt[8] - r_m[8]
+        # H = [I 0]
+        self._p_tt, bt, self._p_bb, d_theta, d_bias = _block_update(
+            self._p_tt, _transpose(self._p_tb), self._p_bb, _ign_covariance_parts(w_acc, w_mag), z_theta
         )
-        g_t, g_b = _mm(tt, neg_s_inv), _mm(_transpose(tb), neg_s_inv)
-        self._p_tt = _symmetric(_mm(g_t, tt, 1.0, tt))
-        self._p_tb = _mm(g_t, tb, 1.0, tb)
-        self._p_bb = _symmetric(_mm(g_b, tb, 1.0, bb))
-        neg_z = (-z_theta[0], -z_theta[1], -z_theta[2])
-        self._apply_parts(_matvec(g_t, neg_z), _matvec(g_b, neg_z))
+        self._p_tb = _transpose(bt)
+        self._apply_parts(d_theta, d_bias)
         self.counters["ign_updates"] += 1
 
     def _tilt_update(self, acc: tuple[float, ...], acc_norm: float, sigma_a: float) -> None:
@@ -673,8 +689,15 @@ class FusedFilter:
         self._still_since_s = min(self._still_since_s, time_s)
         if time_s - self._still_since_s < s.rest_min_s:
             return
-        z = np.array([lp[0] - b[0], lp[1] - b[1], lp[2] - b[2]])
-        self._correct(_H_BIAS, z, s.rest_gyro_std_radps**2 * _EYE3)
+        # H = [0 I]
+        self._p_bb, self._p_tb, self._p_tt, d_bias, d_theta = _block_update(
+            self._p_bb,
+            self._p_tb,
+            self._p_tt,
+            _symmetric(_ZERO3, s.rest_gyro_std_radps**2),
+            (lp[0] - b[0], lp[1] - b[1], lp[2] - b[2]),
+        )
+        self._apply_parts(d_theta, d_bias)
         self.counters["rest_updates"] += 1
 
     def _correct(self, h: Array, z: Array, r: Array, keep: Array | None = None) -> None:
@@ -742,5 +765,4 @@ class FusedFilter:
 
 _MAX_UNIT_STD = 0.5  # rad: the largest direction noise handed to a measurement update
 _EYE6 = np.eye(6)
-_H_BIAS = np.hstack([np.zeros((3, 3)), np.eye(3)])
 _UNIT_NOISE = NoiseModel(accel_std=1.0, mag_std=1.0)  # vectors are handed over in units of their σ
