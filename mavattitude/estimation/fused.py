@@ -501,6 +501,8 @@ class FusedFilter:
     def _current_q(self) -> Quat:
         if self._q is None:
             raise InputError("the fused filter has no attitude yet: it needs one sample with acc and mag")
+        if self._interval.duration_s == 0.0:  # just updated: q is already normalised, with w ≥ 0
+            return self._q
         return _normalize(quat_multiply_parts(self._q, self._interval.dq))
 
     def _propagate(self) -> None:
