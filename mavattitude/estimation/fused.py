@@ -43,7 +43,7 @@ rejection below.
 
 Measurement 1 — the IGN solution (both vectors usable)
 ------------------------------------------------------
-``q_m = solve(ã, m, mag_ref, NoiseModel(σ_a', σ_m'), method="ign", q0=q).q`` with the error model
+``q_m = solve(ã, m, mag_ref, NoiseModel(σ_a', σ_m'), method="ign").q`` with the error model
 ``q_m = q_true ⊗ exp(ν)``, ``ν ~ N(0, P_m)``, ``P_m`` IGN's predicted (sandwich) covariance — for isotropic
 σ it is ``(Σᵢ (|Wᵢ|² I − Wᵢ Wᵢᵀ)/σᵢ²)⁻¹`` (:func:`ign_covariance`, equal to the estimation core's)::
 
