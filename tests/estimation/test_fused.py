@@ -16,7 +16,15 @@ import pytest
 from mavattitude.errors import InputError
 from mavattitude.estimation import NoiseModel, predicted_covariance, solve, solve_batch
 from mavattitude.estimation import conventions as cv
-from mavattitude.estimation.fused import FusedFilter, FusedSettings, _butterworth, _exp, _log, ign_covariance
+from mavattitude.estimation.fused import (
+    FusedFilter,
+    FusedSettings,
+    _block_update,
+    _butterworth,
+    _exp,
+    _log,
+    ign_covariance,
+)
 from mavattitude.sim import scenarios
 from mavattitude.sim.scoring import heading_error, tilt_error
 from mavattitude.sim.sensors import AxisModel, SensorModel
@@ -84,6 +92,65 @@ def test_closed_form_ign_covariance_is_the_solvers_sandwich() -> None:
         sa, sm = rng.uniform(0.05, 3.0, 2)
         expected = predicted_covariance(acc, mag, NoiseModel(accel_std=sa, mag_std=sm), "ign")
         assert np.allclose(ign_covariance(acc, mag, sa, sm), expected, rtol=1e-9, atol=0.0)
+
+
+def _random_covariance(rng: np.random.Generator) -> np.ndarray:
+    a = rng.normal(size=(6, 6))
+    return a @ a.T + 0.1 * np.eye(6)
+
+
+def _blocks(p: np.ndarray) -> tuple[tuple[float, ...], ...]:
+    return tuple(tuple(p[rows, cols].ravel().tolist()) for rows, cols in ((_T, _T), (_T, _B), (_B, _B)))
+
+
+_T, _B = slice(0, 3), slice(3, 6)
+
+
+@pytest.mark.parametrize("measured", ["attitude", "bias"])
+def test_plain_float_block_update_is_the_kalman_update(measured: str) -> None:
+    """H = [I 0] (IGN) or [0 I] (zero rate): the 3×3-block update equals the 6×6 textbook one (numpy).
+
+    Tolerance: rounding of a few dozen operations on O(1) numbers."""
+    rng = np.random.default_rng(SEED)
+    for _ in range(10):
+        p = _random_covariance(rng)
+        r = _random_covariance(rng)[:3, :3]
+        z = rng.normal(size=3)
+        h = np.hstack([np.eye(3), np.zeros((3, 3))] if measured == "attitude" else [np.zeros((3, 3)), np.eye(3)])
+        k = p @ h.T @ np.linalg.inv(h @ p @ h.T + r)
+        p_new, dx = (np.eye(6) - k @ h) @ p, k @ z
+        tt, tb, bb = _blocks(p)
+        r9 = tuple(r.ravel().tolist())
+        if measured == "attitude":
+            p_tt, p_bt, p_bb, d_t, d_b = _block_update(tt, tuple(p[_B, _T].ravel().tolist()), bb, r9, z)
+        else:
+            p_bb, p_tb, p_tt, d_b, d_t = _block_update(bb, tb, tt, r9, z)
+            p_bt = tuple(np.reshape(p_tb, (3, 3)).T.ravel().tolist())
+        assert np.allclose(np.reshape(p_tt, (3, 3)), p_new[_T, _T], atol=1e-12)
+        assert np.allclose(np.reshape(p_bt, (3, 3)), p_new[_B, _T], atol=1e-12)
+        assert np.allclose(np.reshape(p_bb, (3, 3)), p_new[_B, _B], atol=1e-12)
+        assert np.allclose([*d_t, *d_b], dx, atol=1e-12)
+
+
+def test_plain_float_propagation_is_phi_p_phi_t() -> None:
+    """``P ← Φ P Φᵀ + Q`` with ``Φ = [[A, −T (I + A)/2], [0, I]]`` (module docstring), against numpy."""
+    rng = np.random.default_rng(SEED)
+    s = FusedSettings()
+    f = FusedFilter(s, MAG_NED_UT)
+    f.push(0.0, (0.0, 0.0, 0.0), cv.rotate_ned_to_body((1.0, 0.0, 0.0, 0.0), (0.0, 0.0, -9.81)), MAG_NED_UT)
+    p = _random_covariance(rng)
+    f._p_tt, f._p_tb, f._p_bb = _blocks(p)
+    gyr, dt = (0.3, -0.2, 0.5), 0.01
+    for _ in range(4):
+        f._integrate(dt, *gyr)
+    iv = f._interval
+    a = cv.rotation_matrix(np.array(iv.dq)).T
+    t = iv.duration_s
+    phi = np.block([[a, -0.5 * t * (np.eye(3) + a)], [np.zeros((3, 3)), np.eye(3)]])
+    q_t = s.gyro_noise_radps**2 * t + (s.gyro_scale_std * iv.angle_rad) ** 2
+    q = np.diag([q_t] * 3 + [s.gyro_bias_walk_radps2**2 * t] * 3)
+    f._propagate()
+    assert np.allclose(f.covariance, phi @ p @ phi.T + q, atol=1e-12)  # rounding on O(1) numbers
 
 
 def test_the_pre_filter_is_a_unit_gain_butterworth_with_the_stated_cut_off() -> None:
