@@ -46,6 +46,7 @@ from mavattitude.sim.trajectory import Script
 log = logging.getLogger(__name__)
 
 IMU_MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
+_IMU_MESSAGE_IDS = frozenset(message_id(name) for name in IMU_MESSAGES)
 _MSG_GLOBAL_POSITION_INT = mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT
 _AUTOPILOT = {"px4": mavlink2.MAV_AUTOPILOT_PX4}
 _POSITION_RATE_HZ = 2.0
@@ -184,14 +185,7 @@ class FakeVehicle:
         now = self.script_time()
         self._streams = {_MSG_GLOBAL_POSITION_INT: _Stream(_POSITION_RATE_HZ, now)}
         if self.config.stream_on_start:
-            self._set_stream(self._msg_id(self.config.message), self.sensors.rate_hz)
-
-    @staticmethod
-    def _msg_id(name: str) -> int:
-        msg_id = message_id(name)
-        if msg_id is None:
-            raise LinkError(f"unknown MAVLink message {name!r}")
-        return msg_id
+            self._set_stream(message_id(self.config.message), self.sensors.rate_hz)
 
     def start(self) -> FakeVehicle:
         for target in (self._send_loop, self._receive_loop):
@@ -260,10 +254,10 @@ class FakeVehicle:
 
     def set_rate(self, message: str, rate_hz: float | None) -> None:
         """Stream ``message`` at ``rate_hz`` (None stops it), as if a SET_MESSAGE_INTERVAL arrived."""
-        self._set_stream(self._msg_id(message), rate_hz)
+        self._set_stream(message_id(message), rate_hz)
 
     def stream_rate(self, message: str) -> float | None:
-        stream = self._streams.get(self._msg_id(message))
+        stream = self._streams.get(message_id(message))
         return None if stream is None else stream.rate_hz
 
     # --- sending ----------------------------------------------------------------------------------------
@@ -442,8 +436,7 @@ class FakeVehicle:
         )
 
     def _set_interval(self, msg_id: int, interval_us: float, param3: float) -> int:
-        names = {self._msg_id(n): n for n in IMU_MESSAGES}
-        if msg_id not in names and msg_id != _MSG_GLOBAL_POSITION_INT:
+        if msg_id not in _IMU_MESSAGE_IDS and msg_id != _MSG_GLOBAL_POSITION_INT:
             return mavlink2.MAV_RESULT_DENIED
         if self.config.deny_nonzero_param3 and param3 != 0:
             return mavlink2.MAV_RESULT_DENIED
@@ -452,7 +445,7 @@ class FakeVehicle:
         elif interval_us == 0:
             default = self.sensors.rate_hz if msg_id != _MSG_GLOBAL_POSITION_INT else _POSITION_RATE_HZ
             on = msg_id == _MSG_GLOBAL_POSITION_INT or (
-                self.config.stream_on_start and msg_id == self._msg_id(self.config.message)
+                self.config.stream_on_start and msg_id == message_id(self.config.message)
             )
             self._set_stream(msg_id, default if on else None)
         else:
