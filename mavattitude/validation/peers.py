@@ -17,12 +17,12 @@ import time
 
 import numpy as np
 
+from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2
 from mavattitude.validation.frames import ned_from_enu
 from mavattitude.validation.loaders import Recording
 from mavattitude.validation.runner import Estimate
 
 PEERS = ("vqf", "imufusion")
-STANDARD_GRAVITY = 9.80665
 
 
 def _vqf(recording: Recording, dt_s: float) -> np.ndarray:
@@ -46,7 +46,7 @@ def _imufusion(recording: Recording, dt_s: float) -> np.ndarray:
     settings.sample_rate = 1.0 / dt_s
     ahrs.set_settings(settings)
     gyr_dps = np.degrees(recording.gyr_radps)
-    acc_g = recording.acc_mps2 / STANDARD_GRAVITY
+    acc_g = recording.acc_mps2 / STANDARD_GRAVITY_MPS2
     q = np.empty((len(recording), 4))
     for i in range(len(recording)):
         ahrs.update(gyr_dps[i], acc_g[i], recording.mag_uT[i])
