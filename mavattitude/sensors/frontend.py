@@ -674,17 +674,18 @@ def _batch_clock(
 
 
 def _segments(t: Array, timeout_s: float) -> list[tuple[int, int]]:
+    """``(start, stop)`` of each run without a gap longer than ``timeout_s``; one, ``(0, 0)``, when empty."""
     starts = [0, *(np.flatnonzero(np.diff(t) > timeout_s) + 1).tolist()]
     return list(zip(starts, [*starts[1:], len(t)], strict=True))
 
 
 def _filter_batch_stream(
-    s: FrontEndSettings, t: Array, x: Array, c: FrontEndCounters
+    s: FrontEndSettings, t: Array, x: Array, segments: list[tuple[int, int]], c: FrontEndCounters
 ) -> tuple[Array, NDArray[np.int64]]:
     """Filtered values (channels, n) and segment ids of one stream (IMU or magnetometer) in one boot epoch."""
     y = x.copy()
     seg = np.zeros(len(t), dtype=np.int64)
-    for number, (a, b) in enumerate(_segments(t, s.input_timeout_s)):
+    for number, (a, b) in enumerate(segments):
         seg[a:b] = number
         if not s.filter_enabled or b - a < 2:
             continue
@@ -728,11 +729,11 @@ def _batch_epoch(
     """Ticks of one boot epoch: (times, IMU values (6, ·), magnetometer (·, 3) NaN-padded, flags)."""
     if len(t) == 0:
         return np.empty(0), np.empty((6, 0)), np.empty((0, 3)), np.empty(0, dtype=np.int64)
-    y, _ = _filter_batch_stream(s, t, imu, c)
-    ym, segm = _filter_batch_stream(s, tm, mag, c)
-    segments = _segments(t, s.input_timeout_s)
+    segments, mag_segments = _segments(t, s.input_timeout_s), _segments(tm, s.input_timeout_s)
+    y, _ = _filter_batch_stream(s, t, imu, segments, c)
+    ym, segm = _filter_batch_stream(s, tm, mag, mag_segments, c)
     c.gap_resets += len(segments) - 1
-    c.mag_gap_resets += max(0, len(_segments(tm, s.input_timeout_s)) - 1) if len(tm) else 0
+    c.mag_gap_resets += len(mag_segments) - 1
     r = s.output_rate_hz
     times, values, idx_all, flags = [], [], [], []
     for a, b in segments:
