@@ -63,6 +63,11 @@ class BroadScore:
     movement: ErrorRms
     rest: ErrorRms
 
+    @classmethod
+    def of(cls, errors_rad: Array, movement: Array, rest: Array) -> BroadScore:
+        """The score of :func:`broad_errors` already computed."""
+        return cls(movement=ErrorRms.of(errors_rad[movement]), rest=ErrorRms.of(errors_rad[rest]))
+
     def columns(self) -> dict[str, float]:
         return {
             f"{label} {kind}": getattr(rms, f"{kind}_deg")
@@ -81,6 +86,21 @@ class Px4Score:
     heading_std_deg: float
     samples: int
 
+    @classmethod
+    def of(cls, differences_rad: Array) -> Px4Score:
+        """The score of :func:`euler_differences` already computed."""
+        d = differences_rad[~np.isnan(differences_rad).any(axis=1)]
+        # Heading statistics on the circle's tangent at the mean, so a ±180° wrap cannot split them.
+        mean = np.arctan2(np.sin(d[:, 2]).mean(), np.cos(d[:, 2]).mean())
+        spread = np.angle(np.exp(1j * (d[:, 2] - mean)))
+        return cls(
+            roll_rms_deg=rms_deg(d[:, 0]),
+            pitch_rms_deg=rms_deg(d[:, 1]),
+            heading_mean_deg=float(np.degrees(mean)),
+            heading_std_deg=float(np.degrees(spread.std())),
+            samples=len(d),
+        )
+
     def columns(self) -> dict[str, float]:
         return {
             "roll rms": self.roll_rms_deg,
@@ -92,21 +112,9 @@ class Px4Score:
 
 def score_broad(q_est_ned: Array, q_truth_ned: Array, movement: Array, rest: Array) -> BroadScore:
     """BROAD's metric of estimates against the ground truth at the same instants."""
-    errors = broad_errors(q_est_ned, q_truth_ned)
-    return BroadScore(movement=ErrorRms.of(errors[movement]), rest=ErrorRms.of(errors[rest]))
+    return BroadScore.of(broad_errors(q_est_ned, q_truth_ned), movement, rest)
 
 
 def score_px4(q_est_ned: Array, q_autopilot_ned: Array) -> Px4Score:
     """Roll/pitch RMS and heading mean/std of the estimates against the autopilot's attitude."""
-    d = euler_differences(q_est_ned, q_autopilot_ned)
-    d = d[~np.isnan(d).any(axis=1)]
-    # Heading statistics on the circle's tangent at the mean, so a ±180° wrap cannot split them.
-    mean = np.arctan2(np.sin(d[:, 2]).mean(), np.cos(d[:, 2]).mean())
-    spread = np.angle(np.exp(1j * (d[:, 2] - mean)))
-    return Px4Score(
-        roll_rms_deg=rms_deg(d[:, 0]),
-        pitch_rms_deg=rms_deg(d[:, 1]),
-        heading_mean_deg=float(np.degrees(mean)),
-        heading_std_deg=float(np.degrees(spread.std())),
-        samples=len(d),
-    )
+    return Px4Score.of(euler_differences(q_est_ned, q_autopilot_ned))

@@ -27,7 +27,7 @@ from mavattitude.pipeline import AttitudePipeline
 from mavattitude.sensors.magref import MagneticReference
 from mavattitude.sensors.units import ImuSample
 from mavattitude.validation.loaders import Recording, truth_at
-from mavattitude.validation.metrics import BroadScore, Px4Score, broad_errors, euler_differences, score_broad, score_px4
+from mavattitude.validation.metrics import BroadScore, Px4Score, broad_errors, euler_differences
 
 PATHS = ("stream", "batch")
 # solve_batch is a per-sample solver; the gyro-aided filter exists only as a stream.
@@ -189,11 +189,11 @@ def evaluate(recording: Recording, estimate: Estimate) -> Evaluation:
     """Score an estimate with the recording's metric (BROAD's, or agreement with the autopilot)."""
     truth, movement, rest = truth_at(recording, estimate.time_s)
     if recording.kind == "broad":
-        score: BroadScore | Px4Score = score_broad(estimate.q, truth, movement, rest)
         errors = broad_errors(estimate.q, truth)
+        score: BroadScore | Px4Score = BroadScore.of(errors, movement, rest)
     else:
-        score = score_px4(estimate.q, truth)
         errors = euler_differences(estimate.q, truth)
+        score = Px4Score.of(errors)
     return Evaluation(estimate=estimate, score=score, errors_rad=errors, truth_q=truth, movement=movement)
 
 
