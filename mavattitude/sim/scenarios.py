@@ -19,6 +19,7 @@ import numpy as np
 
 from mavattitude.errors import InputError
 from mavattitude.estimation.conventions import Array, quat_from_rotation_matrix
+from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2
 from mavattitude.sim.sensors import AxisModel, SensorModel
 from mavattitude.sim.trajectory import Flip, Fly, Hold, Rotate, Script
 
@@ -140,7 +141,7 @@ def script_named(name: str, duration_s: float) -> Script:
 # Gyro noise of a consumer MEMS part (≈ 0.01 rad/s/√Hz at 200 Hz → σ ≈ 0.003 rad/s per sample).
 _GYRO_STD_RADPS = (0.003, 0.003, 0.003)
 # ±16 g, ±2000 °/s, ±4.9 gauss: the full scales of a typical MPU-9250-class IMU.
-ACCEL_FULL_SCALE_MPS2 = 16 * 9.80665
+ACCEL_FULL_SCALE_MPS2 = 16 * STANDARD_GRAVITY_MPS2
 GYRO_FULL_SCALE_RADPS = np.radians(2000.0)
 MAG_FULL_SCALE_UT = 490.0
 

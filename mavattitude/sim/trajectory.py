@@ -30,6 +30,7 @@ from mavattitude.errors import InputError
 from mavattitude.estimation.conventions import (
     Array,
     angle_between,
+    euler_from_quat,
     quat_conjugate,
     quat_from_rotation_matrix,
     quat_from_rotvec,
@@ -37,9 +38,9 @@ from mavattitude.estimation.conventions import (
     rotate_ned_to_body,
     rotvec_from_quat,
 )
+from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2
 
-GRAVITY_MPS2 = 9.80665
-GRAVITY_NED_MPS2 = np.array([0.0, 0.0, GRAVITY_MPS2])
+GRAVITY_NED_MPS2 = np.array([0.0, 0.0, STANDARD_GRAVITY_MPS2])
 # Central-difference step for body rates: the truncation error (~h² ω³) is far below any sensor noise.
 _RATE_STEP_S = 1e-5
 # Segments must join within this angle (rad): a jump would be an infinite body rate.
@@ -151,7 +152,7 @@ class Fly(Segment):
 
     def attitude(self, t_s: Array, start: Start) -> Array:
         t_s = np.asarray(t_s, float)
-        yaw0 = _heading_of(start.q)
+        yaw0 = euler_from_quat(start.q)[2]  # heading of the body x axis on the horizontal plane
         specific_force_ned = self.acceleration(t_s, start) - GRAVITY_NED_MPS2
         z_body = -specific_force_ned / np.linalg.norm(specific_force_ned, axis=-1, keepdims=True)
         psi = yaw0 + self._heading_offset(t_s)
@@ -165,12 +166,6 @@ class Fly(Segment):
 def _yaw_rotate(v: Array, psi: Array) -> Array:
     c, s = np.cos(psi), np.sin(psi)
     return np.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1], v[..., 2]], -1)
-
-
-def _heading_of(q: Array) -> float:
-    """Heading (rad) of the body x axis projected on the horizontal plane."""
-    w, x, y, z = q
-    return float(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
 
 
 @dataclass(frozen=True)

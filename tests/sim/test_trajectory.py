@@ -13,15 +13,16 @@ from mavattitude.estimation.conventions import (
     quat_multiply,
     rotate_body_to_ned,
 )
+from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2
 from mavattitude.sim import scenarios
-from mavattitude.sim.trajectory import GRAVITY_MPS2, Flip, Fly, Hold, Rotate, Script
+from mavattitude.sim.trajectory import Flip, Fly, Hold, Rotate, Script
 
 MAG_NED = scenarios.DEFAULT_MAG_NED_UT
 
 
 def test_level_and_static_reads_minus_g_and_the_field() -> None:
     truth = scenarios.static(5.0).sample(np.linspace(0, 5, 11))
-    np.testing.assert_allclose(truth.specific_force_mps2, np.tile([0, 0, -GRAVITY_MPS2], (11, 1)), atol=1e-12)
+    np.testing.assert_allclose(truth.specific_force_mps2, np.tile([0, 0, -STANDARD_GRAVITY_MPS2], (11, 1)), atol=1e-12)
     np.testing.assert_allclose(truth.mag_uT, np.tile(MAG_NED, (11, 1)), atol=1e-12)
     np.testing.assert_allclose(truth.gyr_radps, 0.0, atol=1e-9)
 
@@ -69,7 +70,7 @@ def test_flight_specific_force_includes_the_trajectory_acceleration() -> None:
     truth = script.sample(t)
     # In NED, the specific force is a − g whatever the attitude.
     f_ned = rotate_body_to_ned(truth.q, truth.specific_force_mps2)
-    np.testing.assert_allclose(f_ned, truth.acc_ned_mps2 - [0.0, 0.0, GRAVITY_MPS2], atol=1e-9)
+    np.testing.assert_allclose(f_ned, truth.acc_ned_mps2 - [0.0, 0.0, STANDARD_GRAVITY_MPS2], atol=1e-9)
     # A multirotor: thrust along body −z, so the accelerometer reads only z.
     np.testing.assert_allclose(truth.specific_force_mps2[:, :2], 0.0, atol=1e-9)
     # The acceleration is the derivative of the velocity (central difference, 1 ms).
