@@ -33,10 +33,8 @@ MAX_AXIS_RATIO = 3.0  # a soft-iron matrix stretching one axis 3× the others is
 MAX_ITERATIONS = 50
 TOLERANCE = 1e-10
 
-CELL_DIRECTIONS: Array = (
-    np.array([d for d in itertools.product((-1.0, 0.0, 1.0), repeat=3) if any(d)], dtype=float)
-    / np.linalg.norm([d for d in itertools.product((-1.0, 0.0, 1.0), repeat=3) if any(d)], axis=1)[:, None]
-)
+_CUBE_DIRECTIONS = np.array([d for d in itertools.product((-1.0, 0.0, 1.0), repeat=3) if any(d)], dtype=float)
+CELL_DIRECTIONS: Array = _CUBE_DIRECTIONS / np.linalg.norm(_CUBE_DIRECTIONS, axis=1, keepdims=True)
 
 
 @dataclass(frozen=True)
