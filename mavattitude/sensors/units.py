@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 from mavattitude.errors import SensorError
@@ -94,6 +95,12 @@ class MessageScale:
     gyr_radps: float
     mag_uT: float
     count_bits: int | None = None
+
+    @cached_property
+    def limits(self) -> tuple[int, int]:
+        """The range of an integer field: int16, or two's-complement counts of ``count_bits``."""
+        bits = self.count_bits
+        return (INT16_MIN, INT16_MAX) if bits is None else (-(1 << (bits - 1)), (1 << (bits - 1)) - 1)
 
 
 @dataclass(frozen=True)
@@ -191,9 +198,7 @@ def decode(msg: Any, profile: UnitProfile) -> ImuSample:
             ax, ay, az, gx, gy, gz, mx, my, mz = (
                 _sign_extend(int(v), bits) for v in (ax, ay, az, gx, gy, gz, mx, my, mz)
             )
-            lo, hi = -(1 << (bits - 1)), (1 << (bits - 1)) - 1
-        else:
-            lo, hi = INT16_MIN, INT16_MAX
+        lo, hi = scale.limits
         if not (lo < min(ax, ay, az, gx, gy, gz, mx, my, mz) and max(ax, ay, az, gx, gy, gz, mx, my, mz) < hi):
             saturated = _saturated((ax, ay, az), (gx, gy, gz), (mx, my, mz), lo, hi)
         has_mag = not (mx == 0 and my == 0 and mz == 0)  # an integer message with no compass reads exactly zero
@@ -247,10 +252,7 @@ def encode(sample: ImuSample, profile: UnitProfile, message: str | None = None) 
     values += [v / scale.gyr_radps for v in sample.gyr_radps]
     values += [v / scale.mag_uT for v in mag]
     if kind in INTEGER_MESSAGES:
-        if scale.count_bits is None:
-            lo, hi = INT16_MIN, INT16_MAX
-        else:
-            lo, hi = -(1 << (scale.count_bits - 1)), (1 << (scale.count_bits - 1)) - 1
+        lo, hi = scale.limits
         values = [min(hi, max(lo, round(v))) for v in values]
     fields.update(zip((*_ACC, *_GYR, *_MAG), values, strict=True))
     fields.update(_OTHER_FIELDS[kind])
