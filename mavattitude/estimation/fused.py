@@ -122,6 +122,7 @@ from mavattitude.estimation.conventions import (
     rotate_ned_to_body_parts,
     rotation_matrix_parts,
 )
+from mavattitude.estimation.kernel import sym_det_adj
 
 Quat = tuple[float, float, float, float]
 _EYE3 = np.eye(3)
@@ -280,11 +281,14 @@ def _ign_covariance_parts(a: Sequence[float], m: Sequence[float]) -> Mat3:
 
 
 def _inverse_sym3(xx: float, xy: float, xz: float, yy: float, yz: float, zz: float) -> Mat3:
-    """Inverse of a symmetric positive-definite 3×3 matrix by cofactors."""
-    c00, c01, c02 = yy * zz - yz * yz, xz * yz - xy * zz, xy * yz - xz * yy
-    k = 1.0 / (xx * c00 + xy * c01 + xz * c02)
-    c00, c01, c02 = c00 * k, c01 * k, c02 * k
-    c11, c12, c22 = (xx * zz - xz * xz) * k, (xy * xz - xx * yz) * k, (xx * yy - xy * xy) * k
+    """Inverse of a symmetric 3×3 matrix by cofactors (:func:`~.kernel.sym_det_adj`), as a 9-tuple.
+
+    Not :func:`~.kernel.sym_inverse`: that one is NaN unless the matrix is positive definite, and
+    :func:`_block_update` inverts the negative definite ``−S``.
+    """
+    det, (c00, c01, c02, c11, c12, c22) = sym_det_adj((xx, xy, xz, yy, yz, zz))
+    k = 1.0 / det
+    c00, c01, c02, c11, c12, c22 = c00 * k, c01 * k, c02 * k, c11 * k, c12 * k, c22 * k
     return (c00, c01, c02, c01, c11, c12, c02, c12, c22)
 
 
