@@ -570,11 +570,7 @@ class FusedFilter:
     def _inertial_lowpass(self, acc: tuple[float, float, float]) -> tuple[float, float, float]:
         """Specific force low-passed in the gyro-only (quasi-inertial) frame, expressed in the body frame."""
         r = rotation_matrix_parts(self._q_gyro)
-        x = (
-            r[0] * acc[0] + r[1] * acc[1] + r[2] * acc[2],
-            r[3] * acc[0] + r[4] * acc[1] + r[5] * acc[2],
-            r[6] * acc[0] + r[7] * acc[1] + r[8] * acc[2],
-        )
+        x = _matvec(r, acc)  # R(q_g) a
         if self._acc_lp is None:
             self._acc_lp = [[v, v, v, v] for v in x]  # x1, x2, y1, y2 at steady state
         b0, b1, b2, a1, a2 = self._biquad
