@@ -349,18 +349,18 @@ DRAIN_TIMEOUT_S = 5.0
 
 
 @contextmanager
-def service_against_vehicle(max_rate_hz: float, stats_interval_s: float, seconds: float) -> Iterator[tuple[Any, Any]]:
+def service_against_vehicle(stats_interval_s: float, seconds: float) -> Iterator[tuple[Any, Any]]:
     """The real daemon (a subprocess) and the fake vehicle on loopback UDP, the service answering.
 
-    The vehicle streams on its own (the config caps requests at 2 000 Hz) and the service only listens.
+    The vehicle streams on its own at 200 Hz until told another rate (the config caps requests at 2 000 Hz)
+    and the service only listens.
     """
     scenarios = _require("mavattitude.sim.scenarios", "the fake vehicle (issue 5)")
     daemon = _require("mavattitude.sim.daemon", "the service harness (issue 5)")
     vehicle_mod = _require("mavattitude.sim.vehicle", "the fake vehicle (issue 5)")
     script = scenarios.slow_rotation(seconds + 120.0)
     vehicle_cfg = vehicle_mod.VehicleConfig("udpin:127.0.0.1:0", stream_on_start=True, seed=SEED)
-    # The sensor model's timing jitter scales with its rate: the fastest rate's is valid at every rate.
-    with vehicle_mod.FakeVehicle(script, scenarios.consumer_sensors(max_rate_hz), vehicle_cfg) as vehicle:
+    with vehicle_mod.FakeVehicle(script, scenarios.consumer_sensors(200.0), vehicle_cfg) as vehicle:
         config = daemon.config_for(
             vehicle,
             link={"request_messages": False, "request_rate_hz": 200.0},
@@ -388,7 +388,7 @@ def measure_latency(seconds: float) -> LatencyRun:
     The service's counters window is ``seconds`` long: the first line closes the window with the
     start-up in it, the next covers steady running only, and its p50/p99 are over all its outputs.
     """
-    with service_against_vehicle(200.0, seconds, seconds) as (vehicle, service):
+    with service_against_vehicle(seconds, seconds) as (vehicle, service):
         vehicle.set_rate(vehicle.config.message, 200.0)
         first_line = service.wait_until(lambda: len(service.counters) >= 1, seconds + START_TIMEOUT_S)
         if not first_line:
@@ -437,7 +437,7 @@ def fly_rates(phases: list[tuple[float, float]]) -> list[Phase]:
     """
     total_s = sum(seconds for _, seconds in phases)
     results = []
-    with service_against_vehicle(max(rate for rate, _ in phases), 0.2, total_s) as (vehicle, service):
+    with service_against_vehicle(0.2, total_s) as (vehicle, service):
         for rate_hz, seconds in phases:
             sent0, received0 = _drained(vehicle, service)
             vehicle.set_rate(vehicle.config.message, rate_hz)
