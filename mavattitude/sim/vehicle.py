@@ -105,6 +105,12 @@ class _Epoch:
     boot_script_s: float = 0.0
     clock_offset_s: float = 0.0
 
+    def vehicle_time(self, script_s: float) -> float:
+        return script_s - self.boot_script_s + self.clock_offset_s
+
+    def script_time(self, vehicle_s: float) -> float:
+        return vehicle_s + self.boot_script_s - self.clock_offset_s
+
 
 class FakeVehicle:
     """Run with ``with FakeVehicle(...) as v:`` (or :meth:`start` / :meth:`stop`)."""
@@ -228,7 +234,7 @@ class FakeVehicle:
         return (mono_s - self._script_t0_mono) * self.config.speed
 
     def vehicle_time(self, script_s: float) -> float:
-        return script_s - self._epoch.boot_script_s + self._epoch.clock_offset_s
+        return self._epoch.vehicle_time(script_s)
 
     def jump_clock(self, delta_s: float) -> None:
         """Shift the vehicle's timestamps by ``delta_s`` (negative: time goes back) from now on."""
@@ -321,10 +327,7 @@ class FakeVehicle:
         acc, gyr, mag = sensors.measure(self.script, t, self._rng)
         name = mavlink2.mavlink_map[msg_id].msgname
         epoch = self._epoch
-        rows = [
-            ImuRow(t[i], t[i] - epoch.boot_script_s + epoch.clock_offset_s, _vec(acc[i]), _vec(gyr[i]), _vec(mag[i]))
-            for i in range(len(t))
-        ]
+        rows = [ImuRow(t[i], epoch.vehicle_time(t[i]), _vec(acc[i]), _vec(gyr[i]), _vec(mag[i])) for i in range(len(t))]
         for row in self._apply_fault(rows):
             msg = self.encode(ImuSample(row.vehicle_s, row.acc_mps2, row.gyr_radps, row.mag_uT, name))
             # Logged before the send, so the log never lags the datagram (latency is then an upper bound
@@ -489,7 +492,7 @@ class FakeVehicle:
             if not self.attitude_log:
                 return False
             _, t_vehicle, _, epoch, _ = self.attitude_log[-1]
-            return t_vehicle + epoch.boot_script_s - epoch.clock_offset_s >= script_s
+            return epoch.script_time(t_vehicle) >= script_s
 
         return self.wait_until(reached, timeout_s)
 
@@ -500,7 +503,7 @@ class FakeVehicle:
         if not rows:
             return np.empty(0), np.empty(0), np.empty((0, 4))
         mono = np.array([r[0] for r in rows])
-        script_t = np.array([r[1] + r[3].boot_script_s - r[3].clock_offset_s for r in rows])
+        script_t = np.array([epoch.script_time(t_vehicle) for _, t_vehicle, _, epoch, _ in rows])
         return mono, script_t, np.array([r[2] for r in rows], dtype=float)
 
     def sent_log(self) -> tuple[Array, Array]:
