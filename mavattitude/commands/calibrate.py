@@ -89,9 +89,9 @@ def run(args: argparse.Namespace) -> int:
     if source.endswith((".csv", ".csv.gz")):
         mag = read_csv_mag(Path(source))
     elif source.endswith(".tlog"):
-        mag = _collect(_tlog_samples(Path(source), args), args, sys.stderr)
+        mag = _collect(_tlog_samples(Path(source), args), args, sys.stderr, live=False)
     else:
-        mag = _collect(_live_samples(source, args), args, sys.stderr)
+        mag = _collect(_live_samples(source, args), args, sys.stderr, live=True)
     fit = magfit.fit_ellipsoid(mag, field_uT=args.field_uT, min_coverage=args.min_coverage)
     Path(args.output).write_text(
         "# magnetometer calibration written by `mavattitude calibrate mag`: mag = soft_iron (raw − hard_iron_uT)\n"
@@ -179,8 +179,9 @@ def _live_samples(connect: str, args: argparse.Namespace) -> Iterator[units.ImuS
                     yield sample
 
 
-def _collect(samples: Iterable[units.ImuSample], args: argparse.Namespace, out: TextIO) -> np.ndarray:
-    """Magnetometer readings from a sample stream, with a coverage progress line on ``out``.
+def _collect(samples: Iterable[units.ImuSample], args: argparse.Namespace, out: TextIO, *, live: bool) -> np.ndarray:
+    """Magnetometer readings from a sample stream, with a coverage progress line on ``out``; a ``live``
+    collection ends once coverage is met with enough samples, a log is read to its end.
 
     Coverage is judged around the midpoint of the readings' range on each axis (a cheap hard-iron
     estimate: the offset is not fitted yet); the fit judges it again around the fitted centre.
@@ -197,7 +198,7 @@ def _collect(samples: Iterable[units.ImuSample], args: argparse.Namespace, out: 
             bar = "".join("#" if c >= magfit.MIN_PER_CELL else "." for c in counts)
             out.write(f"\rcoverage [{bar}] {frac:.0%} of orientations, {len(rows)} samples ")
             out.flush()
-            if frac >= args.min_coverage and len(rows) >= LIVE_MIN_SAMPLES and not args.input.endswith(".tlog"):
+            if live and frac >= args.min_coverage and len(rows) >= LIVE_MIN_SAMPLES:
                 break
     out.write("\n")
     if not rows:
