@@ -544,22 +544,22 @@ class FusedFilter:
         acc = self._inertial_lowpass(raw)
         acc_norm = _norm(acc)
         mag = None if mag_uT is None else (float(mag_uT[0]), float(mag_uT[1]), float(mag_uT[2]))
-        d = math.inf
+        d = mag_norm = math.inf
         if mag is not None:
-            d, norm, dip = self._mag_check(mag)
+            d, mag_norm, dip = self._mag_check(mag)
             self._track_disturbance(d >= 1.0, time_s)
             if math.isfinite(d):
-                self._learn_field(norm, dip, d >= 1.0, time_s)
+                self._learn_field(mag_norm, dip, d >= 1.0, time_s)
         sigma_a2 = s.accel_std_mps2**2 + (s.accel_norm_gain * (acc_norm - s.gravity_mps2)) ** 2
         if mag is not None and d < 1.0:
-            residual = self._vector_residual(acc, acc_norm, mag)
+            residual = self._vector_residual(acc, acc_norm, mag, mag_norm)
             sigma_a2 += (s.accel_residual_gain * s.gravity_mps2 * residual) ** 2
         # Past half a radian of direction noise the accelerometer tells nothing the gyro does not know; the
         # cap keeps the σ the solver accepts (σ/|vector| ≤ 1).
         sigma_a = min(math.sqrt(sigma_a2), _MAX_UNIT_STD * acc_norm)
         if mag is not None and d < 1.0:
             sigma_m2 = s.mag_std_uT**2 * (1.0 + (d / s.mag_soft_fraction) ** 2) * self._recovery_factor(time_s)
-            sigma_m = min(math.sqrt(sigma_m2), _MAX_UNIT_STD * _norm(mag))
+            sigma_m = min(math.sqrt(sigma_m2), _MAX_UNIT_STD * mag_norm)
             try:
                 self._ign_update(acc, mag, sigma_a, sigma_m)
                 return
@@ -613,9 +613,10 @@ class FusedFilter:
         self._field_n += 1.0
         self._norm_ref += (norm - self._norm_ref) / self._field_n
 
-    def _vector_residual(self, acc: tuple[float, ...], acc_norm: float, mag: tuple[float, ...]) -> float:
+    def _vector_residual(
+        self, acc: tuple[float, ...], acc_norm: float, mag: tuple[float, ...], mag_norm: float
+    ) -> float:
         """IGN residual as an angle: measured angle between the vectors minus the reference angle."""
-        mag_norm = _norm(mag)
         cos_m = (acc[0] * mag[0] + acc[1] * mag[1] + acc[2] * mag[2]) / (acc_norm * mag_norm)
         return abs(math.acos(max(-1.0, min(1.0, cos_m))) - self._ref_angle)
 
