@@ -92,10 +92,10 @@ def px4_figure(recording: Recording, evaluations: Sequence[Evaluation], path: Pa
     fig, axes = plt.subplots(3, 2, figsize=(12, 8), sharex="col", gridspec_kw={"width_ratios": [2, 1]})
     t0 = recording.time_s[0]
     truth = np.degrees(euler_from_quat(recording.truth_q))
+    shown = [(ev, color, np.degrees(euler_from_quat(ev.estimate.q))) for ev, color in _shown(evaluations)]
     for i, label in enumerate(("roll", "pitch", "yaw")):
         for ax in axes[i]:
-            for ev, color in _shown(evaluations):
-                ours = np.degrees(euler_from_quat(ev.estimate.q))
+            for ev, color, ours in shown:
                 ax.plot(ev.estimate.time_s - t0, ours[:, i], lw=0.7, color=color, label=_label(ev))
             ax.plot(recording.time_s - t0, truth[:, i], color="k", lw=1.0, ls="--", label="PX4 attitude_estimator_q")
             ax.grid(True, lw=0.3)
