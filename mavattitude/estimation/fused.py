@@ -740,7 +740,7 @@ class FusedFilter:
         self._p_tt, self._p_tb = tuple(r.covariance.ravel().tolist()), _ZERO3
         if not restart:
             self._p_bb = _symmetric(_ZERO3, self.settings.gyro_bias_init_radps**2)
-        if not restart:  # the magnitude as calibrated here, not as the reference says
+            # The field's magnitude as calibrated here, not as the reference says.
             self._norm_ref = _norm((float(mag[0]), float(mag[1]), float(mag[2])))
             self._field_n = 1.0
         self._interval = _Interval()
