@@ -169,13 +169,14 @@ class FusedEstimator:
     wants_filtered = False
 
     def __init__(self, config: Config) -> None:
-        from mavattitude.estimation.fused import FusedSettings
+        from mavattitude.estimation.fused import FusedFilter, FusedSettings  # loaded only for this method
 
         self.settings = dataclasses.replace(
             FusedSettings(),
             output_rate_hz=config.filter.output_rate_hz,
             max_gap_s=config.input.input_timeout_s,
         )
+        self._new_filter = functools.partial(FusedFilter, self.settings)
         self._filter: Any = None
         self._mag_ref: Array | None = None
 
@@ -183,14 +184,13 @@ class FusedEstimator:
         self._filter = None
 
     def estimate(self, sample: ProcessedSample, mag_ref_ned_uT: Array) -> list[AttitudeOutput]:
-        from mavattitude.estimation.fused import FusedFilter
-
-        if self._filter is None or not np.array_equal(self._mag_ref, mag_ref_ned_uT):
-            if self._filter is None:
-                self._filter = FusedFilter(self.settings, mag_ref_ned_uT)
-            else:  # a new WMM field: the filter keeps its state (a restart would re-init from IGN mid-flight)
-                self._filter.set_mag_ref(mag_ref_ned_uT)
-            self._mag_ref = np.array(mag_ref_ned_uT, dtype=float)
+        if self._filter is None:
+            self._filter = self._new_filter(mag_ref_ned_uT)
+        # The pipeline replaces its reference array when the field changes and never writes into it, so the
+        # same object is the same field: the values are compared only when a new array arrives (rarely).
+        elif mag_ref_ned_uT is not self._mag_ref and not np.array_equal(self._mag_ref, mag_ref_ned_uT):
+            self._filter.set_mag_ref(mag_ref_ned_uT)  # a new WMM field: the state kept (a restart re-inits from IGN)
+        self._mag_ref = mag_ref_ned_uT
         estimates = self._filter.push(sample.time_s, sample.gyr_radps, sample.acc_mps2, sample.mag_uT)
         front = _flag_names(sample.flags & ~SampleFlag.RESET)
         return [

@@ -200,3 +200,21 @@ def test_the_fused_filter_plugs_in():
     # At rest the filter is no worse than the snapshot bound.
     assert np.degrees(angle_between(q[-1], Q_TRUE)) < MAX_ERR_DEG
     assert out[-1].covariance.shape == (3, 3)
+
+
+def test_the_fused_filter_takes_a_changed_reference_without_a_restart(monkeypatch):
+    p = AttitudePipeline(from_dict({**ANGLES, "estimator": {"method": "fused"}}))
+    samples = static_samples(n=400)
+    run(p, samples[:200])
+    fused = p.estimator._filter
+    calls: list[np.ndarray] = []
+    set_mag_ref = fused.set_mag_ref
+    monkeypatch.setattr(fused, "set_mag_ref", lambda ref: (calls.append(np.array(ref)), set_mag_ref(ref))[1])
+    p.set_magnetic_reference(p.mag_ref_ned_uT.copy())  # a new array holding the same field: not a change
+    run(p, samples[200:300])
+    assert calls == []
+    moved = np.array(field_from_angles(3.0, 60.0, 50.0))
+    p.set_magnetic_reference(moved)
+    assert run(p, samples[300:])
+    assert p.estimator._filter is fused  # the state kept: no re-initialisation from IGN
+    assert len(calls) == 1 and np.array_equal(calls[0], moved)
