@@ -125,16 +125,12 @@ def test_a_gap_longer_than_the_timeout_restarts_and_is_never_bridged() -> None:
     assert fe.counters.gap_resets == 1
 
 
-def settings_tolerance() -> float:
-    return FrontEndSettings().rate_tolerance
-
-
 def test_rate_change_redesigns_the_filter() -> None:
     t = np.concatenate([np.arange(0, 2, 1 / 100), 2 + np.arange(0, 2, 1 / 400)])
     acc = np.tile([0.0, 0.0, -G], (len(t), 1))
     _, fe = _stream(FrontEndSettings(), _samples(t, acc, np.zeros_like(acc)))
     assert fe.counters.redesigns >= 1
-    assert fe._imu.fs_hz == pytest.approx(400.0, rel=settings_tolerance())
+    assert fe._imu.fs_hz == pytest.approx(400.0, rel=FrontEndSettings().rate_tolerance)
 
 
 def test_screening_drops_bad_samples_and_flags_suspect_vectors() -> None:
@@ -312,6 +308,18 @@ def _messy_input(seed: int, n: int = 6000):
     return samples
 
 
+def _assert_same_ticks(got: list[ProcessedSample], stream: list[ProcessedSample]) -> None:
+    """Batch ticks ``got`` are the streaming ones: times and flags bit for bit, the same absent
+    magnetometers, values equal to rounding (the two filter forms round differently, by ~1e-13 of the signal)."""
+    assert [o.time_s for o in got] == [o.time_s for o in stream]
+    assert [o.flags for o in got] == [o.flags for o in stream]
+    got_v, stream_v = (
+        np.array([o.acc_mps2 + o.gyr_radps + (o.mag_uT or (np.nan,) * 3) for o in os]) for os in (got, stream)
+    )
+    assert np.array_equal(np.isnan(got_v), np.isnan(stream_v))
+    assert np.nanmax(np.abs(got_v - stream_v), initial=0.0) < 1e-9
+
+
 @pytest.mark.parametrize("filtered", [True, False])
 def test_batch_path_gives_the_streaming_output(filtered: bool) -> None:
     samples = _messy_input(7)
@@ -320,14 +328,9 @@ def test_batch_path_gives_the_streaming_output(filtered: bool) -> None:
     batch = process_batch(settings, **batch_inputs(samples))
     assert len(batch) == len(stream) > 100
     got = batch.samples()
-    assert [o.time_s for o in got] == [o.time_s for o in stream]  # the same ticks, bit for bit
-    assert [o.flags for o in got] == [o.flags for o in stream]
+    _assert_same_ticks(got, stream)
     assert [o.acc_std_scale for o in got] == [o.acc_std_scale for o in stream]
     assert [o.mag_std_scale for o in got] == [o.mag_std_scale for o in stream]
-    # values: the two filter forms round differently, by ~1e-13 of the signal
-    vec = lambda os: np.array([o.acc_mps2 + o.gyr_radps + (o.mag_uT or (np.nan,) * 3) for o in os])  # noqa: E731
-    assert np.nanmax(np.abs(vec(got) - vec(stream))) < 1e-9
-    assert np.array_equal(np.isnan(vec(got)), np.isnan(vec(stream)))
     c, cb = fe.counters, batch.counters
     assert (c.received, c.accepted, c.emitted, c.gap_resets, c.redesigns) == (
         cb.received, cb.accepted, cb.emitted, cb.gap_resets, cb.redesigns
@@ -372,10 +375,4 @@ def test_batch_equals_streaming_on_random_timing(seed: int, rate_hz: float, mag_
     stream, fe = _stream(settings_, samples)
     batch = process_batch(settings_, **batch_inputs(samples))
     assert batch.counters.rejected == fe.counters.rejected and batch.counters.mag_rejected == fe.counters.mag_rejected
-    got = batch.samples()
-    assert [o.time_s for o in got] == [o.time_s for o in stream]
-    assert [o.flags for o in got] == [o.flags for o in stream]
-    vec = lambda os: np.array([o.acc_mps2 + o.gyr_radps + (o.mag_uT or (np.nan,) * 3) for o in os])  # noqa: E731
-    if stream:
-        assert np.array_equal(np.isnan(vec(got)), np.isnan(vec(stream)))
-        assert np.nanmax(np.abs(vec(got) - vec(stream)), initial=0.0) < 1e-9
+    _assert_same_ticks(batch.samples(), stream)
