@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from mavattitude.config import Config, load_config
+from mavattitude.config import REPLACE_WHOLE, Config, load_config
 from mavattitude.errors import ConfigError
 from mavattitude.estimation import NoiseModel, solve_batch
 from mavattitude.estimation.conventions import Array
@@ -82,7 +82,7 @@ def validation_config(recording: Recording, method: str, base: Config | None = N
 def _flatten(data: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     out: dict[str, Any] = {}
     for key, value in data.items():
-        if isinstance(value, Mapping) and f"{prefix}{key}" not in ("reference.magnetic", "mounting.rotation"):
+        if isinstance(value, Mapping) and f"{prefix}{key}" not in REPLACE_WHOLE:
             out |= _flatten(value, f"{prefix}{key}.")
         else:
             out[f"{prefix}{key}"] = value
