@@ -14,6 +14,7 @@ from mavattitude.estimation.conventions import (
     quat_multiply,
     rotate_body_to_ned,
 )
+from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2
 from mavattitude.validation import (
     Q_ENU_FROM_NED,
     broad_errors,
@@ -26,8 +27,6 @@ from mavattitude.validation import (
 )
 from mavattitude.validation.loaders import _read_csv
 from tests.validation.conftest import PX4
-
-G = 9.80665
 
 
 def test_enu_from_ned_swaps_north_east_and_flips_down() -> None:
@@ -46,7 +45,7 @@ def test_broad_truth_puts_the_resting_specific_force_up(recordings) -> None:
         rec = recordings[key]
         rest = rec.rest & ~np.isnan(rec.truth_q).any(axis=1)
         f_ned = rotate_body_to_ned(rec.truth_q[rest], rec.acc_mps2[rest]).mean(axis=0)
-        np.testing.assert_allclose(f_ned, [0, 0, -G], atol=0.15)  # 0.15 m/s²: a ≈ 0.5° tilt or bias
+        np.testing.assert_allclose(f_ned, [0, 0, -STANDARD_GRAVITY_MPS2], atol=0.15)  # 0.15 m/s²: a ≈ 0.5° tilt or bias
         b_ned = rotate_body_to_ned(rec.truth_q[rest], rec.mag_uT[rest]).mean(axis=0)
         assert b_ned[0] > 10 and b_ned[2] > 35 and abs(b_ned[1]) < 3  # README: (0, 13…17, −39…−43) ENU
 
