@@ -149,9 +149,12 @@ class FrontEndCounters:
     def summary(self) -> str:
         """One log-friendly line."""
         parts = [f"received={self.received}", f"accepted={self.accepted}", f"emitted={self.emitted}"]
-        for name, counter in (("rejected", self.rejected), ("mag_rejected", self.mag_rejected)):
+        for name, counter in (
+            ("rejected", self.rejected),
+            ("mag_rejected", self.mag_rejected),
+            ("flagged", self.flagged),
+        ):
             parts.append(f"{name}={{{', '.join(f'{k}: {v}' for k, v in sorted(counter.items()))}}}")
-        parts.append(f"flagged={{{', '.join(f'{k}: {v}' for k, v in sorted(self.flagged.items()))}}}")
         parts += [f"gap_resets={self.gap_resets}", f"reboots={self.reboots}", f"redesigns={self.redesigns}"]
         return " ".join(parts)
 
