@@ -195,6 +195,7 @@ def test_the_fused_filter_plugs_in():
     out = run(p, static_samples(n=400))
     assert len(out) > 50
     assert np.allclose(np.diff([o.time_s for o in out]), 0.02)  # the filter's own 50 Hz ticks
+    assert out[0].time_s == 10.0 and not any("RESET" in o.flags for o in out)  # the filter's own business
     q = np.array([o.q for o in out])
     assert np.allclose(np.linalg.norm(q, axis=1), 1.0)
     # At rest the filter is no worse than the snapshot bound.
