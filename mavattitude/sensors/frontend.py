@@ -196,14 +196,12 @@ _WRAP_PERIODS = {message: wrap_period_s(message) for message in TIME_FIELDS}
 
 
 class _Stream:
-    """Low-pass of ``n`` channels over irregular times: rate measurement, (re)design, gap restart."""
+    """Low-pass of a few channels over irregular times: rate measurement, (re)design, gap restart."""
 
     __slots__ = (
         "coef",
         "cutoff_hz",
         "fs_hz",
-        "n",
-        "segment",
         "t_last",
         "t_prev",
         "timeout_s",
@@ -217,13 +215,11 @@ class _Stream:
         "y_prev",
     )
 
-    def __init__(self, n: int, cutoff_hz: float | None, timeout_s: float, window: int, tolerance: float) -> None:
-        self.n = n
+    def __init__(self, cutoff_hz: float | None, timeout_s: float, window: int, tolerance: float) -> None:
         self.cutoff_hz = cutoff_hz
         self.timeout_s = timeout_s
         self.tolerance = tolerance
         self.times: deque[float] = deque(maxlen=window + 1)
-        self.segment = 0
         self.restart()
 
     def restart(self) -> None:
@@ -245,7 +241,6 @@ class _Stream:
         t_last = self.t_last
         if t_last is None or t - t_last > self.timeout_s:
             self.restart()
-            self.segment += 1
             self.times.append(t)
             self.t_last, self.y_last = t, x
             return STARTED if t_last is None else GAP, False
@@ -299,8 +294,8 @@ class FrontEnd:
         self._mag_cal = _affine_rows(*affines["mag"])
         cutoff = s.cutoff_hz if s.filter_enabled else None
         self._clock = VehicleClock(s.reorder_window_s)
-        self._imu = _Stream(6, cutoff, s.input_timeout_s, s.rate_window, s.rate_tolerance)
-        self._mag = _Stream(3, cutoff, s.input_timeout_s, s.rate_window, s.rate_tolerance)
+        self._imu = _Stream(cutoff, s.input_timeout_s, s.rate_window, s.rate_tolerance)
+        self._mag = _Stream(cutoff, s.input_timeout_s, s.rate_window, s.rate_tolerance)
         self._next_k = 0
         self._pending_reset = False
 
