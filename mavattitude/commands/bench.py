@@ -28,6 +28,7 @@ import numpy as np
 
 from mavattitude.errors import ConfigError
 from mavattitude.estimation import conventions as cv
+from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2
 
 log = logging.getLogger(__name__)
 
@@ -128,7 +129,6 @@ def run_section(name: str, settings: Settings) -> tuple[list[Row], bool]:
 
 
 # Scenario for the solver and filter figures: a mid-latitude field (inclination ~65°), MEMS-grade noise.
-GRAVITY_MPS2 = 9.80665
 MAG_REF_NED_UT = (19.0, 1.5, 45.0)
 ACC_STD_MPS2 = 0.05
 MAG_STD_UT = 0.5
@@ -138,7 +138,7 @@ GYRO_STD_RADPS = 0.003
 def random_samples(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """The noisy body-frame specific force and field at ``n`` uniformly random attitudes."""
     q_true = cv.quat_normalize(rng.normal(size=(n, 4)))
-    acc = cv.rotate_ned_to_body(q_true, (0.0, 0.0, -GRAVITY_MPS2)) + rng.normal(0.0, ACC_STD_MPS2, (n, 3))
+    acc = cv.rotate_ned_to_body(q_true, (0.0, 0.0, -STANDARD_GRAVITY_MPS2)) + rng.normal(0.0, ACC_STD_MPS2, (n, 3))
     mag = cv.rotate_ned_to_body(q_true, MAG_REF_NED_UT) + rng.normal(0.0, MAG_STD_UT, (n, 3))
     return acc, mag
 
@@ -147,7 +147,7 @@ def turning_stream(n: int, rate_hz: float, rate_radps: tuple[float, float, float
     """``n`` samples at ``rate_hz`` of a constant-rate turn: times, and noisy body specific force, gyro, field."""
     t = np.arange(n) / rate_hz
     q_true = cv.quat_from_rotvec(np.outer(t, rate_radps))
-    acc = cv.rotate_ned_to_body(q_true, (0.0, 0.0, -GRAVITY_MPS2)) + rng.normal(0.0, ACC_STD_MPS2, (n, 3))
+    acc = cv.rotate_ned_to_body(q_true, (0.0, 0.0, -STANDARD_GRAVITY_MPS2)) + rng.normal(0.0, ACC_STD_MPS2, (n, 3))
     gyr = np.asarray(rate_radps) + rng.normal(0.0, GYRO_STD_RADPS, (n, 3))
     mag = cv.rotate_ned_to_body(q_true, MAG_REF_NED_UT) + rng.normal(0.0, MAG_STD_UT, (n, 3))
     return t, acc, gyr, mag
