@@ -121,6 +121,7 @@ from mavattitude.estimation.conventions import (
     quat_multiply_parts,
     rotate_ned_to_body_parts,
     rotation_matrix_parts,
+    skew,
 )
 from mavattitude.estimation.kernel import sym_det_adj
 
@@ -152,10 +153,6 @@ def _normalize(q: Quat) -> Quat:
 
 def _norm(v: Sequence[float]) -> float:
     return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-
-
-def _skew(x: float, y: float, z: float) -> Array:
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
 def _butterworth(tau_s: float, rate_hz: float) -> tuple[float, float, float, float, float]:
@@ -663,7 +660,7 @@ class FusedFilter:
         h = rotate_ned_to_body_parts(rotation_matrix_parts(self._q), self._v_acc)
         z = np.array([acc[0] / acc_norm - h[0], acc[1] / acc_norm - h[1], acc[2] / acc_norm - h[2]])
         keep = _EYE3 - np.outer(h, h)
-        self._correct(_attitude_h(_skew(*h)), z, (sigma_a / acc_norm) ** 2 * _EYE3, keep)
+        self._correct(_attitude_h(skew(h)), z, (sigma_a / acc_norm) ** 2 * _EYE3, keep)
         self.counters["tilt_updates"] += 1
 
     def _rest_update(self, acc: tuple[float, float, float], time_s: float) -> None:
