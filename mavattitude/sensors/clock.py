@@ -28,17 +28,10 @@ class VehicleClock:
         self._offset_s = 0.0
         self._last_raw_s: float | None = None
 
-    def reset(self) -> None:
-        self._offset_s = 0.0
-        self._last_raw_s = None
-
     def update(self, raw_time_s: float, wrap_period_s: float | None) -> tuple[float | None, ClockEvent]:
         """The message time on the unwrapped vehicle clock, or ``None`` when the sample must be dropped."""
         last = self._last_raw_s
-        if last is None:
-            self._last_raw_s = raw_time_s
-            return raw_time_s + self._offset_s, ClockEvent.OK
-        if raw_time_s > last:
+        if last is None or raw_time_s > last:
             self._last_raw_s = raw_time_s
             return raw_time_s + self._offset_s, ClockEvent.OK
         if raw_time_s == last:
