@@ -700,7 +700,7 @@ class FusedFilter:
         self._apply_parts(d_theta, d_bias)
         self.counters["rest_updates"] += 1
 
-    def _correct(self, h: Array, z: Array, r: Array, keep: Array | None = None) -> None:
+    def _correct(self, h: Array, z: Array, r: Array, keep: Array) -> None:
         """Kalman update with ``H`` (k×6, Joseph form), then reset the error state into q and b.
 
         ``keep`` (3×3 projector) restricts the attitude part of the gain to a subspace; the Joseph form
@@ -709,8 +709,7 @@ class FusedFilter:
         p = self._p_matrix()
         ph = p @ h.T  # P Hᵀ (6×k)
         k = np.linalg.solve(h @ ph + r, ph.T).T
-        if keep is not None:
-            k[:3] = keep @ k[:3]
+        k[:3] = keep @ k[:3]
         ikh = _EYE6 - k @ h
         self._set_p(ikh @ p @ ikh.T + k @ r @ k.T)
         dx = (k @ z).tolist()
