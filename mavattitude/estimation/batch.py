@@ -138,7 +138,7 @@ def _solve_chunk(chunk: list, noise: NoiseModel, method: str, max_iterations: in
     """Solve one chunk of checked samples; returns ``(q (n, 4), iterations, converged, loss, singular)``,
     ``singular`` where a step had no positive definite normal matrix (NaN from the kernel; the row keeps
     its last finite iterate and takes no further step)."""
-    (w_acc, n_acc), (w_mag, n_mag), (v_acc, _), (v_mag, _) = (_unit(v) for v in chunk)
+    (w_acc, n_acc), (w_mag, n_mag), (v_acc, _), (v_mag, _) = (kernel.unit(v) for v in chunk)
     s_body = kernel.norm(kernel.cross(w_acc, w_mag))
     s_ref = kernel.norm(kernel.cross(v_acc, v_mag))
 
@@ -172,8 +172,3 @@ def _solve_chunk(chunk: list, noise: NoiseModel, method: str, max_iterations: in
     qa = np.stack(q, -1)
     loss = kernel.wahba_loss(q, obs, ml)
     return np.where(qa[:, :1] < 0.0, -qa, qa), iterations, done & ~singular, loss, singular
-
-
-def _unit(raw: tuple) -> tuple[tuple, object]:
-    n = kernel.norm(raw)
-    return kernel.scaled(raw, 1.0 / n), n

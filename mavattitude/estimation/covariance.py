@@ -20,16 +20,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from . import kernel
-from .noise import NoiseModel, sym_to_matrix
+from .noise import NoiseModel, sym_to_matrix, unit_parts
 
 Array = NDArray[np.float64]
 
 
 def _sensor(raw: ArrayLike, var: tuple) -> tuple:
-    raw = np.asarray(raw, dtype=float)
-    parts = tuple(raw[..., k] for k in range(3))
-    n = kernel.norm(parts)
-    return kernel.scaled(parts, 1.0 / n), n, var
+    w, n = unit_parts(raw)
+    return w, n, var
 
 
 def predicted_covariance(acc: ArrayLike, mag: ArrayLike, noise: NoiseModel, method: str = "ign") -> Array:

@@ -51,6 +51,12 @@ def scaled(v: Vec, s: Scalar) -> Vec:
     return (v[0] * s, v[1] * s, v[2] * s)
 
 
+def unit(v: Vec) -> tuple[Vec, Scalar]:
+    """``(ŵ, |Ŵ|)`` of a vector (Eq. 3–4)."""
+    n = norm(v)
+    return scaled(v, 1.0 / n), n
+
+
 def cross(a: Vec, b: Vec) -> Vec:
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 

@@ -49,21 +49,20 @@ class NoiseModel:
 
 def unit_covariance(w_raw: ArrayLike, var: Sequence[float]) -> NDArray[np.float64]:
     """``R_unit = J R Jᵀ`` (Eq. 9) at measured vectors ``(..., 3)``: ``(..., 3, 3)``, singular along ``ŵ``."""
-    w, n = _unit(w_raw)
+    w, n = unit_parts(w_raw)
     return sym_to_matrix(kernel.unit_covariance(w, n, tuple(var)))
 
 
 def paper_weight(w_raw: ArrayLike, var: Sequence[float]) -> NDArray[np.float64]:
     """The paper's scalar weight ``a = 1/κ² = 3/tr(R_unit)`` (Eq. 21) at measured vectors ``(..., 3)``."""
-    w, n = _unit(w_raw)
+    w, n = unit_parts(w_raw)
     return np.asarray(kernel.paper_weight(w, n, tuple(var)))
 
 
-def _unit(w_raw: ArrayLike) -> tuple[tuple, NDArray[np.float64]]:
+def unit_parts(w_raw: ArrayLike) -> tuple[tuple, NDArray[np.float64]]:
+    """``(ŵ, |Ŵ|)`` of vectors ``(..., 3)``, ``ŵ`` as a 3-tuple of arrays (the kernel's form)."""
     w_raw = np.asarray(w_raw, dtype=float)
-    parts = tuple(w_raw[..., k] for k in range(3))
-    n = kernel.norm(parts)
-    return kernel.scaled(parts, 1.0 / n), n
+    return kernel.unit(tuple(w_raw[..., k] for k in range(3)))
 
 
 def sym_to_matrix(m: tuple) -> NDArray[np.float64]:
