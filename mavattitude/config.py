@@ -78,6 +78,9 @@ def _number(lo: float | None = None, hi: float | None = None, *, integer: bool =
     return check
 
 
+_positive = _number(0.0, lo_open=True)  # a scale, a σ, a frequency: > 0
+
+
 def _choice(*options: str, fold: Callable[[str], str] = str.lower) -> Check:
     def check(value: Any, path: str) -> str:
         if isinstance(value, str) and fold(value) in options:
@@ -123,10 +126,9 @@ def _mat3(value: Any, path: str) -> Mat3:
 
 def _per_axis_std(value: Any, path: str) -> Vec3:
     """A noise σ: one positive value for all three axes, or three."""
-    positive = _number(0.0, lo_open=True)
     if isinstance(value, (list, tuple)):
-        return _vec3(value, path, positive)
-    s = positive(value, path)
+        return _vec3(value, path, _positive)
+    s = _positive(value, path)
     return (s, s, s)
 
 
@@ -191,15 +193,9 @@ class LinkConfig:
 
 @dataclass(frozen=True)
 class CustomScales:
-    accel_mps2_per_lsb: float | None = field(
-        default=None, metadata=_meta(_optional(_number(0.0, lo_open=True)), "m/s² per raw unit")
-    )
-    gyro_radps_per_lsb: float | None = field(
-        default=None, metadata=_meta(_optional(_number(0.0, lo_open=True)), "rad/s per raw unit")
-    )
-    mag_uT_per_lsb: float | None = field(
-        default=None, metadata=_meta(_optional(_number(0.0, lo_open=True)), "µT per raw unit")
-    )
+    accel_mps2_per_lsb: float | None = field(default=None, metadata=_meta(_optional(_positive), "m/s² per raw unit"))
+    gyro_radps_per_lsb: float | None = field(default=None, metadata=_meta(_optional(_positive), "rad/s per raw unit"))
+    mag_uT_per_lsb: float | None = field(default=None, metadata=_meta(_optional(_positive), "µT per raw unit"))
 
 
 @dataclass(frozen=True)
@@ -252,9 +248,7 @@ class FilterConfig:
     enabled: bool = field(
         default=True, metadata=_meta(_boolean, "low-pass + resample; false solves every input sample as it comes")
     )
-    cutoff_hz: float = field(
-        default=10.0, metadata=_meta(_number(0.0, lo_open=True), "Butterworth cutoff, Hz (< output_rate_hz / 2)")
-    )
+    cutoff_hz: float = field(default=10.0, metadata=_meta(_positive, "Butterworth cutoff, Hz (< output_rate_hz / 2)"))
     output_rate_hz: float = field(
         default=50.0, metadata=_meta(_number(0.0, 1000.0, lo_open=True), "resampled output rate, Hz")
     )
