@@ -12,10 +12,13 @@ Every array function is vectorised over leading axes: a quaternion argument is `
 ``(..., 3)``. The ``*_parts`` functions are the same formulas on components (a quaternion as a 4-tuple,
 a vector as a 3-tuple, a matrix as a row-major 9-tuple) whose entries are plain floats *or* equal-shape
 arrays: the array functions delegate to them, and the estimation core calls them directly with floats on
-its per-sample path (no numpy call overhead) and with arrays on its batch path — one formula each.
+its per-sample path (no numpy call overhead) and with arrays on its batch path — one formula each. Those
+that branch or call ``math`` (the scalar twins of an array function) take plain floats only.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -68,6 +71,14 @@ def quat_normalize(q: ArrayLike) -> Array:
     q = np.asarray(q, dtype=float)
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     return np.where(q[..., :1] < 0.0, -q, q)
+
+
+def quat_normalize_parts(q: tuple) -> tuple[float, float, float, float]:
+    """Scalar (plain-float) twin of :func:`quat_normalize`: unit, ``w ≥ 0``."""
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if q[0] < 0.0:
+        n = -n
+    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
 
 
 def rotation_matrix_parts(q: tuple) -> tuple:
@@ -186,6 +197,21 @@ def quat_from_rotvec(theta: ArrayLike) -> Array:
     # sin(x/2)/x → 1/2 as x → 0; the series keeps full precision for tiny angles.
     scale = np.where(angle > 1e-8, np.sin(half) / np.where(angle > 1e-8, angle, 1.0), 0.5 - angle**2 / 48.0)
     return np.concatenate([np.cos(half), scale * theta], -1)
+
+
+def quat_from_rotvec_parts(vx: float, vy: float, vz: float) -> tuple[float, float, float, float]:
+    """Scalar (plain-float) twin of :func:`quat_from_rotvec`, the vector's components as arguments."""
+    half = 0.5 * math.sqrt(vx * vx + vy * vy + vz * vz)
+    s = 0.5 * math.sin(half) / half if half > 1e-9 else 0.5 - half * half / 12.0
+    return (math.cos(half), s * vx, s * vy, s * vz)
+
+
+def rotvec_from_quat_parts(q: tuple) -> tuple[float, float, float]:
+    """Scalar (plain-float) twin of :func:`rotvec_from_quat` for a unit quaternion (angle ≤ π)."""
+    w, x, y, z = q if q[0] >= 0.0 else (-q[0], -q[1], -q[2], -q[3])
+    n = math.sqrt(x * x + y * y + z * z)
+    scale = 2.0 * math.atan2(n, w) / n if n > 1e-12 else 2.0
+    return (scale * x, scale * y, scale * z)
 
 
 def rotvec_from_quat(q: ArrayLike) -> Array:

@@ -118,37 +118,18 @@ from mavattitude.errors import DegenerateGeometryError, InputError
 from mavattitude.estimation import NoiseModel, solve
 from mavattitude.estimation.conventions import (
     Array,
+    quat_from_rotvec_parts,
     quat_multiply_parts,
+    quat_normalize_parts,
     rotate_ned_to_body_parts,
     rotation_matrix_parts,
+    rotvec_from_quat_parts,
     skew,
 )
 from mavattitude.estimation.kernel import sym_det_adj
 
 Quat = tuple[float, float, float, float]
 _EYE3 = np.eye(3)
-
-
-def _exp(vx: float, vy: float, vz: float) -> Quat:
-    """Quaternion of a rotation vector (rad), plain floats (the per-sample path)."""
-    half = 0.5 * math.sqrt(vx * vx + vy * vy + vz * vz)
-    s = 0.5 * math.sin(half) / half if half > 1e-9 else 0.5 - half * half / 12.0
-    return (math.cos(half), s * vx, s * vy, s * vz)
-
-
-def _log(q: Quat) -> tuple[float, float, float]:
-    """Rotation vector (rad, angle ≤ π) of a unit quaternion, plain floats."""
-    w, x, y, z = q if q[0] >= 0.0 else (-q[0], -q[1], -q[2], -q[3])
-    n = math.sqrt(x * x + y * y + z * z)
-    scale = 2.0 * math.atan2(n, w) / n if n > 1e-12 else 2.0
-    return (scale * x, scale * y, scale * z)
-
-
-def _normalize(q: Quat) -> Quat:
-    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    if q[0] < 0.0:
-        n = -n
-    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
 
 
 def _norm(v: Sequence[float]) -> float:
@@ -495,7 +476,7 @@ class FusedFilter:
         b = self._bias
         vx, vy, vz = dt * (gx - b[0]), dt * (gy - b[1]), dt * (gz - b[2])
         iv = self._interval
-        iv.dq = quat_multiply_parts(iv.dq, _exp(vx, vy, vz))
+        iv.dq = quat_multiply_parts(iv.dq, quat_from_rotvec_parts(vx, vy, vz))
         iv.duration_s += dt
         iv.angle_rad += math.sqrt(vx * vx + vy * vy + vz * vz)
 
@@ -504,7 +485,7 @@ class FusedFilter:
             raise InputError("the fused filter has no attitude yet: it needs one sample with acc and mag")
         if self._interval.duration_s == 0.0:  # just updated: q is already normalised, with w ≥ 0
             return self._q
-        return _normalize(quat_multiply_parts(self._q, self._interval.dq))
+        return quat_normalize_parts(quat_multiply_parts(self._q, self._interval.dq))
 
     def _propagate(self) -> None:
         """Move the interval's rotation into ``q`` and propagate ``P`` over it (``Φ`` in the docstring)."""
@@ -524,7 +505,7 @@ class FusedFilter:
         self._p_tb = x_b
         self._p_bb = _symmetric(bb, q_bias)
         self._q = self._current_q()
-        self._q_gyro = _normalize(quat_multiply_parts(self._q_gyro, iv.dq))
+        self._q_gyro = quat_normalize_parts(quat_multiply_parts(self._q_gyro, iv.dq))
         iv.dq, iv.duration_s, iv.angle_rad = (1.0, 0.0, 0.0, 0.0), 0.0, 0.0
 
     # --- measurement updates ------------------------------------------------------------------------
@@ -646,7 +627,7 @@ class FusedFilter:
         w_mag = (mag[0] / sigma_m, mag[1] / sigma_m, mag[2] / sigma_m)
         r = solve(w_acc, w_mag, self._mag_ref_t, _UNIT_NOISE, acc_ref=self._acc_ref_t)
         w, x, y, z = self._q
-        z_theta = _log(quat_multiply_parts((w, -x, -y, -z), tuple(r.q.tolist())))
+        z_theta = rotvec_from_quat_parts(quat_multiply_parts((w, -x, -y, -z), tuple(r.q.tolist())))
         # H = [I 0]
         self._p_tt, bt, self._p_bb, d_theta, d_bias = _block_update(
             self._p_tt, _transpose(self._p_tb), self._p_bb, _ign_covariance_parts(w_acc, w_mag), z_theta
@@ -717,7 +698,8 @@ class FusedFilter:
 
     def _apply_parts(self, d_theta: Sequence[float], d_bias: Sequence[float]) -> None:
         """Reset: move the estimated error state ``[δθ, δb]`` into the nominal ``q`` and ``b``."""
-        self._q = _normalize(quat_multiply_parts(self._q, _exp(d_theta[0], d_theta[1], d_theta[2])))
+        correction = quat_from_rotvec_parts(d_theta[0], d_theta[1], d_theta[2])
+        self._q = quat_normalize_parts(quat_multiply_parts(self._q, correction))
         b = self._bias
         self._bias = (b[0] + d_bias[0], b[1] + d_bias[1], b[2] + d_bias[2])
 
@@ -731,7 +713,7 @@ class FusedFilter:
             return []
         r = solve(acc, mag, self.mag_ref, self._noise, acc_ref=self.acc_ref)
         restart = self._q is not None
-        self._q = self._q_gyro = _normalize(tuple(float(v) for v in r.q))
+        self._q = self._q_gyro = quat_normalize_parts(tuple(float(v) for v in r.q))
         self._acc_lp = None
         self._p_tt, self._p_tb = tuple(r.covariance.ravel().tolist()), _ZERO3
         if not restart:
@@ -755,7 +737,8 @@ class FusedFilter:
         out = []
         while self._next_output_s <= time_s:
             back = self._next_output_s - time_s
-            q_tick = np.array(_normalize(quat_multiply_parts(q_now, _exp(wx * back, wy * back, wz * back))))
+            carry = quat_from_rotvec_parts(wx * back, wy * back, wz * back)
+            q_tick = np.array(quat_normalize_parts(quat_multiply_parts(q_now, carry)))
             cov = np.array(self._p_tt).reshape(3, 3)
             out.append(FusedEstimate(self._next_output_s, q_tick, rates, cov, np.array(b), self._disturbed))
             self._next_output_s += self._output_period_s

@@ -21,8 +21,6 @@ from mavattitude.estimation.fused import (
     FusedSettings,
     _block_update,
     _butterworth,
-    _exp,
-    _log,
     ign_covariance,
 )
 from mavattitude.sim import scenarios
@@ -71,15 +69,6 @@ def _rms(x: np.ndarray) -> float:
 
 
 # --- the plain-float helpers equal the project's conventions -----------------------------------------
-
-
-def test_plain_float_exp_and_log_match_the_conventions() -> None:
-    rng = np.random.default_rng(SEED)
-    for v in [*rng.normal(size=(20, 3)), np.zeros(3), np.full(3, 1e-10), np.array([np.pi - 1e-6, 0.0, 0.0])]:
-        q = np.array(_exp(*v))
-        assert np.allclose(q, cv.quat_from_rotvec(v), atol=1e-14)
-        if np.linalg.norm(v) < np.pi:  # the log returns the angle in [0, π]
-            assert np.allclose(_log(tuple(q)), v, atol=1e-9)
 
 
 def test_closed_form_ign_covariance_is_the_solvers_sandwich() -> None:
