@@ -18,8 +18,6 @@ from types import ModuleType
 from mavattitude import __version__, commands
 from mavattitude.errors import MavAttitudeError
 
-log = logging.getLogger("mavattitude")
-
 EXIT_USER_ERROR = 2
 
 
@@ -37,10 +35,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"mavattitude {__version__}")
     parser.add_argument(
         "--log-level",
-        default="INFO",
         type=str.upper,
         choices=["DEBUG", "INFO", "WARNING", "ERROR"],
-        help="how much to log (default INFO)",
+        help="how much to log (default INFO; for `run`, the config's logging.level)",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for module in _command_modules():
@@ -60,7 +57,7 @@ def configure_logging(level: str) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    configure_logging(args.log_level)
+    configure_logging(args.log_level or "INFO")
     try:
         return int(args.handler(args))
     except MavAttitudeError as exc:

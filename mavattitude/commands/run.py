@@ -110,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
     from mavattitude.service import AttitudeService, open_link
 
     config = load_config(args.config, overrides_from_args(args))
-    if getattr(args, "log_level", "INFO") == "INFO":  # the CLI default: the config's level applies
+    if getattr(args, "log_level", None) is None:  # no --log-level flag: the config's level applies
         logging.getLogger().setLevel(config.logging.level)
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGTERM, signal.SIGINT)}

@@ -1,0 +1,30 @@
+"""`mavattitude run`: the log level's precedence (flag > config > default)."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import pytest
+
+from mavattitude.cli import EXIT_USER_ERROR, main
+
+
+@pytest.fixture
+def warning_config(tmp_path: Path) -> Path:
+    # A serial device that does not exist: `run` sets the log level, then fails to open the link at once.
+    path = tmp_path / "config.yaml"
+    path.write_text('link:\n  connect: "/nonexistent/ttyX,57600"\nlogging:\n  level: WARNING\n')
+    return path
+
+
+def test_the_configs_level_applies_without_the_flag(warning_config: Path) -> None:
+    assert main(["run", "--config", str(warning_config)]) == EXIT_USER_ERROR
+    assert logging.getLogger().level == logging.WARNING
+
+
+@pytest.mark.parametrize("flag", ["INFO", "DEBUG"])
+def test_an_explicit_flag_beats_the_config(warning_config: Path, flag: str) -> None:
+    # INFO is also the default when nothing says otherwise: given explicitly, it must still win.
+    assert main(["--log-level", flag, "run", "--config", str(warning_config)]) == EXIT_USER_ERROR
+    assert logging.getLogger().level == getattr(logging, flag)
