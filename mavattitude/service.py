@@ -218,9 +218,7 @@ class AttitudeService:
 
     def _is_our_autopilot(self, msg: Any) -> bool:
         wanted = self.config.link.vehicle_system_id
-        return (
-            self.link.is_autopilot_heartbeat(msg) and msg.get_srcSystem() != 255 and wanted in (0, msg.get_srcSystem())
-        )
+        return self.link.is_autopilot_heartbeat(msg) and wanted in (0, msg.get_srcSystem())
 
     def _lock_on(self, source: tuple[int, int]) -> None:
         self.vehicle = source

@@ -27,13 +27,13 @@ import numpy as np
 from mavattitude.commands._offline import add_config_arguments, config_from_args, output_row, summarise, write_outputs
 from mavattitude.config import MESSAGES, PROFILES
 from mavattitude.errors import DataFileError, SensorError
+from mavattitude.link.connection import MavlinkLink
 
 NAME = "replay"
 HELP = "the service's pipeline over a telemetry log (.tlog): attitude CSV, compared with the autopilot's"
 
 log = logging.getLogger(__name__)
 
-MAV_AUTOPILOT_INVALID = 8
 POSITION_MESSAGES = ("GLOBAL_POSITION_INT", "GPS_RAW_INT")
 # Autopilot attitudes further apart than this are not interpolated between.
 MAX_ATTITUDE_GAP_S = 0.5
@@ -113,11 +113,7 @@ def _from_autopilot(msg: Any, contents: LogContents, system_id: int) -> bool:
     """Lock onto the autopilot as the service does; True for a message from it."""
     source = (msg.get_srcSystem(), msg.get_srcComponent())
     if contents.autopilot is None:
-        if (
-            msg.get_type() == "HEARTBEAT"
-            and msg.autopilot != MAV_AUTOPILOT_INVALID
-            and (system_id == 0 or source[0] == system_id)
-        ):
+        if MavlinkLink.is_autopilot_heartbeat(msg) and system_id in (0, source[0]):
             contents.autopilot = source
             log.info("following the autopilot at system %d, component %d", *source)
         elif msg.get_type() != "HEARTBEAT":

@@ -424,11 +424,13 @@ class MavlinkLink:
 
     @staticmethod
     def is_autopilot_heartbeat(msg: Message) -> bool:
-        """A HEARTBEAT from a flight controller (not a GCS, companion, gimbal, camera or ADS-B unit)."""
+        """A HEARTBEAT from a flight controller (not a GCS, companion, gimbal, camera or ADS-B unit, and not
+        from system 255, the ground stations' id)."""
         return (
             msg.get_type() == "HEARTBEAT"
             and msg.autopilot != mavlink2.MAV_AUTOPILOT_INVALID
             and msg.type not in NOT_AUTOPILOT_TYPES
+            and msg.get_srcSystem() != 255
         )
 
     @staticmethod

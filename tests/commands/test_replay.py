@@ -45,19 +45,23 @@ def write_tlog(
     attitude: bool = True,
     position: bool = False,
     second_vehicle: bool = True,
+    gimbal_first: bool = False,
 ) -> Path:
     """A ground station's recording: its own heartbeat, the autopilot(s') heartbeats, RAW_IMU at 100 Hz
     (ArduPilot units, seeded noise), ATTITUDE at 10 Hz, optionally GLOBAL_POSITION_INT at 5 Hz."""
     field = field_from_angles(DECL, INCL, F_UT) if field_ned_uT is None else field_ned_uT
     rng = np.random.default_rng(3)
     profile = PROFILES["ardupilot"]
-    links = {s: mavlink.MAVLink(None, srcSystem=s, srcComponent=1) for s in (1, 2, 255)}
+    links = {s: mavlink.MAVLink(None, srcSystem=s, srcComponent=1) for s in (1, 2, 3, 255)}
     records: list[tuple[float, bytes]] = []
 
     def add(t_s: float, sysid: int, msg: mavlink.MAVLink_message) -> None:
         records.append((t_s, msg.pack(links[sysid])))
 
     vehicles = (1, 2) if second_vehicle else (1,)
+    if gimbal_first:  # a gimbal that fills in an autopilot type, as some do: not a flight controller
+        gimbal = links[3].heartbeat_encode(mavlink.MAV_TYPE_GIMBAL, mavlink.MAV_AUTOPILOT_GENERIC, 0, 0, 4)
+        add(0.0005, 3, gimbal)
     for k in range(int(seconds) + 1):
         add(k + 0.001, 255, links[255].heartbeat_encode(6, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0))
         for s in vehicles:
@@ -128,6 +132,16 @@ def test_the_configured_system_id_selects_the_vehicle(tmp_path, capsys):
     assert errors_deg(read_rows(out)[10:], sysid=2).max() < MAX_ERR_DEG
     assert capsys.readouterr().out == ""  # no ATTITUDE in the log: no table
     assert not out.with_suffix(".png").exists()
+
+
+def test_a_gimbal_heartbeat_is_not_taken_for_the_autopilot(tmp_path, capsys):
+    # The same lock-on rule as the service (MavlinkLink.is_autopilot_heartbeat): the first HEARTBEAT in the
+    # log is a gimbal's, and replay must still follow vehicle 1.
+    log = write_tlog(tmp_path / "gimbal.tlog", attitude=False, second_vehicle=False, gimbal_first=True)
+    out = tmp_path / "g.csv"
+    assert main(["replay", str(log), "-o", str(out), *REF]) == 0
+    assert errors_deg(read_rows(out)[10:]).max() < MAX_ERR_DEG
+    assert "following the autopilot at system 1, component 1" in capsys.readouterr().err
 
 
 def test_auto_reference_from_the_logged_position_and_date(tmp_path):
