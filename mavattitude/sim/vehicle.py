@@ -158,6 +158,16 @@ class FakeVehicle:
         force_mavlink2(conn)
         if config.signing_key is not None:
             conn.setup_signing(config.signing_key, sign_outgoing=True, allow_unsigned_callback=lambda *_: True)
+        # pymavlink's recv changes what its write iterates (udpin adds each new peer to conn.clients, tcpin
+        # accepts into conn.port), and they run on two threads here: each recv (a non-blocking read; the
+        # wait for data stays outside) takes the send lock, or a new peer's first datagram kills the sender.
+        recv = conn.recv
+
+        def recv_locked(n: int | None = None) -> Any:
+            with self._send_lock:
+                return recv(n)
+
+        conn.recv = recv_locked
         return conn
 
     def peers(self) -> list[tuple[str, int]]:
