@@ -5,10 +5,11 @@ run whatever periodic work is due (heartbeat, rate requests, input watchdog, cou
 input message goes decode → pipeline → ATTITUDE_QUATERNION in the same pass that received it, so the
 latency from arrival to send is the processing time alone; nothing waits for a timer.
 
-What it does on the link:
-- locks onto the autopilot: ``link.vehicle_system_id``, or with 0 the first autopilot HEARTBEAT; the
-  (system, component) of that heartbeat is the only source listened to, every other message is
-  ignored and counted;
+What it reads comes from a message source (:mod:`mavattitude.link.source`: the live link, decoded) through
+the dispatcher (:mod:`mavattitude.dispatch`) that ``replay`` uses too: it locks onto the autopilot
+(``link.vehicle_system_id``, or with 0 the first autopilot HEARTBEAT; every other sender is ignored and
+counted) and routes the IMU samples into the pipeline and the positions to its magnetic reference. The
+service is the dispatcher's listener. What it does on the link:
 - sends its own HEARTBEAT at 1 Hz as the vehicle's system id (an onboard controller, component
   ``link.component_id``). Until it has locked on in automatic mode it has no id to use and sends as
   system 1 (never 255), so that a ``udpout`` peer learns where we are and starts talking;
@@ -36,10 +37,13 @@ import numpy as np
 
 from mavattitude import __version__
 from mavattitude.config import Config
-from mavattitude.errors import InputError, MavAttitudeError, SensorError
+from mavattitude.dispatch import DISPATCH_REJECTS, DispatchCounters, Dispatcher
+from mavattitude.errors import InputError
 from mavattitude.link import MavlinkLink, load_signing_key, message_id
-from mavattitude.pipeline import AttitudePipeline
+from mavattitude.link.source import AutopilotAttitude, MavlinkDecoder, MavlinkSource, MessageSource, Sender
+from mavattitude.pipeline import AttitudeOutput, AttitudePipeline
 from mavattitude.sensors import units
+from mavattitude.sensors.units import ImuSample
 from mavattitude.systemd_notify import SystemdNotifier, default_notifier
 
 log = logging.getLogger(__name__)
@@ -48,7 +52,7 @@ HEARTBEAT_PERIOD_S = 1.0
 TICK_S = 0.05  # periodic work runs at least this often; also the longest wait on the link
 UNLOCKED_SYSTEM_ID = 1  # our system id before locking onto an autopilot in automatic mode
 ACK_TIMEOUT_S = 2.0
-REJECT_REASONS = ("decode", "pipeline_error", "internal_error", "invalid_output")
+REJECT_REASONS = (*DISPATCH_REJECTS, "invalid_output")
 DEGENERATE = "DegenerateGeometryError"  # the pipeline's reject reason for collinear acc and mag
 POSITION_MESSAGE = "GLOBAL_POSITION_INT"
 POSITION_RATE_HZ = 1.0
@@ -56,23 +60,20 @@ MAX_LATENCY_SAMPLES = 100_000  # per counters window: bounds memory if stats_int
 
 
 @dataclass
-class ServiceCounters:
-    """What the service has seen and done since it started.
+class ServiceCounters(DispatchCounters):
+    """What the service has seen and done since it started (the dispatcher's counters and its own).
 
     ``mean_iterations`` and the latencies are refreshed at each counters line (latency: over the window
     since the previous line); ``rejected`` holds the service's own reasons, and the line adds the
     pipeline's (input samples the front end dropped, ticks the solver could not use) by name.
     """
 
-    received: int = 0  # input messages from the autopilot
     emitted: int = 0  # ATTITUDE_QUATERNION sent
-    ignored: int = 0  # messages from other systems or components, or before locking on
     rejected: dict[str, int] = field(default_factory=lambda: dict.fromkeys(REJECT_REASONS, 0))
     input_lost: int = 0  # times the input went silent for longer than input_timeout_s
     interval_requests: int = 0
     acks: dict[str, int] = field(default_factory=dict)  # SET_MESSAGE_INTERVAL results by name
     ack_timeouts: int = 0
-    positions: int = 0  # vehicle positions handed to the pipeline (magnetic reference ``auto``)
     mean_iterations: float = float("nan")
     latency_p50_ms: float = float("nan")  # input read from the socket -> ATTITUDE_QUATERNION handed to the OS
     latency_p99_ms: float = float("nan")
@@ -113,7 +114,11 @@ def open_link(config: Config) -> MavlinkLink:
 
 
 class AttitudeService:
-    """The loop: ``AttitudeService(config, link, pipeline).run(stop_event)`` returns the final counters."""
+    """The loop: ``AttitudeService(config, link, pipeline).run(stop_event)`` returns the final counters.
+
+    ``link`` is what the service sends on; it reads from ``source``, by default ``link`` itself with the
+    config's input message and unit profile (:class:`~mavattitude.link.source.MavlinkSource`).
+    """
 
     def __init__(
         self,
@@ -121,16 +126,16 @@ class AttitudeService:
         link: MavlinkLink,
         pipeline: AttitudePipeline,
         notifier: SystemdNotifier | None = None,
+        source: MessageSource | None = None,
     ) -> None:
         self.config = config
         self.link = link
+        self.source = source if source is not None else MavlinkSource(link, MavlinkDecoder.from_config(config))
         self.pipeline = pipeline
         self.notifier = notifier if notifier is not None else default_notifier()
         self.counters = ServiceCounters()
-        self.vehicle: tuple[int, int] | None = None
         self._input_name = config.input.message
         self._input_id = message_id(config.input.message)
-        self._profile = units.get_profile(config.input.profile, config.input.custom)
         self._wants_position = config.reference.magnetic.mode == "auto"
         self._position_id = message_id(POSITION_MESSAGE)
         self._limiter = _RateLimiter(config.output.statustext_interval_s, time.monotonic)
@@ -148,6 +153,15 @@ class AttitudeService:
         watchdog_s = self.notifier.watchdog_interval_s
         self._watchdog_period = watchdog_s / 4 if watchdog_s else None
         self._next_watchdog = now
+        self._degenerate_before = 0
+        self.dispatcher = Dispatcher(
+            pipeline, self, system_id=config.link.vehicle_system_id, vehicle=self.source.vehicle, counters=self.counters
+        )
+
+    @property
+    def vehicle(self) -> Sender | None:
+        """The autopilot locked onto (``None`` until then)."""
+        return self.dispatcher.vehicle
 
     # -- the loop -------------------------------------------------------------------------------------
 
@@ -163,32 +177,20 @@ class AttitudeService:
         )
         try:
             while not stop.is_set():
-                wait_s = min(max(self._next_tick - time.monotonic(), 0.0), TICK_S)
-                for t_rx, msg in self.link.recv(wait_s):
-                    self._handle(msg, t_rx)
-                now = time.monotonic()
-                if now >= self._next_tick:
-                    self._periodic(now)
+                self.step(min(max(self._next_tick - time.monotonic(), 0.0), TICK_S))
         finally:
             self.notifier.stopping()
             self._log_counters("counters (final)")
         return self.counters
 
-    def _handle(self, msg: Any, t_rx: float) -> None:
-        source = (msg.get_srcSystem(), msg.get_srcComponent())
-        if source != self.vehicle:
-            if self.vehicle is None and self._is_our_autopilot(msg):
-                self._lock_on(source)
-            else:
-                self.counters.ignored += 1
-            return
-        kind = msg.get_type()
-        if kind == self._input_name:
-            self._on_input(msg, t_rx)
-        elif kind == "COMMAND_ACK":
-            self._on_ack(msg)
-        elif kind == POSITION_MESSAGE and self._wants_position:
-            self._on_position(msg)
+    def step(self, wait_s: float) -> None:
+        """One pass of the loop: wait up to ``wait_s`` for input, handle all of it, then the periodic work due."""
+        handle = self.dispatcher.handle
+        for received in self.source.recv(wait_s):
+            handle(received)
+        now = time.monotonic()
+        if now >= self._next_tick:
+            self._periodic(now)
 
     def _periodic(self, now: float) -> None:
         self._next_tick = now + TICK_S
@@ -216,14 +218,9 @@ class AttitudeService:
 
     # -- the autopilot --------------------------------------------------------------------------------
 
-    def _is_our_autopilot(self, msg: Any) -> bool:
-        wanted = self.config.link.vehicle_system_id
-        return self.link.is_autopilot_heartbeat(msg) and wanted in (0, msg.get_srcSystem())
-
-    def _lock_on(self, source: tuple[int, int]) -> None:
-        self.vehicle = source
-        self.link.set_source_system(source[0])
-        log.info("locked onto the autopilot: system %d, component %d", *source)
+    def on_lock(self, vehicle: Sender) -> None:
+        self.link.set_source_system(vehicle[0])
+        log.info("locked onto the autopilot: system %d, component %d", *vehicle)
         self._statustext("start", f"mavattitude {__version__}: attitude from {self._input_name}", "info")
         if self._wants_position:
             log.info("magnetic reference auto: no attitude until the vehicle's %s arrives", POSITION_MESSAGE)
@@ -240,6 +237,13 @@ class AttitudeService:
                 self._ack_due = now + ACK_TIMEOUT_S
         if self._wants_position:
             self.link.request_message_interval(self.vehicle, self._position_id, POSITION_RATE_HZ)
+
+    def on_message(self, msg: Any, t_rx: float) -> None:
+        if msg.get_type() == "COMMAND_ACK":
+            self._on_ack(msg)
+
+    def on_autopilot_attitude(self, attitude: AutopilotAttitude, t_rx: float) -> None:
+        """Not used by the live service (yet): only replay compares with the autopilot."""
 
     def _on_ack(self, msg: Any) -> None:
         result = self.link.interval_ack_result(msg)
@@ -264,49 +268,26 @@ class AttitudeService:
 
     # -- input and output -----------------------------------------------------------------------------
 
-    def _on_input(self, msg: Any, t_rx: float) -> None:
-        self.counters.received += 1
-        try:
-            sample = units.decode(msg, self._profile)
-        except SensorError as exc:
-            self._reject("decode", exc)
-            return
+    def on_input(self, sample: ImuSample, t_rx: float) -> None:
         self._last_input = t_rx
         if self._input_lost:
             self._input_lost = False
             log.info("input %s is back", self._input_name)
-        rejected = self.pipeline.counters.rejected
-        degenerate_before = rejected[DEGENERATE]
-        try:
-            outputs = self.pipeline.push(sample)
-        except MavAttitudeError as exc:  # the pipeline counts what it refuses; anything it raises is kept alive
-            self._reject("pipeline_error", exc)
-            return
-        except Exception:  # a bug below us: drop the sample and keep serving, with the traceback in the log
-            self.counters.rejected["internal_error"] += 1
-            if self._limiter.allow("log:internal_error"):
-                log.exception("internal error in the pipeline; sample dropped (please report this)")
-            return
-        if rejected[DEGENERATE] != degenerate_before:
+        self._degenerate_before = self.pipeline.counters.rejected[DEGENERATE]
+
+    def on_outputs(self, outputs: list[AttitudeOutput], t_rx: float) -> None:
+        if self.pipeline.counters.rejected[DEGENERATE] != self._degenerate_before:
             self._statustext("degenerate", "mavattitude: acc and mag near collinear, no attitude", "warning")
         for out in outputs:
             self._emit(out, t_rx)
 
-    def _on_position(self, msg: Any) -> None:
-        position = units.decode_position(msg)
-        if position is None:
-            return
-        self.counters.positions += 1
-        if self.pipeline.set_position(position.lat_deg, position.lon_deg, position.alt_m):
-            log.info(
-                "magnetic reference from the WMM at %.4f°, %.4f°, %.0f m: %s µT NED",
-                position.lat_deg,
-                position.lon_deg,
-                position.alt_m,
-                np.array2string(self.pipeline.mag_ref_ned_uT, precision=2),
-            )
+    def on_reject(self, reason: str, exc: BaseException) -> None:
+        if reason != "internal_error":
+            self._reject(reason, exc, counted=True)
+        elif self._limiter.allow("log:internal_error"):  # a bug below us: the traceback goes to the log
+            log.error("internal error in the pipeline; sample dropped (please report this)", exc_info=exc)
 
-    def _emit(self, out: Any, t_rx: float) -> None:
+    def _emit(self, out: AttitudeOutput, t_rx: float) -> None:
         try:
             sent = self.link.send_attitude_quaternion(units.time_boot_ms(out.time_s), out.q, out.rates_radps)
         except InputError as exc:
@@ -331,8 +312,9 @@ class AttitudeService:
         if self.config.link.request_messages and self.vehicle is not None:
             self._next_request = time.monotonic()  # a rebooted autopilot has forgotten our request: ask now
 
-    def _reject(self, reason: str, exc: Exception) -> None:
-        self.counters.rejected[reason] = self.counters.rejected.get(reason, 0) + 1
+    def _reject(self, reason: str, exc: BaseException, counted: bool = False) -> None:
+        if not counted:
+            self.counters.rejected[reason] = self.counters.rejected.get(reason, 0) + 1
         if self._limiter.allow(f"log:{reason}"):
             held = self._limiter.take_suppressed(f"log:{reason}")
             log.warning("rejected (%s): %s%s", reason, exc, f" (+{held} more since the last report)" if held else "")

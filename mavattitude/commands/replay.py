@@ -14,11 +14,8 @@ pip install mavattitude[plot]; without it the plot is skipped with a warning).
 from __future__ import annotations
 
 import argparse
-import datetime as dt
 import logging
 import sys
-from collections import Counter
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -26,15 +23,13 @@ import numpy as np
 
 from mavattitude.commands._offline import add_config_arguments, config_from_args, output_row, summarise, write_outputs
 from mavattitude.config import MESSAGES, PROFILES
-from mavattitude.errors import DataFileError, SensorError
-from mavattitude.link.connection import MavlinkLink
+from mavattitude.errors import DataFileError
 
 NAME = "replay"
 HELP = "the service's pipeline over a telemetry log (.tlog): attitude CSV, compared with the autopilot's"
 
 log = logging.getLogger(__name__)
 
-POSITION_MESSAGES = ("GLOBAL_POSITION_INT", "GPS_RAW_INT")
 # Autopilot attitudes further apart than this are not interpolated between.
 MAX_ATTITUDE_GAP_S = 0.5
 
@@ -55,84 +50,39 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_config_arguments(parser)
 
 
-@dataclass
-class LogContents:
-    """What replay gathered from the log besides the outputs."""
-
-    attitude: list[tuple[float, float, float, float]] = field(default_factory=list)  # t_s, roll, pitch, yaw (rad)
-    skipped: Counter[str] = field(default_factory=Counter)
-    imu_messages: int = 0
-    autopilot: tuple[int, int] | None = None
-
-
 def run(args: argparse.Namespace) -> int:
-    from mavattitude.link.tlog import read_messages
-    from mavattitude.pipeline import AttitudePipeline
-    from mavattitude.sensors.units import decode, decode_position, get_profile
+    from mavattitude.link.source import MavlinkDecoder
+    from mavattitude.link.tlog import TlogSource
+    from mavattitude.replay import replay
 
     overrides = {"input.message": args.message, "input.profile": args.profile}
     config = config_from_args(args, {k: v for k, v in overrides.items() if v is not None})
-    profile = get_profile(config.input.profile, config.input.custom)
-    pipeline = AttitudePipeline(config)
-    message = config.input.message
-    contents = LogContents()
-    rows: list[list[str]] = []
-    wanted = {message, "HEARTBEAT", "ATTITUDE", *POSITION_MESSAGES}
-    for msg in read_messages(args.log, wanted):
-        kind = msg.get_type()
-        if not _from_autopilot(msg, contents, config.link.vehicle_system_id):
-            continue
-        if kind == message:
-            contents.imu_messages += 1
-            try:
-                sample = decode(msg, profile)
-            except SensorError as exc:
-                contents.skipped[f"undecodable {kind}"] += 1
-                log.debug("%s", exc)
-                continue
-            rows += [output_row(o.time_s, o.q, o.iterations, o.converged) for o in pipeline.push(sample)]
-        elif kind == "ATTITUDE":
-            contents.attitude.append((msg.time_boot_ms * 1e-3, msg.roll, msg.pitch, msg.yaw))
-        elif kind in POSITION_MESSAGES and config.reference.magnetic.mode == "auto":
-            position = decode_position(msg)
-            if position is not None:
-                when = dt.datetime.fromtimestamp(msg._timestamp, dt.timezone.utc).date()
-                pipeline.set_position(position.lat_deg, position.lon_deg, position.alt_m, when)
-    _check_found(args.log, message, contents, pipeline)
-    summarise(pipeline, contents.imu_messages, args.log)
-    write_outputs(args.output, rows)
-    log.info("wrote %d attitudes to %s", len(rows), args.output)
-    if contents.attitude:
-        _compare(np.array([[float(v) for v in r] for r in rows]), np.array(contents.attitude), args)
+    source = TlogSource(args.log, MavlinkDecoder.from_config(config))
+    result = replay(source, config)
+    _check_found(args.log, config.input.message, result)
+    summarise(result.pipeline, result.counters.received, args.log)
+    ours = result.output_array()
+    write_outputs(args.output, (output_row(o.time_s, o.q, o.iterations, o.converged) for o in result.outputs))
+    log.info("wrote %d attitudes to %s", len(ours), args.output)
+    if result.autopilot:
+        _compare(ours, result.autopilot_array(), args)
     else:
         log.info("%s holds no ATTITUDE from the autopilot: no comparison", args.log)
     return 0
 
 
-def _from_autopilot(msg: Any, contents: LogContents, system_id: int) -> bool:
-    """Lock onto the autopilot as the service does; True for a message from it."""
-    source = (msg.get_srcSystem(), msg.get_srcComponent())
-    if contents.autopilot is None:
-        if MavlinkLink.is_autopilot_heartbeat(msg) and system_id in (0, source[0]):
-            contents.autopilot = source
-            log.info("following the autopilot at system %d, component %d", *source)
-        elif msg.get_type() != "HEARTBEAT":
-            contents.skipped["before the autopilot's HEARTBEAT"] += 1
-        return False
-    if source != contents.autopilot:
-        contents.skipped["other system or component"] += 1
-        return False
-    return True
-
-
-def _check_found(path: str, message: str, contents: LogContents, pipeline: Any) -> None:
-    for reason, count in sorted(contents.skipped.items()):
-        log.info("%s: skipped %d message(s): %s", path, count, reason)
-    if contents.autopilot is None:
+def _check_found(path: str, message: str, result: Any) -> None:
+    if result.counters.ignored:
+        log.info(
+            "%s: ignored %d message(s) not from the autopilot (other system or component, or before its HEARTBEAT)",
+            path,
+            result.counters.ignored,
+        )
+    if result.vehicle is None:
         raise DataFileError(f"{path}: no autopilot HEARTBEAT (from link.vehicle_system_id, if set)")
-    if contents.imu_messages == 0:
+    if result.counters.received == 0:
         raise DataFileError(f"{path}: no {message} from the autopilot (set input.message, or --message)")
-    if pipeline.waiting_for_reference:
+    if result.pipeline.waiting_for_reference:
         raise DataFileError(
             f"{path}: reference.magnetic is auto but the log holds no position with a fix: give --declination "
             "DEG --inclination DEG or --mag-ref-ned N E D"
@@ -140,16 +90,16 @@ def _check_found(path: str, message: str, contents: LogContents, pipeline: Any) 
 
 
 def compare(ours: np.ndarray, autopilot: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Ours (rows ``t_s, qw, qx, qy, qz, …``) against the autopilot's ATTITUDE (``t_s, roll, pitch, yaw``, rad).
+    """Ours (rows ``t_s, qw, qx, qy, qz``) against the autopilot's attitude (rows ``t_s, qw, qx, qy, qz``).
 
     Returns the times compared, the autopilot's quaternions there, and our-minus-theirs differences in
     degrees ``(roll, pitch, yaw wrapped to ±180, total angle)``, at our output times that fall between two
     autopilot attitudes at most ``MAX_ATTITUDE_GAP_S`` apart.
     """
-    from mavattitude.estimation.conventions import angle_between, euler_from_quat, quat_from_euler
+    from mavattitude.estimation.conventions import angle_between, euler_from_quat
 
     t_ap = autopilot[:, 0]
-    q_ap = quat_from_euler(autopilot[:, 1], autopilot[:, 2], autopilot[:, 3])
+    q_ap = autopilot[:, 1:5]
     t = ours[:, 0]
     after = np.searchsorted(t_ap, t)
     inside = (after > 0) & (after < len(t_ap))
@@ -194,6 +144,7 @@ def _compare(ours: np.ndarray, autopilot: np.ndarray, args: argparse.Namespace) 
 
 
 def _plot(path: Path, ours: np.ndarray, t: np.ndarray, q_ref: np.ndarray, diff: np.ndarray) -> None:
+    """Roll, pitch, yaw of ours (rows ``t_s, qw, qx, qy, qz``) and the autopilot's, and the angle between."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -202,9 +153,10 @@ def _plot(path: Path, ours: np.ndarray, t: np.ndarray, q_ref: np.ndarray, diff: 
     from mavattitude.estimation.conventions import euler_from_quat
 
     ref_deg = np.degrees(euler_from_quat(q_ref))
+    ours_deg = np.degrees(euler_from_quat(ours[:, 1:5]))
     fig, axes = plt.subplots(4, 1, sharex=True, figsize=(10, 9))
     for i, name in enumerate(("roll", "pitch", "yaw")):
-        axes[i].plot(ours[:, 0], ours[:, 5 + i], lw=0.8, label="mavattitude")
+        axes[i].plot(ours[:, 0], ours_deg[:, i], lw=0.8, label="mavattitude")
         axes[i].plot(t, ref_deg[:, i], lw=0.8, label="autopilot ATTITUDE")
         axes[i].set_ylabel(f"{name} (deg)")
     axes[0].legend(loc="upper right")

@@ -239,7 +239,7 @@ class MavlinkLink:
 
     def __init__(
         self,
-        connect: str,
+        connect: str | Endpoint,
         *,
         source_system: int,
         source_component: int = mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER,
@@ -255,7 +255,7 @@ class MavlinkLink:
             raise SigningError(f"a MAVLink 2 signing key is 32 bytes, not {len(signing_key)}")
         if require_signing and signing_key is None:
             raise SigningError("require_signing is on but no signing key is configured")
-        self.endpoint = parse_connect(connect, baud)
+        self.endpoint = connect if isinstance(connect, Endpoint) else parse_connect(connect, baud)
         self.counters = LinkCounters()
         self._source = (source_system, source_component)
         self._signing_key = signing_key
@@ -278,11 +278,15 @@ class MavlinkLink:
 
     # -- connection management ------------------------------------------------------------------------
 
-    def _open(self) -> None:
+    def _connect(self) -> Any:
+        """The pymavlink connection of :attr:`endpoint`, not yet set up (raises ``OSError`` when it cannot open)."""
         try:
-            conn = _open_connection(self.endpoint, *self._source)
+            return _open_connection(self.endpoint, *self._source)
         except ValueError as exc:  # pymavlink's complaint about an address
             raise LinkError(f"cannot open {self.endpoint.kind}:{self.endpoint.address}: {exc}") from exc
+
+    def _open(self) -> None:
+        conn = self._connect()
         force_mavlink2(conn)
         conn.mav.file = _StampedWriter(conn.write, self)
         conn.mav.seq = self._seq

@@ -1,16 +1,32 @@
-"""Read MAVLink messages of given types from a telemetry log (.tlog) with pymavlink.
+"""Telemetry logs (.tlog) read with pymavlink: a message source, and plain message iteration.
 
-A .tlog is what MAVProxy and ground stations record: each packet prefixed with a 64-bit timestamp.
-Used by ``mavattitude calibrate`` and ``mavattitude replay``.
+A .tlog is what MAVProxy and ground stations record: each MAVLink packet preceded by its receive time
+(64-bit big-endian µs since 1970). :class:`TlogSource` hands its messages out decoded, as the live link
+does (:mod:`mavattitude.link.source`), with the log's receive time as ``t_rx``.
 """
 
 from __future__ import annotations
 
+import datetime as dt
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
 from mavattitude.errors import DataFileError
+from mavattitude.link.source import MavlinkDecoder, Received, Sender
+
+CHUNK_MESSAGES = 4096  # messages per recv(): large enough to amortise the call, small enough for progress
+
+
+def _open(path: Path, dialect: str) -> Any:
+    from pymavlink import mavutil
+
+    if not path.is_file():
+        raise DataFileError(f"{path}: no such telemetry log")
+    try:
+        return mavutil.mavlink_connection(str(path), dialect=dialect, robust_parsing=True, notimestamps=False)
+    except (OSError, ValueError) as exc:
+        raise DataFileError(f"{path}: cannot open as a telemetry log: {exc}") from exc
 
 
 def read_messages(
@@ -20,16 +36,8 @@ def read_messages(
 
     Raises :class:`DataFileError` when the file cannot be opened; bad packets are skipped by pymavlink.
     """
-    from pymavlink import mavutil
-
-    path = Path(path)
-    if not path.is_file():
-        raise DataFileError(f"{path}: no such telemetry log")
+    log = _open(Path(path), dialect)
     wanted = sorted(set(types))
-    try:
-        log = mavutil.mavlink_connection(str(path), dialect=dialect, robust_parsing=True, notimestamps=False)
-    except OSError as exc:
-        raise DataFileError(f"{path}: cannot open as a telemetry log: {exc}") from exc
     try:
         while True:
             msg = log.recv_match(type=wanted)
@@ -40,3 +48,41 @@ def read_messages(
             yield msg
     finally:
         log.close()
+
+
+def _log_date(msg: Any) -> dt.date:
+    return dt.datetime.fromtimestamp(msg._timestamp, dt.timezone.utc).date()
+
+
+class TlogSource:
+    """A telemetry log as a message source: the messages the decoder reads, decoded, in log order."""
+
+    vehicle: Sender | None = None  # a ground station's log holds every system it heard: lock on as live
+
+    def __init__(self, path: str | Path, decoder: MavlinkDecoder, dialect: str = "ardupilotmega") -> None:
+        self.path = Path(path)
+        self.name = str(path)
+        self.decoder = MavlinkDecoder(decoder.message, decoder.profile, _log_date)
+        self.finished = False
+        self.size_bytes = self.path.stat().st_size if self.path.is_file() else 0
+        self._log = _open(self.path, dialect)
+        self._types = sorted(self.decoder.types)
+
+    @property
+    def position_bytes(self) -> int:
+        """How far into the file the reader is (for progress)."""
+        return int(self._log.f.tell())
+
+    def recv(self, timeout_s: float = 0.0) -> list[Received]:
+        out: list[Received] = []
+        if self.finished:
+            return out
+        recv_match, decode, types = self._log.recv_match, self.decoder, self._types
+        for _ in range(CHUNK_MESSAGES):
+            msg = recv_match(type=types)
+            if msg is None:
+                self.finished = True
+                self._log.close()
+                break
+            out.append((msg._timestamp, (msg.get_srcSystem(), msg.get_srcComponent()), decode(msg)))
+        return out

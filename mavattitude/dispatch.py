@@ -1,0 +1,144 @@
+"""The one dispatcher between a message source and the attitude pipeline: the service's rules, and replay's.
+
+:class:`Dispatcher` takes what a :class:`~mavattitude.link.source.MessageSource` received and
+
+- locks onto the autopilot: ``system_id`` (``link.vehicle_system_id``), or with 0 the first autopilot
+  HEARTBEAT; that ``(system, component)`` is the only sender listened to, everything else (and
+  everything before the lock) is ignored and counted. A log written by the autopilot itself names its
+  vehicle (``source.vehicle``) and is locked onto from the start;
+- routes the vehicle's items: IMU samples into the pipeline (its outputs to the listener), positions to
+  the pipeline's magnetic reference (``reference.magnetic: auto``), the autopilot's attitude and any
+  other message to the listener; an undecodable input message or a pipeline failure is counted as a
+  reject and told to the listener, and the next sample goes on.
+
+The service (:mod:`mavattitude.service`) and ``replay`` are two listeners on this one dispatcher, so a
+log replayed offline and the same messages arriving live give the same attitudes.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from mavattitude.errors import MavAttitudeError
+from mavattitude.link.source import AutopilotAttitude, Heartbeat, PositionFix, Received, Sender, Undecodable
+from mavattitude.pipeline import AttitudeOutput, AttitudePipeline
+from mavattitude.sensors.units import ImuSample
+
+log = logging.getLogger(__name__)
+
+DISPATCH_REJECTS = ("decode", "pipeline_error", "internal_error")
+
+
+@dataclass
+class DispatchCounters:
+    """What the dispatcher saw: the service's counters extend these."""
+
+    received: int = 0  # input (IMU) messages from the autopilot
+    ignored: int = 0  # items from other senders, or before locking on
+    rejected: dict[str, int] = field(default_factory=lambda: dict.fromkeys(DISPATCH_REJECTS, 0))
+    positions: int = 0  # vehicle positions handed to the pipeline (magnetic reference ``auto``)
+    autopilot_attitudes: int = 0  # the autopilot's own attitude estimates seen
+
+
+class Listener(Protocol):
+    """What the dispatcher tells its owner (the service, replay)."""
+
+    def on_lock(self, vehicle: Sender) -> None:
+        """Locked onto the autopilot ``vehicle``."""
+
+    def on_input(self, sample: ImuSample, t_rx: float) -> None:
+        """An input sample from the vehicle, about to enter the pipeline."""
+
+    def on_outputs(self, outputs: list[AttitudeOutput], t_rx: float) -> None:
+        """What the pipeline made of the last input sample (often nothing)."""
+
+    def on_autopilot_attitude(self, attitude: AutopilotAttitude, t_rx: float) -> None:
+        """The autopilot's own attitude estimate."""
+
+    def on_message(self, msg: Any, t_rx: float) -> None:
+        """Any other MAVLink message from the vehicle (COMMAND_ACK, …)."""
+
+    def on_reject(self, reason: str, exc: BaseException) -> None:
+        """An input dropped: ``reason`` is one of :data:`DISPATCH_REJECTS` (counted already)."""
+
+
+class Dispatcher:
+    """Lock-on and routing; see the module docstring. ``handle`` one received item at a time."""
+
+    def __init__(
+        self,
+        pipeline: AttitudePipeline,
+        listener: Listener,
+        *,
+        system_id: int = 0,
+        vehicle: Sender | None = None,
+        counters: DispatchCounters | None = None,
+    ) -> None:
+        self.pipeline = pipeline
+        self.listener = listener
+        self.system_id = system_id
+        self.counters = counters if counters is not None else DispatchCounters()
+        self.wants_position = pipeline.config.reference.magnetic.mode == "auto"
+        self.vehicle: Sender | None = None
+        if vehicle is not None:
+            self._lock(vehicle)
+
+    def handle(self, received: Received) -> None:
+        t_rx, sender, item = received
+        if sender != self.vehicle:
+            if self.vehicle is None and type(item) is Heartbeat and item.autopilot and self.system_id in (0, sender[0]):
+                self._lock(sender)
+            else:
+                self.counters.ignored += 1
+            return
+        kind = type(item)
+        if kind is ImuSample:
+            self._on_sample(item, t_rx)
+        elif kind is AutopilotAttitude:
+            self.counters.autopilot_attitudes += 1
+            self.listener.on_autopilot_attitude(item, t_rx)
+        elif kind is PositionFix:
+            if self.wants_position:
+                self._on_position(item)
+        elif kind is Undecodable:
+            self.counters.received += 1
+            self._reject("decode", item.error)
+        elif kind is not Heartbeat and item is not None:
+            self.listener.on_message(item, t_rx)
+
+    def _lock(self, vehicle: Sender) -> None:
+        self.vehicle = vehicle
+        self.listener.on_lock(vehicle)
+
+    def _on_sample(self, sample: ImuSample, t_rx: float) -> None:
+        self.counters.received += 1
+        self.listener.on_input(sample, t_rx)
+        try:
+            outputs = self.pipeline.push(sample)
+        except MavAttitudeError as exc:  # the pipeline counts what it refuses; anything it raises is kept alive
+            self._reject("pipeline_error", exc)
+            return
+        except Exception as exc:  # a bug below us: the sample is dropped, the listener decides what to say
+            self._reject("internal_error", exc)
+            return
+        self.listener.on_outputs(outputs, t_rx)
+
+    def _on_position(self, fix: PositionFix) -> None:
+        p = fix.position
+        self.counters.positions += 1
+        if self.pipeline.set_position(p.lat_deg, p.lon_deg, p.alt_m, fix.date):
+            log.info(
+                "magnetic reference from the WMM at %.4f°, %.4f°, %.0f m: %s µT NED",
+                p.lat_deg,
+                p.lon_deg,
+                p.alt_m,
+                np.array2string(self.pipeline.mag_ref_ned_uT, precision=2),
+            )
+
+    def _reject(self, reason: str, exc: BaseException) -> None:
+        self.counters.rejected[reason] = self.counters.rejected.get(reason, 0) + 1
+        self.listener.on_reject(reason, exc)

@@ -1,0 +1,177 @@
+"""Message sources: where the service, ``replay`` and ``calibrate`` read the vehicle's data from.
+
+A :class:`MessageSource` hands out what arrived as ``(t_rx, sender, item)`` triples (:data:`Received`):
+``t_rx`` is ``time.monotonic()`` at arrival for a live link and the log's own receive time for a log,
+``sender`` the MAVLink ``(system, component)``, and ``item`` one decoded event:
+
+- :class:`~mavattitude.sensors.units.ImuSample`: an IMU reading in SI units, the vehicle's sample time;
+- :class:`PositionFix`: a vehicle position (for the World Magnetic Model), with the log's date if known;
+- :class:`AutopilotAttitude`: the autopilot's own attitude estimate, to compare with;
+- :class:`Heartbeat`: whether the sender is an autopilot (what the dispatcher locks onto);
+- :class:`Undecodable`: an input message whose fields could not be turned into a sample;
+- any other MAVLink message, as pymavlink decoded it (COMMAND_ACK, …), for the service to read.
+
+A live link (:class:`MavlinkSource` over a :class:`~mavattitude.link.connection.MavlinkLink`, or over
+the in-memory :class:`~mavattitude.link.memory.MemoryLink` in tests) and the log sources (``.tlog``,
+DataFlash ``.bin``, ULog ``.ulg``: :func:`mavattitude.link.logs.open_log`) all produce the same items, so
+:class:`~mavattitude.dispatch.Dispatcher` routes them with one set of rules.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from mavattitude.errors import SensorError
+from mavattitude.link.connection import MavlinkLink, Message
+from mavattitude.sensors import units
+
+Sender = tuple[int, int]  # MAVLink (system id, component id)
+Received = tuple[float, Sender, Any]  # (t_rx, sender, item): see the module docstring
+
+POSITION_MESSAGES = ("GLOBAL_POSITION_INT", "GPS_RAW_INT")
+ATTITUDE_MESSAGES = ("ATTITUDE", "ATTITUDE_QUATERNION")
+
+
+@dataclass(frozen=True, slots=True)
+class Heartbeat:
+    """A HEARTBEAT; ``autopilot`` when it comes from a flight controller."""
+
+    autopilot: bool
+
+
+@dataclass(frozen=True, slots=True)
+class PositionFix:
+    """A vehicle position; ``date`` is the day it was recorded (a log's), ``None`` for today (live)."""
+
+    position: units.Position
+    date: dt.date | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class AutopilotAttitude:
+    """The autopilot's attitude at ``time_s`` (vehicle clock): ``q`` = [w, x, y, z] body FRD → NED."""
+
+    time_s: float
+    q: tuple[float, float, float, float]
+
+
+@dataclass(frozen=True, slots=True)
+class Undecodable:
+    """An input message that could not be decoded (implausible units, a message the profile does not read)."""
+
+    error: SensorError
+
+
+class MessageSource(Protocol):
+    """What the dispatcher reads: decoded items from one link or log.
+
+    ``vehicle`` is the sender of a log written by the autopilot itself (DataFlash, ULog: there is no
+    other), so nothing needs locking onto; ``None`` where the autopilot must be found by its HEARTBEAT.
+    ``finished`` turns true when a log has been read to its end (a live link never finishes).
+    """
+
+    name: str
+    vehicle: Sender | None
+    finished: bool
+
+    def recv(self, timeout_s: float) -> list[Received]:
+        """What arrived within ``timeout_s`` (a log returns its next chunk at once)."""
+        ...
+
+
+def euler_attitude(time_s: float, roll_rad: float, pitch_rad: float, yaw_rad: float) -> AutopilotAttitude:
+    """An autopilot attitude given as ZYX Euler angles (MAVLink ATTITUDE, DataFlash ATT)."""
+    cr, sr = math.cos(0.5 * roll_rad), math.sin(0.5 * roll_rad)
+    cp, sp = math.cos(0.5 * pitch_rad), math.sin(0.5 * pitch_rad)
+    cy, sy = math.cos(0.5 * yaw_rad), math.sin(0.5 * yaw_rad)
+    q = (
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    )
+    return AutopilotAttitude(time_s, q)
+
+
+@dataclass
+class MavlinkDecoder:
+    """MAVLink message → item: the input message through its unit profile, positions, the autopilot's
+    attitude and heartbeats decoded; anything else handed on as it is.
+
+    ``date_of`` gives the recording date of a message in a log (``None``: live, today).
+    """
+
+    message: str
+    profile: units.UnitProfile
+    date_of: Callable[[Message], dt.date | None] | None = None
+    _routes: dict[str, Callable[[Message], Any]] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self._routes = {
+            self.message: self._imu,
+            "HEARTBEAT": _heartbeat,
+            "ATTITUDE": _attitude,
+            "ATTITUDE_QUATERNION": _attitude_quaternion,
+            **dict.fromkeys(POSITION_MESSAGES, self._position),
+        }
+
+    @classmethod
+    def from_config(cls, config: Any, date_of: Callable[[Message], dt.date | None] | None = None) -> MavlinkDecoder:
+        return cls(config.input.message, units.get_profile(config.input.profile, config.input.custom), date_of)
+
+    @property
+    def types(self) -> frozenset[str]:
+        """The message types this decoder turns into data (what a log reader needs to read)."""
+        return frozenset(self._routes)
+
+    def __call__(self, msg: Message) -> Any:
+        route = self._routes.get(msg.get_type())
+        return msg if route is None else route(msg)
+
+    def _imu(self, msg: Message) -> Any:
+        try:
+            return units.decode(msg, self.profile)
+        except SensorError as exc:
+            return Undecodable(exc)
+
+    def _position(self, msg: Message) -> PositionFix | None:
+        position = units.decode_position(msg)
+        if position is None:
+            return None
+        return PositionFix(position, self.date_of(msg) if self.date_of is not None else None)
+
+
+def _heartbeat(msg: Message) -> Heartbeat:
+    return Heartbeat(MavlinkLink.is_autopilot_heartbeat(msg))
+
+
+def _attitude(msg: Message) -> AutopilotAttitude:
+    return euler_attitude(msg.time_boot_ms * 1e-3, msg.roll, msg.pitch, msg.yaw)
+
+
+def _attitude_quaternion(msg: Message) -> AutopilotAttitude:
+    return AutopilotAttitude(msg.time_boot_ms * 1e-3, (msg.q1, msg.q2, msg.q3, msg.q4))
+
+
+def _sender(msg: Message) -> Sender:
+    return (msg.get_srcSystem(), msg.get_srcComponent())
+
+
+class MavlinkSource:
+    """The live link as a message source: :meth:`MavlinkLink.recv` through a :class:`MavlinkDecoder`."""
+
+    vehicle: Sender | None = None
+    finished = False
+
+    def __init__(self, link: MavlinkLink, decoder: MavlinkDecoder) -> None:
+        self.link = link
+        self.decoder = decoder
+        self.name = link.endpoint.address
+
+    def recv(self, timeout_s: float) -> list[Received]:
+        decode = self.decoder
+        return [(t_rx, _sender(msg), decode(msg)) for t_rx, msg in self.link.recv(timeout_s)]
