@@ -3,7 +3,7 @@
 
     .venv/bin/python tools/reproduce_paper.py [--n 10000] [--seed 20140401] [--figures docs/figures]
 
-1. Static Monte Carlo (Section 5.1): the paper's body vectors, noise and attitude (NOTES.md), N samples,
+1. Static Monte Carlo (Section 5.1): the paper's body vectors, noise and attitude (docs/paper-notes.md), N samples,
    every method; Table 1 side by side with the paper, the analytic covariances (sandwich, CRB, the paper's
    Eq. 23 and its printed Eq. 39) against the Monte Carlo one, and the iteration counts from TRIAD and,
    as the paper apparently did, from the identity.
@@ -49,11 +49,11 @@ from mavattitude.sim.scenarios import (  # noqa: E402
 )
 
 NOISE = NoiseModel(accel_std=PAPER_ACCEL_STD_MPS2, mag_std=PAPER_MAG_STD_UT)
-DOWN = np.array([0.0, 0.0, 1.0])  # the paper's accelerometer vector is gravity (NOTES.md)
+DOWN = np.array([0.0, 0.0, 1.0])  # the paper's accelerometer vector is gravity (docs/paper-notes.md)
 GRAVITY_MPS2 = 9.80665
 # Table 1 and 2 of the paper: variance (deg²) and mean absolute error (deg), yaw / pitch / roll.
 PAPER_TABLE1 = {
-    "ign": ((0.2822, 0.0033, 0.0037), (0.4208, 0.0459, 0.0484)),  # roll mean printed "0.484" (NOTES.md)
+    "ign": ((0.2822, 0.0033, 0.0037), (0.4208, 0.0459, 0.0484)),  # roll mean printed "0.484" (docs/paper-notes.md)
     "cgn": ((0.3616, 0.0380, 0.0900), (0.4823, 0.1549, 0.2386)),
 }
 PAPER_TABLE2 = {

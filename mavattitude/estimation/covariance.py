@@ -7,7 +7,7 @@ evaluated at the measured unit vectors ``ŵᵢ`` with ``R_unit,i`` of Eq. 9; the
 - Scalar weights (``ign``, ``cgn``): the sandwich ``P = M⁻¹ (Σ aᵢ² [ŵᵢ×] R_unit,i [ŵᵢ×]ᵀ) M⁻¹``,
   ``M = Σ aᵢ (I − ŵᵢŵᵢᵀ)``. Not the paper's Eq. 17/23, which treats ``1/aᵢ = tr(R_unit)/3`` as a per-axis
   variance (it is ``tr/2`` for unit-vector noise) and so under-states the error, at 0.65× the Cramér–Rao
-  bound in the paper's scenario (NOTES.md); nor its printed Eq. 39, about 2× Eq. 23.
+  bound in the paper's scenario (docs/paper-notes.md); nor its printed Eq. 39, about 2× Eq. 23.
 - ``ml``: the Cramér–Rao bound, ``CRB⁻¹ = Σ [ŵᵢ×]ᵀ R_unit,i⁺ [ŵᵢ×]``, which the maximum-likelihood
   solve attains to first order.
 - ``triad``: the linearised TRIAD (accelerometer primary), which fits the primary direction exactly

@@ -175,7 +175,7 @@ def paper_weight(w: Vec, n: Scalar, var: Vec) -> Scalar:
 def ml_weight(w: Vec, r_unit: Sym, a: Scalar) -> Sym:
     """``R_unit⁺ + ŵŵᵀ/κ² = (R_unit + κ² ŵŵᵀ)⁻¹`` (``ŵ`` is ``R_unit``'s unit null vector, ``κ² = 1/a``).
 
-    The radial term keeps the matrix-weighted cost from gaining a spurious zero 180° away (NOTES.md);
+    The radial term keeps the matrix-weighted cost from gaining a spurious zero 180° away (docs/paper-notes.md);
     writing the sum as one inverse keeps it well conditioned.
     """
     k2 = 1.0 / a

@@ -14,7 +14,7 @@ disturbance) that rate is not tiny, and once it shows (:func:`.kernel.slow`) the
 are Newton's, to the same optimum (:func:`.kernel.scalar_weight_step`).
 
 A warm start ``q0`` (the previous sample's answer) is used only when its Wahba loss is not above
-TRIAD's (a stale or flipped one may sit at a stationary point of Eq. 34 180° away, NOTES.md), and only
+TRIAD's (a stale or flipped one may sit at a stationary point of Eq. 34 180° away, docs/paper-notes.md), and only
 for ``WARM_START_BUDGET`` corrections: in a maneuver the previous answer's tilt error shrinks at
 Gauss–Newton's slow linear rate (0.15 per step in tools/reproduce_paper.py's flight), so the solver
 then restarts from TRIAD. All corrections count in ``iterations``.

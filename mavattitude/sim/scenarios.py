@@ -1,7 +1,7 @@
 """Named truth scripts and sensor presets: what the tests, the demo and `mavattitude simulate` fly.
 
 - ``paper_static``: the static scenario of Section 5.1 of the paper (body vectors, noise and attitude
-  from ``shared/paper/NOTES.md``): pitch −30°, roll 20°, yaw 142.2° from magnetic north, inclination
+  from ``docs/paper-notes.md``): pitch −30°, roll 20°, yaw 142.2° from magnetic north, inclination
   64.98°, |B| = 54.6 µT. The paper's ``w2`` is the gravity vector; an accelerometer reads ``−w2``.
 - ``slow_rotation``: a constant body rate of a few °/s about all three axes.
 - ``maneuver``: a multirotor flight: accelerate north to 8 m/s, a 90° coordinated turn, a climb, a
@@ -23,7 +23,7 @@ from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2
 from mavattitude.sim.sensors import AxisModel, SensorModel
 from mavattitude.sim.trajectory import Flip, Fly, Hold, Rotate, Script
 
-# Paper, Section 5.1 (NOTES.md): body vectors and noise.
+# Paper, Section 5.1 (docs/paper-notes.md): body vectors and noise.
 PAPER_MAG_BODY_UT = np.array([89.3847, 44.7538, 536.8714]) * 0.1  # 1e-7 T = 0.1 µT
 PAPER_GRAVITY_BODY_MPS2 = np.array([4.9000, 2.9027, 7.9752])
 PAPER_MAG_STD_UT = (0.2, 0.3, 0.25)  # R1 = diag(2², 3², 2.5²)·1e-14 T²

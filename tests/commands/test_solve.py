@@ -19,10 +19,9 @@ from mavattitude.commands._offline import OUTPUT_COLUMNS
 from mavattitude.config import ENV_VAR
 from mavattitude.estimation.conventions import angle_between, euler_from_quat, quat_from_euler, rotate_ned_to_body
 from mavattitude.sensors.magref import field_from_angles
+from tests.shared import shared_path
 
 ENV_WITHOUT_OVERLAY = {k: v for k, v in os.environ.items() if k != ENV_VAR}
-ROOT = Path(__file__).resolve().parents[2]
-PX4_CSV = ROOT / ".." / "shared" / "data" / "px4" / "px4_sample_sensors.csv.gz"
 G = 9.80665
 Q_TRUE = quat_from_euler(np.radians(-5.0), np.radians(30.0), np.radians(-100.0))
 DECL, INCL, F_UT = 3.0, 55.0, 48.0
@@ -189,7 +188,8 @@ def _measured_inclination_deg(acc: np.ndarray, mag: np.ndarray) -> float:
 
 
 def test_real_px4_log_as_a_subprocess_agrees_with_the_autopilot(tmp_path):
-    with gzip.open(PX4_CSV, "rt") as f:
+    px4_csv = shared_path("data", "px4", "px4_sample_sensors.csv.gz")
+    with gzip.open(px4_csv, "rt") as f:
         header = f.readline().strip().split(",")
         data = np.loadtxt(f, delimiter=",")
     col = {name: data[:, i] for i, name in enumerate(header)}
@@ -198,7 +198,7 @@ def test_real_px4_log_as_a_subprocess_agrees_with_the_autopilot(tmp_path):
     mag = np.stack([col[f"mag_{a}_uT"] for a in "xyz"], 1)[first_s]
     out = tmp_path / "px4.csv"
     # The onboard estimator ran with declination 0: its yaw is magnetic, so is ours.
-    args = ["solve", str(PX4_CSV), "-o", str(out), "--declination", "0", "--inclination"]
+    args = ["solve", str(px4_csv), "-o", str(out), "--declination", "0", "--inclination"]
     args.append(f"{_measured_inclination_deg(acc, mag):.3f}")
     done = subprocess.run(
         [sys.executable, "-m", "mavattitude", *args],

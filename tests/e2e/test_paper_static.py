@@ -53,7 +53,7 @@ def test_paper_static_errors_match_the_predicted_covariance(fly: Callable[..., A
     n_eff = OUTPUTS / inflation
     # Sample covariance of the body error angles against the prediction: per diagonal element the
     # relative standard error of a variance is √(2/n_eff) (≈ 7.6%); 4 of them (30%) is the tolerance,
-    # which still fails the paper's own Eq. 23 prediction (≈ 0.65× the true error covariance, NOTES.md).
+    # which still fails the paper's own Eq. 23 prediction (≈ 0.65× the true error covariance, docs/paper-notes.md).
     sample = np.cov(errors.T)
     tol = 4.0 * np.sqrt(2.0 / n_eff)
     ratio = np.diag(sample) / np.diag(p_expected)

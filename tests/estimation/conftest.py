@@ -9,7 +9,7 @@ from mavattitude.estimation import NoiseModel
 from mavattitude.estimation import conventions as cv
 
 SEED = 20140401
-# Eq. 36: R1 = diag(2², 3², 2.5²)·1e-14 T² → σ in µT; R2 = diag(10², 9², 9.5²)·1e-6 (m/s²)² (NOTES.md).
+# Eq. 36: R1 = diag(2², 3², 2.5²)·1e-14 T² → σ in µT; R2 = diag(10², 9², 9.5²)·1e-6 (m/s²)² (docs/paper-notes.md).
 PAPER_NOISE = NoiseModel(accel_std=(0.010, 0.009, 0.0095), mag_std=(0.2, 0.3, 0.25))
 # A mid-latitude NED field (µT), 65° inclination like the paper's scenario, and specific force "up".
 MAG_REF_UT = np.array([22.0, 1.5, 47.0])

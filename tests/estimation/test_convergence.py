@@ -83,7 +83,7 @@ def test_180_degrees_about_principal_axes(rng):
 
 
 def test_identity_start_is_stuck_there_and_a_stale_warm_start_is_not_used():
-    # Why the solver starts from TRIAD (NOTES.md): noise-free, at a principal 180° rotation the identity
+    # Why the solver starts from TRIAD (docs/paper-notes.md): noise-free, at a principal 180° rotation the identity
     # is a stationary point of Eq. 34, so a cold start "converges" in one step to the wrong attitude.
     for q_true in principal_half_turns():
         acc, mag = cv.rotate_ned_to_body(q_true, ACC_REF), cv.rotate_ned_to_body(q_true, MAG_REF_UT)

@@ -29,7 +29,7 @@ def monte_carlo():
 
 
 def test_truth_is_the_papers_geometry():
-    # NOTES.md: roll 20°, pitch −30°, yaw 142.2°, and the noise-free vectors are fitted exactly.
+    # docs/paper-notes.md: roll 20°, pitch −30°, yaw 142.2°, and the noise-free vectors are fitted exactly.
     np.testing.assert_allclose(np.degrees(cv.euler_from_quat(PAPER_Q)), [20.0, -30.0, 142.2], atol=0.01)
     r = solve(PAPER_GRAVITY_BODY_MPS2, PAPER_MAG_BODY_UT, PAPER_MAG_NED_UT, PAPER_NOISE, acc_ref=GRAVITY_DOWN)
     assert cv.angle_between(r.q, PAPER_Q) < 1e-12
@@ -40,7 +40,7 @@ def test_ml_reaches_the_cramer_rao_bound_and_ign_cgn_do_not(monte_carlo):
     crb = np.trace(cramer_rao_bound(PAPER_GRAVITY_BODY_MPS2, PAPER_MAG_BODY_UT, PAPER_NOISE))
     ratio = {m: np.trace(np.cov(errors[m].T)) / crb for m in METHODS}
     assert abs(ratio["ml"] - 1.0) < 0.03  # the bound (sampling error 1.4 %)
-    # NOTES.md: IGN ≈ 1.12×, CGN ≈ 1.15× the bound; 0.05 is 3.5 sampling σ.
+    # docs/paper-notes.md: IGN ≈ 1.12×, CGN ≈ 1.15× the bound; 0.05 is 3.5 sampling σ.
     assert ratio["ign"] == pytest.approx(1.12, abs=0.05)
     assert ratio["cgn"] == pytest.approx(1.15, abs=0.05)
 

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -27,6 +26,7 @@ from mavattitude.sim import scenarios
 from mavattitude.sim.scoring import heading_error, tilt_error
 from mavattitude.sim.sensors import AxisModel, SensorModel
 from mavattitude.sim.trajectory import Hold, Rotate, Script
+from tests.shared import shared_path
 
 SEED = 20261121
 MAG_NED_UT = np.array(scenarios.DEFAULT_MAG_NED_UT)
@@ -34,7 +34,6 @@ GYRO_STD_RADPS = 0.003  # per sample at 200 Hz, the sim's consumer gyro
 ACC_STD_MPS2 = 0.03
 MAG_STD_UT = 0.4
 GYRO_BIAS_RADPS = (0.02, -0.015, 0.01)  # ≈ 1°/s: an uncalibrated MEMS gyro
-DATA = Path(__file__).resolve().parents[2] / ".." / "shared" / "data"
 
 
 def _sensors(rate_hz: float = 200.0) -> SensorModel:
@@ -410,7 +409,7 @@ def test_broad_slice_stays_within_the_full_file_figure(trial: str, stop_s: float
     from mavattitude.validation.loaders import load_recording
     from mavattitude.validation.metrics import score_broad
 
-    (path,) = (DATA / "broad").glob(f"{trial}_*.csv.gz")
+    (path,) = shared_path("data", "broad").glob(f"{trial}_*.csv.gz")
     rec = load_recording(path).slice(0.0, stop_s)
     t, gyr, acc, mag = (a.tolist() for a in (rec.time_s, rec.gyr_radps, rec.acc_mps2, rec.mag_uT))
     f = FusedFilter(FusedSettings(), rec.reference.field_ned_uT)

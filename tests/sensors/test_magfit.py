@@ -3,15 +3,13 @@
 from __future__ import annotations
 
 import gzip
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from mavattitude.errors import CalibrationError
 from mavattitude.sensors.magfit import fit_ellipsoid, relative_spread
-
-DATA = Path(__file__).resolve().parents[2] / ".." / "shared" / "data"
+from tests.shared import shared_path
 
 
 def _sphere(n: int, radius: float, noise: float, seed: int = 0) -> np.ndarray:
@@ -64,7 +62,7 @@ def test_poor_data_is_refused_with_the_reason() -> None:
 
 
 def _broad_mag(name: str) -> np.ndarray:
-    path = DATA / "broad" / name
+    path = shared_path("data", "broad", name)
     with gzip.open(path, "rt") as f:
         header = f.readline().strip().split(",")
     cols = [header.index(c) for c in ("mag_x_uT", "mag_y_uT", "mag_z_uT")]

@@ -34,7 +34,8 @@ def test_paper_static_reproduces_the_papers_body_vectors() -> None:
     f = truth.specific_force_mps2[0]
     np.testing.assert_allclose(f / np.linalg.norm(f), -w2 / np.linalg.norm(w2), atol=1e-12)
     np.testing.assert_allclose(truth.mag_uT[0], scenarios.PAPER_MAG_BODY_UT, atol=1e-9)
-    # NOTES.md: roll 20°, pitch −30°, yaw 142.2° from magnetic north (printed to 0.1°; 9.8 vs g moves it 1e-4°).
+    # docs/paper-notes.md: roll 20°, pitch −30°, yaw 142.2° from magnetic north (printed to 0.1°;
+    # 9.8 vs g moves it 1e-4°).
     expected = quat_from_euler(np.radians(20.0), np.radians(-30.0), np.radians(142.2))
     assert np.degrees(angle_between(scenarios.PAPER_Q, expected)) < 0.01
 

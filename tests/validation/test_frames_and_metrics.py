@@ -26,7 +26,6 @@ from mavattitude.validation import (
     truth_at,
 )
 from mavattitude.validation.loaders import _read_csv
-from tests.validation.conftest import PX4
 
 
 def test_enu_from_ned_swaps_north_east_and_flips_down() -> None:
@@ -89,9 +88,9 @@ def test_truth_at_interpolates_between_samples(recordings) -> None:
     assert np.isnan(q_outside).all()
 
 
-def test_px4_truth_euler_matches_the_logged_angles() -> None:
+def test_px4_truth_euler_matches_the_logged_angles(px4_csv) -> None:
     # Our ZYX Euler convention must read the autopilot's quaternion as its own logged roll/pitch/yaw.
-    columns = _read_csv(PX4)
+    columns = _read_csv(px4_csv)
     q = np.stack([columns[f"att_q{c}"] for c in "wxyz"], axis=1)
     logged = np.stack([columns[f"att_{a}_rad"] for a in ("roll", "pitch", "yaw")], axis=1)
     d = np.angle(np.exp(1j * (euler_from_quat(q) - logged)))
@@ -115,5 +114,8 @@ def test_bad_files_are_data_file_errors(tmp_path) -> None:
     broken.write_text("t_s,acc_x_mps2\n0,x\n")
     with pytest.raises(DataFileError, match="cannot read"):
         load_recording(broken)
+
+
+def test_a_slice_outside_the_recording_is_refused(recordings) -> None:
     with pytest.raises(DataFileError, match="fewer than 2 samples"):
-        load_recording(PX4).slice(1000, 1001)
+        recordings["px4"].slice(1000, 1001)

@@ -10,12 +10,11 @@ import pytest
 from mavattitude.cli import EXIT_USER_ERROR, main
 from mavattitude.validation.plots import running_rms
 from mavattitude.validation.runner import estimate_batch, evaluate, validation_config
-from tests.validation.conftest import PX4
 
 
-def test_validate_writes_table_report_and_json(tmp_path, capsys) -> None:
+def test_validate_writes_table_report_and_json(tmp_path, capsys, px4_csv) -> None:
     report, scores = tmp_path / "validation.md", tmp_path / "scores.json"
-    argv = ["validate", str(PX4), "--stop", "10", "--method", "ign", "--method", "triad", "--path", "batch"]
+    argv = ["validate", str(px4_csv), "--stop", "10", "--method", "ign", "--method", "triad", "--path", "batch"]
     assert main([*argv, "--report", str(report), "--json", str(scores)]) == 0
     printed = capsys.readouterr().out
     assert "px4_sample_sensors" in printed and "roll rms" in printed
@@ -25,14 +24,14 @@ def test_validate_writes_table_report_and_json(tmp_path, capsys) -> None:
     assert all(0.0 < row["roll rms"] < 5.0 and row["coverage"] == 1.0 for row in data)
 
 
-def test_validate_user_errors_exit_2(tmp_path, capsys) -> None:
+def test_validate_user_errors_exit_2(tmp_path, capsys, px4_csv) -> None:
     assert main(["validate", str(tmp_path)]) == EXIT_USER_ERROR
     assert "no .csv or .csv.gz recordings" in capsys.readouterr().err
-    assert main(["validate", str(PX4), "--set", "filter.cutoff_hz"]) == EXIT_USER_ERROR
+    assert main(["validate", str(px4_csv), "--set", "filter.cutoff_hz"]) == EXIT_USER_ERROR
     assert "expected KEY=VALUE" in capsys.readouterr().err
-    assert main(["validate", str(PX4), "--set", "filter.cutof_hz=5"]) == EXIT_USER_ERROR
+    assert main(["validate", str(px4_csv), "--set", "filter.cutof_hz=5"]) == EXIT_USER_ERROR
     assert "did you mean cutoff_hz" in capsys.readouterr().err
-    assert main(["validate", str(PX4), "--method", "fused", "--path", "batch"]) == EXIT_USER_ERROR
+    assert main(["validate", str(px4_csv), "--method", "fused", "--path", "batch"]) == EXIT_USER_ERROR
     assert "no batch path" in capsys.readouterr().err
 
 
