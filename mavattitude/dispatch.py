@@ -21,8 +21,6 @@ import logging
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-import numpy as np
-
 from mavattitude.errors import MavAttitudeError
 from mavattitude.link.source import AutopilotAttitude, Heartbeat, PositionFix, Received, Sender, Undecodable
 from mavattitude.pipeline import AttitudeOutput, AttitudePipeline
@@ -130,14 +128,7 @@ class Dispatcher:
     def _on_position(self, fix: PositionFix) -> None:
         p = fix.position
         self.counters.positions += 1
-        if self.pipeline.set_position(p.lat_deg, p.lon_deg, p.alt_m, fix.date):
-            log.info(
-                "magnetic reference from the WMM at %.4f°, %.4f°, %.0f m: %s µT NED",
-                p.lat_deg,
-                p.lon_deg,
-                p.alt_m,
-                np.array2string(self.pipeline.mag_ref_ned_uT, precision=2),
-            )
+        self.pipeline.set_position(p.lat_deg, p.lon_deg, p.alt_m, fix.date)  # a new reference is logged there
 
     def _reject(self, reason: str, exc: BaseException) -> None:
         self.counters.rejected[reason] = self.counters.rejected.get(reason, 0) + 1

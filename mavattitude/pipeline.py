@@ -81,6 +81,7 @@ class PipelineCounters:
 
     frontend: FrontEndCounters
     ticks: int = 0  # front-end outputs handed to the estimator
+    waiting: int = 0  # ticks before ``reference.magnetic: auto`` had a position: a state, not a reject
     emitted: int = 0
     rejected: Counter[str] = field(default_factory=Counter)  # ticks not emitted, by reason
     iterations: int = 0  # summed over emitted outputs
@@ -291,7 +292,7 @@ class AttitudePipeline:
     def _estimate(self, tick: ProcessedSample) -> list[AttitudeOutput]:
         c = self.counters
         if self.mag_ref_ned_uT is None:
-            c.rejected["no_reference"] += 1
+            c.waiting += 1
             return []
         if tick.mag_uT is None and self.estimator.wants_filtered:
             c.rejected["no_mag"] += 1

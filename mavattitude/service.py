@@ -19,12 +19,16 @@ service is the dispatcher's listener. What it does on the link:
 - input silent for longer than ``input_timeout_s``: says so once (log + STATUSTEXT); the output
   stops by itself, since outputs only come from input, and resumes with the next good sample;
 - STATUSTEXT on start (once locked on) and, rate-limited, on degenerate geometry;
+- while it waits (for the autopilot's HEARTBEAT, the IMU stream, a GPS position, the first attitude:
+  :class:`Waiting`, read as :attr:`AttitudeService.waiting`) it says what for and the likely cause, first
+  after ``WAIT_REPORT_FIRST_S`` and then at a slowing rate, so a wrong wiring does not look like a hang;
 - every ``stats_interval_s`` one ``counters:`` log line of ``key=value`` numbers (and the same as the
   systemd STATUS); a final one when it stops.
 """
 
 from __future__ import annotations
 
+import enum
 import logging
 import threading
 import time
@@ -57,6 +61,25 @@ DEGENERATE = "DegenerateGeometryError"  # the pipeline's reject reason for colli
 POSITION_MESSAGE = "GLOBAL_POSITION_INT"
 POSITION_RATE_HZ = 1.0
 MAX_LATENCY_SAMPLES = 100_000  # per counters window: bounds memory if stats_interval_s is long
+WAIT_REPORT_FIRST_S = 3.0  # a normal start (autopilot up, link wired) passes every wait well within this
+WAIT_REPORT_MAX_S = 300.0  # the interval between "waiting for" lines doubles up to this
+LINK_HINTS = {  # the likely cause when no HEARTBEAT comes, by connection kind
+    "udpin": "is the autopilot sending to this port?",
+    "udpout": "is the autopilot listening on that port?",
+    "tcp": "is the autopilot listening on that port?",
+    "tcpin": "is the autopilot connecting to this port?",
+    "serial": "is the autopilot sending MAVLink 2 on this port, at this baud rate?",
+}
+
+
+class Waiting(enum.Enum):
+    """What the service waits for, in the order it needs them; ``RUNNING`` once an attitude went out."""
+
+    AUTOPILOT = "autopilot"  # its HEARTBEAT (the first, or ``link.vehicle_system_id``'s)
+    IMU_STREAM = "IMU stream"  # the input message, at start or after input_timeout_s of silence
+    POSITION = "GPS position"  # ``reference.magnetic: auto`` needs the vehicle's position
+    FIRST_ATTITUDE = "first attitude"  # input flows, the filter and solver have not produced one yet
+    RUNNING = "running"
 
 
 @dataclass
@@ -99,6 +122,18 @@ class _RateLimiter:
 
     def take_suppressed(self, key: str) -> int:
         return self.suppressed.pop(key, 0)
+
+
+def log_banner(config: Config) -> None:
+    """The start-up line, logged before the link opens (so before anything the link says)."""
+    log.info(
+        "mavattitude %s: link %s, input %s (%s profile), vehicle %s",
+        __version__,
+        config.link.connect,
+        config.input.message,
+        config.input.profile,
+        config.link.vehicle_system_id or "auto (first autopilot heartbeat)",
+    )
 
 
 def open_link(config: Config) -> MavlinkLink:
@@ -153,6 +188,8 @@ class AttitudeService:
         watchdog_s = self.notifier.watchdog_interval_s
         self._watchdog_period = watchdog_s / 4 if watchdog_s else None
         self._next_watchdog = now
+        self._waiting_since = (Waiting.AUTOPILOT, now)
+        self._next_wait_report = now + WAIT_REPORT_FIRST_S
         self._degenerate_before = 0
         self.dispatcher = Dispatcher(
             pipeline, self, system_id=config.link.vehicle_system_id, vehicle=self.source.vehicle, counters=self.counters
@@ -167,14 +204,6 @@ class AttitudeService:
 
     def run(self, stop: threading.Event) -> ServiceCounters:
         """Serve until ``stop`` is set (within ``TICK_S``); return the counters."""
-        log.info(
-            "mavattitude %s: link %s, input %s (%s profile), vehicle %s",
-            __version__,
-            self.config.link.connect,
-            self._input_name,
-            self.config.input.profile,
-            self.config.link.vehicle_system_id or "auto (first autopilot heartbeat)",
-        )
         try:
             while not stop.is_set():
                 self.step(min(max(self._next_tick - time.monotonic(), 0.0), TICK_S))
@@ -209,6 +238,7 @@ class AttitudeService:
             silent_s = now - self._last_input
             if silent_s > self.config.input.input_timeout_s:
                 self._on_input_lost(silent_s)
+        self._report_waiting(now)
         if now >= self._next_stats:
             self._next_stats = now + self.config.output.stats_interval_s
             self._log_counters("counters")
@@ -216,14 +246,62 @@ class AttitudeService:
             self._next_watchdog = now + self._watchdog_period
             self.notifier.watchdog()
 
+    # -- what it waits for -----------------------------------------------------------------------------
+
+    @property
+    def waiting(self) -> Waiting:
+        """The first thing still missing for attitudes to go out (``RUNNING`` when nothing is)."""
+        if self.vehicle is None:
+            return Waiting.AUTOPILOT
+        if self._last_input is None or self._input_lost:
+            return Waiting.IMU_STREAM
+        if self.pipeline.waiting_for_reference:
+            return Waiting.POSITION
+        if not self._ready:
+            return Waiting.FIRST_ATTITUDE
+        return Waiting.RUNNING
+
+    def waiting_text(self, waiting: Waiting | None = None) -> str:
+        """``waiting`` (default: the current state) in words, with what to check."""
+        waiting = self.waiting if waiting is None else waiting
+        link = self.config.link
+        if waiting is Waiting.AUTOPILOT:
+            which = f" from system {link.vehicle_system_id}" if link.vehicle_system_id else ""
+            return f"waiting for a HEARTBEAT{which} on {link.connect} ({LINK_HINTS[self.link.endpoint.kind]})"
+        if waiting is Waiting.IMU_STREAM:
+            assert self.vehicle is not None
+            source = f"{self._input_name} from system {self.vehicle[0]}, component {self.vehicle[1]}"
+            if link.request_messages:
+                return f"waiting for the IMU stream: {source}, asked for at {link.request_rate_hz:g} Hz"
+            return (
+                f"waiting for the IMU stream: {source} (link.request_messages is off: is the autopilot streaming it?)"
+            )
+        if waiting is Waiting.POSITION:
+            return "waiting for a GPS position (reference: auto): GLOBAL_POSITION_INT, or GPS_RAW_INT with a 3D fix"
+        if waiting is Waiting.FIRST_ATTITUDE:
+            return "waiting for the first attitude"
+        return "running"
+
+    def _report_waiting(self, now: float) -> None:
+        """Say what it waits for after ``WAIT_REPORT_FIRST_S`` in one state, then at doubling intervals."""
+        waiting = self.waiting
+        state, since = self._waiting_since
+        if waiting is not state:
+            self._waiting_since = (waiting, now)
+            self._next_wait_report = now + WAIT_REPORT_FIRST_S
+            return
+        if waiting is Waiting.RUNNING or now < self._next_wait_report:
+            return
+        waited_s = now - since
+        self._next_wait_report = now + min(max(waited_s, WAIT_REPORT_FIRST_S), WAIT_REPORT_MAX_S)
+        log.info("%s (%.0f s so far)", self.waiting_text(waiting), waited_s)
+
     # -- the autopilot --------------------------------------------------------------------------------
 
     def on_lock(self, vehicle: Sender) -> None:
         self.link.set_source_system(vehicle[0])
         log.info("locked onto the autopilot: system %d, component %d", *vehicle)
         self._statustext("start", f"mavattitude {__version__}: attitude from {self._input_name}", "info")
-        if self._wants_position:
-            log.info("magnetic reference auto: no attitude until the vehicle's %s arrives", POSITION_MESSAGE)
         if self.config.link.request_messages:
             self._next_request = time.monotonic()
         self._next_heartbeat = time.monotonic()  # announce ourselves under the vehicle's id at once

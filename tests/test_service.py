@@ -28,7 +28,7 @@ from mavattitude.estimation.conventions import angle_between, quat_from_euler, r
 from mavattitude.link import LinkCounters
 from mavattitude.pipeline import AttitudePipeline
 from mavattitude.sensors import units
-from mavattitude.service import AttitudeService, ServiceCounters, counters_line, open_link
+from mavattitude.service import AttitudeService, ServiceCounters, Waiting, counters_line, open_link
 from mavattitude.systemd_notify import SystemdNotifier
 from tests.link.peer import UdpPeer
 
@@ -240,23 +240,32 @@ def test_configured_system_id_and_no_requests():
     wanted.close()
 
 
-def test_automatic_magnetic_reference_waits_for_the_vehicle_position():
+def test_automatic_magnetic_reference_waits_for_the_vehicle_position(caplog):
+    caplog.set_level(logging.INFO)
     config = make_config(**{"reference.magnetic": "auto"})
     running = Running(config)
     vehicle = Autopilot()
     vehicle.target = running.link.local_address
+    assert running.service.waiting is Waiting.AUTOPILOT
     lock_on(vehicle)
+    assert running.service.waiting is Waiting.IMU_STREAM
     wanted = {mavlink2.MAVLINK_MSG_ID_RAW_IMU, mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT}
     wait_until(vehicle, lambda: {m.param1 for m in vehicle.received if m.get_type() == "COMMAND_LONG"} == wanted)
     vehicle.stream(100)
-    wait_until(vehicle, lambda: running.service.pipeline.counters.rejected["no_reference"] > 0)
-    assert running.service.counters.emitted == 0
+    wait_until(vehicle, lambda: running.service.pipeline.counters.waiting > 0)
+    assert running.service.waiting is Waiting.POSITION  # a state, not a reject
+    assert running.service.counters.emitted == 0 and not running.service.pipeline.counters.rejected
+    assert running.service.waiting_text() == (
+        "waiting for a GPS position (reference: auto): GLOBAL_POSITION_INT, or GPS_RAW_INT with a 3D fix"
+    )
     # Zurich, 500 m: the WMM field there becomes the reference
     vehicle.send(mavlink2.MAVLink_global_position_int_message(0, 473_769_000, 85_417_000, 500_000, 0, 0, 0, 0, 0))
     wait_until(vehicle, lambda: running.service.counters.positions == 1)
     vehicle.stream(100)
     vehicle.wait_for("ATTITUDE_QUATERNION")
+    wait_until(vehicle, lambda: running.service.waiting is Waiting.RUNNING)
     counters = running.finish()
+    assert sum("magnetic reference" in r.getMessage() for r in caplog.records) == 1  # one line per change
     reference = running.service.pipeline.mag_ref_ned_uT
     # Central Europe: |B| ≈ 48 µT, inclination ≈ 63° (WMM); 5 µT and 3° are loose bounds on "the right place"
     assert abs(np.linalg.norm(reference) - 48.0) < 5.0
@@ -384,3 +393,70 @@ def test_systemd_notify_ready_after_first_output_then_status_watchdog_stopping(t
     listener.close()
     notifier.close()
     vehicle.close()
+
+
+def test_what_it_waits_for_is_said_after_a_few_seconds_then_ever_more_rarely(caplog):
+    caplog.set_level(logging.INFO, logger="mavattitude.service")
+    running = Running(make_config(**{"link.connect": "udpin:127.0.0.1:0"}))
+    running.finish()  # the loop's own reports would interleave: drive the reporting with a clock of our own
+    caplog.clear()
+    service = running.service
+    _, start = service._waiting_since
+    for step in range(1, 1000):  # 100 s of 0.1 s ticks with no autopilot
+        service._report_waiting(start + 0.1 * step)
+    said = [r.getMessage() for r in caplog.records]
+    assert (
+        said[0] == "waiting for a HEARTBEAT on udpin:127.0.0.1:0 (is the autopilot sending to this port?) (3 s so far)"
+    )
+    assert [m.rsplit("(", 1)[1] for m in said] == [
+        "3 s so far)",
+        "6 s so far)",
+        "12 s so far)",
+        "24 s so far)",
+        "48 s so far)",
+        "96 s so far)",
+    ]
+
+
+def test_each_wait_is_said_in_words_with_what_to_check():
+    running = Running(make_config(**{"link.vehicle_system_id": 7, "link.request_rate_hz": 100.0}))
+    running.finish()
+    service = running.service
+    assert service.waiting_text() == (
+        "waiting for a HEARTBEAT from system 7 on udpin:127.0.0.1:0 (is the autopilot sending to this port?)"
+    )
+    service.dispatcher.vehicle = (7, 1)
+    assert service.waiting is Waiting.IMU_STREAM
+    assert (
+        service.waiting_text() == "waiting for the IMU stream: RAW_IMU from system 7, component 1, asked for at 100 Hz"
+    )
+    assert service.waiting_text(Waiting.FIRST_ATTITUDE) == "waiting for the first attitude"
+
+
+def test_started_before_the_autopilot_it_says_its_banner_then_what_it_waits_for():
+    closed = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    closed.bind(("127.0.0.1", 0))  # bound, not listening: connections are refused, the port stays ours
+    connect = f"tcp:127.0.0.1:{closed.getsockname()[1]}"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "mavattitude", "run", "--connect", connect], stderr=subprocess.PIPE, text=True
+    )
+    lines: list[str] = []
+    deadline = threading.Timer(20.0, proc.kill)  # the report comes ~3 s after start; this bounds the read
+    deadline.start()
+    try:
+        assert proc.stderr is not None
+        for line in proc.stderr:
+            lines.append(line.rstrip())
+            if "so far" in line:
+                break
+    finally:
+        deadline.cancel()
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=15.0)
+        closed.close()
+    assert "mavattitude" in lines[0] and f"link {connect}" in lines[0]  # the banner first
+    assert f"waiting for the autopilot at {connect} (" in lines[1]
+    assert lines[2].endswith(
+        f"waiting for a HEARTBEAT on {connect} (is the autopilot listening on that port?) (3 s so far)"
+    )
+    assert not any("reopen" in line or "again" in line for line in lines)

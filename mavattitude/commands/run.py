@@ -107,7 +107,7 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
 
 def run(args: argparse.Namespace) -> int:
     from mavattitude.pipeline import AttitudePipeline  # numpy, pymavlink and the solvers: only when serving
-    from mavattitude.service import AttitudeService, open_link
+    from mavattitude.service import AttitudeService, log_banner, open_link
 
     config = load_config(args.config, overrides_from_args(args))
     if getattr(args, "log_level", None) is None:  # no --log-level flag: the config's level applies
@@ -116,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:
         pipeline = AttitudePipeline(config)
+        log_banner(config)
         with open_link(config) as link:
             service = AttitudeService(config, link, pipeline)
             # Everything allocated so far (pymavlink's dialect alone is ~40 000 objects) lives as long as the

@@ -273,7 +273,7 @@ class MavlinkLink:
         except OSError as exc:
             if self.endpoint.kind != "tcp":
                 raise LinkError(f"cannot open {connect}: {exc.strerror or exc}") from exc
-            log.warning("cannot connect to %s yet (%s); retrying with back-off", connect, exc)
+            log.info("waiting for the autopilot at %s (%s); retrying with back-off", connect, exc)
             self._schedule_retry()
 
     # -- connection management ------------------------------------------------------------------------
@@ -324,14 +324,25 @@ class MavlinkLink:
         if wait_s > 0.0:
             time.sleep(min(wait_s, timeout_s))
             return
+        was_open = self.counters.disconnects > 0  # else this is the first open of a tcp client, still retried
         try:
             self._open()
         except OSError as exc:
-            log.warning("link %s:%s: reopening failed (%s); next try in %.1f s", *self._where(), exc, self._backoff_s)
+            # never open yet: the service says what it waits for, and each refused try is detail
+            what = "reopening failed" if was_open else "no autopilot yet"
+            log.log(
+                logging.WARNING if was_open else logging.DEBUG,
+                "link %s:%s: %s (%s); next try in %.1f s",
+                *self._where(),
+                what,
+                exc,
+                self._backoff_s,
+            )
             self._schedule_retry()
             return
-        self.counters.reconnects += 1
-        log.info("link %s:%s open again", *self._where())
+        if was_open:
+            self.counters.reconnects += 1
+        log.info("link %s:%s open%s", *self._where(), " again" if was_open else "")
 
     def _where(self) -> tuple[str, str]:
         return self.endpoint.kind, self.endpoint.address

@@ -142,9 +142,10 @@ class MagneticReference:
         self._at = (lat_deg, lon_deg)
         self.reference = MagReference(vec, math.hypot(*vec), "wmm")
         log.info(
-            "magnetic reference from WMM2025 at %.4f°, %.4f°: N %.2f E %.2f D %.2f µT",
+            "magnetic reference from WMM2025 at %.4f°, %.4f°, %.0f m: N %.2f E %.2f D %.2f µT",
             lat_deg,
             lon_deg,
+            alt_m,
             *vec,
         )
         return True

@@ -202,7 +202,7 @@ def test_tcp_client_waits_for_a_router_that_is_not_up_yet(caplog):
     probe = _listener()
     port = probe.getsockname()[1]
     probe.close()  # nothing listens on the port now
-    caplog.set_level(logging.WARNING, logger="mavattitude.link.connection")
+    caplog.set_level(logging.DEBUG, logger="mavattitude.link.connection")
     link = MavlinkLink(f"tcp:127.0.0.1:{port}", source_system=1, reconnect_min_s=0.05, reconnect_max_s=0.2)
     try:
         assert not link.is_open
@@ -225,6 +225,11 @@ def test_tcp_client_waits_for_a_router_that_is_not_up_yet(caplog):
         server.close()
     finally:
         link.close()
+    # A link never open is not "reopened": one line says what it waits for, the retries are DEBUG detail.
+    said = [(r.levelname, r.getMessage()) for r in caplog.records if r.levelno > logging.DEBUG]
+    assert said[0][1].startswith(f"waiting for the autopilot at tcp:127.0.0.1:{port} (")
+    assert said[-1] == ("INFO", f"link tcp:127.0.0.1:{port} open")
+    assert all(level == "INFO" for level, _ in said) and link.counters.reconnects == 0
 
 
 def test_tcpin_serves_one_client_after_another():
