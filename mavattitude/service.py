@@ -22,8 +22,9 @@ service is the dispatcher's listener. What it does on the link:
 - while it waits (for the autopilot's HEARTBEAT, the IMU stream, a GPS position, the first attitude:
   :class:`Waiting`, read as :attr:`AttitudeService.waiting`) it says what for and the likely cause, first
   after ``WAIT_REPORT_FIRST_S`` and then at a slowing rate, so a wrong wiring does not look like a hang;
-- every ``stats_interval_s`` one ``counters:`` log line of ``key=value`` numbers (and the same as the
-  systemd STATUS); a final one when it stops.
+- every ``stats_interval_s`` one ``counters:`` log line of ``key=value`` numbers; a final one when it stops;
+- systemd (sd_notify): READY as soon as the loop runs, STATUS = what it waits for (on every change of
+  :class:`Waiting`), the counters line once attitudes flow; WATCHDOG from the loop.
 """
 
 from __future__ import annotations
@@ -177,7 +178,7 @@ class AttitudeService:
         self._latencies_s: list[float] = []
         self._last_input: float | None = None
         self._input_lost = False
-        self._ready = False
+        self._attitude_sent = False
         self._last_ack: str | None = None
         self._ack_due: float | None = None
         now = time.monotonic()
@@ -204,6 +205,9 @@ class AttitudeService:
 
     def run(self, stop: threading.Event) -> ServiceCounters:
         """Serve until ``stop`` is set (within ``TICK_S``); return the counters."""
+        # READY means running and listening: the link is open. What it still waits for is the STATUS, not
+        # a reason to hold start-up: a companion computer usually boots before its autopilot talks.
+        self.notifier.ready(status=self.waiting_text())
         try:
             while not stop.is_set():
                 self.step(min(max(self._next_tick - time.monotonic(), 0.0), TICK_S))
@@ -257,7 +261,7 @@ class AttitudeService:
             return Waiting.IMU_STREAM
         if self.pipeline.waiting_for_reference:
             return Waiting.POSITION
-        if not self._ready:
+        if not self._attitude_sent:
             return Waiting.FIRST_ATTITUDE
         return Waiting.RUNNING
 
@@ -289,6 +293,7 @@ class AttitudeService:
         if waiting is not state:
             self._waiting_since = (waiting, now)
             self._next_wait_report = now + WAIT_REPORT_FIRST_S
+            self.notifier.status(self.waiting_text(waiting))
             return
         if waiting is Waiting.RUNNING or now < self._next_wait_report:
             return
@@ -377,9 +382,7 @@ class AttitudeService:
         self.counters.emitted += 1
         if len(self._latencies_s) < MAX_LATENCY_SAMPLES:
             self._latencies_s.append(latency_s)
-        if not self._ready:
-            self._ready = True
-            self.notifier.ready(status="first attitude sent")
+        self._attitude_sent = True
 
     def _on_input_lost(self, silent_s: float) -> None:
         self._input_lost = True
@@ -413,7 +416,8 @@ class AttitudeService:
         self.counters.mean_iterations = self.pipeline.counters.mean_iterations
         line = counters_line(self.counters, self.link.counters, self.pipeline.counters)
         log.info("%s: %s", label, line)
-        self.notifier.status(line)
+        waiting = self.waiting
+        self.notifier.status(line if waiting is Waiting.RUNNING else self.waiting_text(waiting))
 
 
 def counters_line(counters: ServiceCounters, link_counters: Any, pipeline_counters: Any) -> str:

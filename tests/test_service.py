@@ -361,7 +361,7 @@ def test_signed_link_required_forger_ignored(tmp_path):
     forger.close()
 
 
-def test_systemd_notify_ready_after_first_output_then_status_watchdog_stopping(tmp_path):
+def test_systemd_ready_at_start_status_says_what_it_waits_for_then_counters(tmp_path):
     path = str(tmp_path / "notify.sock")
     listener = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     listener.bind(path)
@@ -374,15 +374,27 @@ def test_systemd_notify_ready_after_first_output_then_status_watchdog_stopping(t
     def next_notification() -> str:
         return listener.recv(4096).decode()
 
+    def statuses_until(last: str) -> list[str]:
+        seen: list[str] = []
+        while not seen or not seen[-1].startswith(last):
+            seen.append(next_notification())  # each wait bounded by the socket's time-out
+        return [n for n in seen if n.startswith(("READY", "STATUS"))]
+
+    # READY as soon as the loop runs, with no vehicle yet: systemd's start-up must not wait for the autopilot.
+    connect = running.service.config.link.connect
+    assert next_notification() == (
+        f"READY=1\nSTATUS=waiting for a HEARTBEAT on {connect} (is the autopilot sending to this port?)"
+    )
+    assert next_notification() == "WATCHDOG=1"  # pinged from the loop before any vehicle
     lock_on(vehicle)
-    assert next_notification() == "WATCHDOG=1"  # pinged from the loop before any output
+    assert statuses_until("STATUS=waiting for the IMU stream") == [
+        "STATUS=waiting for the IMU stream: RAW_IMU from system 1, component 1, asked for at 200 Hz"
+    ]
     vehicle.stream(100)
     vehicle.wait_for("ATTITUDE_QUATERNION")
-    seen: list[str] = []
-    while not (any(n.startswith("READY=1") for n in seen) and any(n.startswith("STATUS=received=") for n in seen)):
-        seen.append(next_notification())  # each wait bounded by the socket's time-out
-    assert seen.count("READY=1\nSTATUS=first attitude sent") == 1
-    assert "WATCHDOG=1" in seen
+    seen = statuses_until("STATUS=received=")
+    assert seen[-2:] == ["STATUS=running", seen[-1]]  # the counters once attitudes flow
+    assert not [n for n in seen if n.startswith("READY")]  # READY once only
     running.finish()
     rest = []
     listener.setblocking(False)
