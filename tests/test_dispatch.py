@@ -46,9 +46,11 @@ class Peer:
     def raw_imu(self, mag_uT: object = None, acc_mps2: object = None) -> bytes:
         acc = rotate_ned_to_body(Q_TRUE, G_NED_MPS2) if acc_mps2 is None else acc_mps2
         mag = rotate_ned_to_body(Q_TRUE, mag_ned_uT()) if mag_uT is None else mag_uT
-        sample = units.ImuSample(self.time_s, tuple(acc), GYRO_RADPS, tuple(mag), "RAW_IMU")
+        sample = units.ImuSample(self.time_s, tuple(acc), GYRO_RADPS, tuple(mag))
         self.time_s += SAMPLE_PERIOD_S
-        return self.pack(mavlink2.MAVLink_raw_imu_message(**units.encode(sample, units.PROFILES["ardupilot"])))
+        return self.pack(
+            mavlink2.MAVLink_raw_imu_message(**units.encode(sample, units.PROFILES["ardupilot"], "RAW_IMU"))
+        )
 
     def stream(self, count: int, **kwargs: object) -> list[bytes]:
         return [self.raw_imu(**kwargs) for _ in range(count)]

@@ -40,7 +40,7 @@ def static_samples(
     gyr = rng.normal(0.0, 1e-3, (n, 3))
     if board_from_body is not None:
         acc, mag, gyr = acc @ board_from_body.T, mag @ board_from_body.T, gyr @ board_from_body.T
-    return [ImuSample(t0_s + i / rate_hz, tuple(acc[i]), tuple(gyr[i]), tuple(mag[i]), "RAW_IMU") for i in range(n)]
+    return [ImuSample(t0_s + i / rate_hz, tuple(acc[i]), tuple(gyr[i]), tuple(mag[i])) for i in range(n)]
 
 
 def run(p: AttitudePipeline, samples: list[ImuSample]) -> list:

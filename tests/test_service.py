@@ -71,9 +71,9 @@ class Autopilot(UdpPeer):
     def raw_imu(self, acc_mps2=None, mag_uT=None) -> object:
         acc = rotate_ned_to_body(Q_TRUE, G_NED_MPS2) if acc_mps2 is None else acc_mps2
         mag = rotate_ned_to_body(Q_TRUE, mag_ned_uT()) if mag_uT is None else mag_uT
-        sample = units.ImuSample(self.time_s, tuple(acc), GYRO_RADPS, tuple(mag), "RAW_IMU")
+        sample = units.ImuSample(self.time_s, tuple(acc), GYRO_RADPS, tuple(mag))
         self.time_s += SAMPLE_PERIOD_S
-        return mavlink2.MAVLink_raw_imu_message(**units.encode(sample, self.profile))
+        return mavlink2.MAVLink_raw_imu_message(**units.encode(sample, self.profile, "RAW_IMU"))
 
     def stream(self, count: int, **kwargs) -> None:
         for _ in range(count):

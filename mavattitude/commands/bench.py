@@ -312,8 +312,8 @@ def bench_frontend(settings: Settings) -> list[Row]:
     profile = units.get_profile("ardupilot")
     messages = []
     for i in range(n):
-        sample = units.ImuSample(float(t[i]), tuple(acc[i]), tuple(gyr[i]), tuple(mag[i]), "RAW_IMU")
-        messages.append(mavlink2.MAVLink_raw_imu_message(**units.encode(sample, profile)))
+        sample = units.ImuSample(float(t[i]), tuple(acc[i]), tuple(gyr[i]), tuple(mag[i]))
+        messages.append(mavlink2.MAVLink_raw_imu_message(**units.encode(sample, profile, "RAW_IMU")))
 
     def stream_pass() -> None:
         fe = frontend.FrontEnd(front_settings)

@@ -42,8 +42,6 @@ TIME = "t_s"
 ACC = ("acc_x_mps2", "acc_y_mps2", "acc_z_mps2")
 MAG = ("mag_x_uT", "mag_y_uT", "mag_z_uT")
 GYR = ("gyr_x_radps", "gyr_y_radps", "gyr_z_radps")
-# CSV samples are SI floats on a clock that does not wrap, like HIGHRES_IMU's time_usec.
-CSV_MESSAGE = "HIGHRES_IMU"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -108,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
     progress = Progress(n, args.progress, f"solve {Path(args.input).name}")
     rows = []
     for i in range(n):
-        for o in pipeline.push(ImuSample(t[i], tuple(acc[i]), tuple(gyr[i]), tuple(mag[i]), CSV_MESSAGE)):
+        for o in pipeline.push(ImuSample(t[i], tuple(acc[i]), tuple(gyr[i]), tuple(mag[i]))):
             rows.append(output_row(o.time_s, o.q, o.iterations, o.converged))
         if i % 1000 == 0 or i == n - 1:
             progress.update(i + 1)

@@ -62,7 +62,7 @@ from mavattitude.sensors.calibration import Calibration, sensor_affines
 from mavattitude.sensors.clock import ClockEvent, VehicleClock
 from mavattitude.sensors.lowpass import butter2, filter_batch
 from mavattitude.sensors.mounting import mounting_matrix
-from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2, TIME_FIELDS, ImuSample, wrap_period_s
+from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2, ImuSample
 
 log = logging.getLogger(__name__)
 
@@ -192,7 +192,6 @@ def dead_floors2(settings: FrontEndSettings, expected_field_uT: float | None) ->
 
 
 CONTINUED, STARTED, GAP = 0, 1, 2
-_WRAP_PERIODS = {message: wrap_period_s(message) for message in TIME_FIELDS}
 
 
 class _Stream:
@@ -309,7 +308,7 @@ class FrontEnd:
         time is a duplicate, reordered or the sample is rejected). Counters say why, never an exception."""
         c = self.counters
         c.received += 1
-        t, event = self._clock.update(sample.time_s, _WRAP_PERIODS.get(sample.message))
+        t, event = self._clock.update(sample.time_s, sample.time_wrap_s)
         if t is None:
             c.rejected[event.value] += 1
             return []
@@ -510,7 +509,7 @@ class BatchOutput:
 
 
 def batch_inputs(samples: Sequence[ImuSample]) -> dict[str, Any]:
-    """Keyword arguments of :func:`process_batch` for a list of decoded samples (one message type)."""
+    """Keyword arguments of :func:`process_batch` for a list of decoded samples (one time field)."""
     n = len(samples)
     mag = np.full((n, 3), np.nan)
     mag_new = np.zeros(n, dtype=bool)
@@ -518,7 +517,7 @@ def batch_inputs(samples: Sequence[ImuSample]) -> dict[str, Any]:
         if sample.mag_uT is not None:
             mag[i] = sample.mag_uT
             mag_new[i] = True
-    messages = {sample.message for sample in samples}
+    wraps = {sample.time_wrap_s for sample in samples}
     return {
         "time_s": np.array([sample.time_s for sample in samples], dtype=float),
         "acc_mps2": np.array([sample.acc_mps2 for sample in samples], dtype=float).reshape(n, 3),
@@ -529,7 +528,7 @@ def batch_inputs(samples: Sequence[ImuSample]) -> dict[str, Any]:
             sensor: np.array([sensor in sample.saturated for sample in samples], dtype=bool)
             for sensor in ("acc", "gyr", "mag")
         },
-        "wrap_period_s": wrap_period_s(messages.pop()) if len(messages) == 1 else None,
+        "wrap_period_s": wraps.pop() if len(wraps) == 1 else None,
     }
 
 

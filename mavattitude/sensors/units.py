@@ -74,7 +74,10 @@ class ImuSample:
     """One IMU reading in SI units, sensor/board frame, at ``time_s`` on the vehicle's clock.
 
     ``mag_uT`` is ``None`` when the message carries no new magnetometer reading (HIGHRES_IMU
-    ``fields_updated``, or an all-zero field: no compass). ``saturated`` names the sensors (``"acc"``,
+    ``fields_updated``, or an all-zero field: no compass). ``time_wrap_s`` is the period after which the
+    sender's time field wraps (a uint32 of milliseconds: 2³² ms), ``None`` when it never does in practice:
+    what the front end's clock needs to unwrap it, whichever message or log format the sample came from.
+    ``saturated`` names the sensors (``"acc"``,
     ``"gyr"``, ``"mag"``) whose raw value sat at its integer limit, so the front end can screen them.
     Not frozen: building it is on the per-message path, and a frozen dataclass costs twice as much.
     """
@@ -83,7 +86,7 @@ class ImuSample:
     acc_mps2: Vec3
     gyr_radps: Vec3
     mag_uT: Vec3 | None
-    message: str
+    time_wrap_s: float | None = None
     saturated: frozenset[str] = field(default=frozenset())
 
 
@@ -210,7 +213,9 @@ def decode(msg: Any, profile: UnitProfile) -> ImuSample:
         norm = math.sqrt(mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2])
         if norm > MAX_PLAUSIBLE_FIELD_UT:
             raise _implausible(kind, profile, norm)
-    return ImuSample(time_s, (ax * sa, ay * sa, az * sa), (gx * sg, gy * sg, gz * sg), mag, kind, saturated)
+    return ImuSample(
+        time_s, (ax * sa, ay * sa, az * sa), (gx * sg, gy * sg, gz * sg), mag, TIME_FIELDS[kind][2], saturated
+    )
 
 
 _NONE_SATURATED: frozenset[str] = frozenset()
@@ -234,15 +239,15 @@ def _implausible(kind: str, profile: UnitProfile, norm: float) -> SensorError:
     )
 
 
-def encode(sample: ImuSample, profile: UnitProfile, message: str | None = None) -> dict[str, int | float]:
-    """The inverse of :func:`decode`: every field of ``message`` (default ``sample.message``) as a dict,
+def encode(sample: ImuSample, profile: UnitProfile, message: str) -> dict[str, int | float]:
+    """The inverse of :func:`decode`: every field of ``message`` as a dict,
     ready for pymavlink's ``<message>_send(**fields)``.
 
     Integer fields are rounded and clipped to their range (a clipped value decodes as saturated);
     ``time_boot_ms`` wraps at 2³² ms as on the vehicle. A ``None`` magnetometer is sent as zeros, or, in
     HIGHRES_IMU, with the magnetometer bits of ``fields_updated`` clear.
     """
-    kind = message or sample.message
+    kind = message
     scale = profile.scale(kind)
     time_field, time_unit_s, wrap_s = TIME_FIELDS[kind]
     ticks = round(sample.time_s / time_unit_s)
@@ -260,11 +265,6 @@ def encode(sample: ImuSample, profile: UnitProfile, message: str | None = None) 
         updated = HIGHRES_ACC_GYRO_UPDATED | (HIGHRES_MAG_UPDATED if sample.mag_uT is not None else 0)
         fields["fields_updated"] = updated
     return fields
-
-
-def wrap_period_s(message: str) -> float | None:
-    """The period after which the message's time field wraps (``None``: never in practice)."""
-    return TIME_FIELDS[message][2]
 
 
 def time_boot_ms(time_s: float) -> int:

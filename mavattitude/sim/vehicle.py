@@ -297,15 +297,16 @@ class FakeVehicle:
     ) -> None:
         """One IMU message with the given SI values and vehicle time (any values: NaN, zero, saturated)."""
         mag = None if mag_uT is None else _vec(mag_uT)
-        sample = ImuSample(vehicle_time_s, _vec(acc_mps2), _vec(gyr_radps), mag, message or self.config.message)
-        self.send(self.encode(sample))
+        sample = ImuSample(vehicle_time_s, _vec(acc_mps2), _vec(gyr_radps), mag)
+        self.send(self.encode(sample, message))
 
-    def encode(self, sample: ImuSample) -> Any:
-        """The MAVLink message of an SI sample in this vehicle's profile."""
-        if self.config.highres_mag_bug and sample.message == "HIGHRES_IMU" and sample.mag_uT is not None:
+    def encode(self, sample: ImuSample, message: str | None = None) -> Any:
+        """The MAVLink ``message`` (default: the configured one) of an SI sample in this vehicle's profile."""
+        kind = message or self.config.message
+        if self.config.highres_mag_bug and kind == "HIGHRES_IMU" and sample.mag_uT is not None:
             sample = dataclasses.replace(sample, mag_uT=tuple(1e6 * b for b in sample.mag_uT))
-        fields = encode(sample, self._profile)
-        return getattr(mavlink2, f"MAVLink_{sample.message.lower()}_message")(**fields)
+        fields = encode(sample, self._profile, kind)
+        return getattr(mavlink2, f"MAVLink_{kind.lower()}_message")(**fields)
 
     def _send_loop(self) -> None:
         next_heartbeat = 0.0
@@ -339,7 +340,7 @@ class FakeVehicle:
         epoch = self._epoch
         rows = [ImuRow(t[i], epoch.vehicle_time(t[i]), _vec(acc[i]), _vec(gyr[i]), _vec(mag[i])) for i in range(len(t))]
         for row in self._apply_fault(rows):
-            msg = self.encode(ImuSample(row.vehicle_s, row.acc_mps2, row.gyr_radps, row.mag_uT, name))
+            msg = self.encode(ImuSample(row.vehicle_s, row.acc_mps2, row.gyr_radps, row.mag_uT), name)
             # Logged before the send, so the log never lags the datagram (latency is then an upper bound
             # by the pack + sendto time, a few µs).
             with self._cond:

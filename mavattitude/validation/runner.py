@@ -105,7 +105,6 @@ def samples(recording: Recording) -> list[ImuSample]:
             acc_mps2=tuple(acc),
             gyr_radps=tuple(gyr),
             mag_uT=tuple(mag) if new else None,
-            message="HIGHRES_IMU",
         )
         for t, acc, gyr, mag, new in rows
     ]

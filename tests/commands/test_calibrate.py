@@ -57,7 +57,7 @@ def test_from_csv_writes_the_mag_block_and_reports(tmp_path: Path, capsys: pytes
 def test_from_a_tlog(tmp_path: Path) -> None:
     profile = get_profile("ardupilot")
     packets = [
-        (1, "RAW_IMU", encode(ImuSample(i * 0.01, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), tuple(m), "RAW_IMU"), profile))
+        (1, "RAW_IMU", encode(ImuSample(i * 0.01, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), tuple(m)), profile, "RAW_IMU"))
         for i, m in enumerate(_distorted(1000))
     ]
     log = tmp_path / "turns.tlog"
@@ -96,8 +96,8 @@ def test_live_over_udp_with_coverage_progress(tmp_path: Path, capsys: pytest.Cap
         mags = _distorted(4000, seed=3)
         i = 0
         while not stop.is_set():
-            sample = ImuSample(i * 0.005, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), tuple(mags[i % 4000]), "RAW_IMU")
-            conn.mav.raw_imu_send(**encode(sample, profile))
+            sample = ImuSample(i * 0.005, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), tuple(mags[i % 4000]))
+            conn.mav.raw_imu_send(**encode(sample, profile, "RAW_IMU"))
             i += 1
             stop.wait(0.0005)  # pacing the sender, about 2 kHz
         conn.close()
@@ -126,5 +126,5 @@ def test_the_written_block_is_a_config_the_front_end_applies(tmp_path: Path) -> 
     config = load_config(out, env={})
     fe = FrontEnd(FrontEndSettings.from_config(config, filter_enabled=False))
     raw = _distorted(1, seed=5)[0]
-    (tick,) = fe.push(ImuSample(1.0, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), tuple(raw), "RAW_IMU"))
+    (tick,) = fe.push(ImuSample(1.0, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), tuple(raw)))
     assert np.linalg.norm(tick.mag_uT) == pytest.approx(48.0, abs=0.5)  # 0.2 µT noise, the fit's residual

@@ -74,8 +74,8 @@ def write_tlog(
         mag = rotate_ned_to_body(q, field) + rng.normal(0, 0.3, (len(t), 3))
         gyr = np.tile([0.0, 0.0, np.radians(YAW_RATE_DEG_S) if s == 1 else 0.0], (len(t), 1))
         for i, ti in enumerate(t):
-            sample = ImuSample(float(ti), tuple(acc[i]), tuple(gyr[i]), tuple(mag[i]), "RAW_IMU")
-            add(ti, s, links[s].raw_imu_encode(**encode(sample, profile)))
+            sample = ImuSample(float(ti), tuple(acc[i]), tuple(gyr[i]), tuple(mag[i]))
+            add(ti, s, links[s].raw_imu_encode(**encode(sample, profile, "RAW_IMU")))
             if attitude and i % 10 == 5:
                 r, p, y = rpy[i] + [0.0, 0.0, np.radians(AUTOPILOT_YAW_OFFSET_DEG)]
                 add(ti, s, links[s].attitude_encode(round(ti * 1e3), r, p, y, 0.0, 0.0, 0.0))

@@ -62,9 +62,8 @@ def _packet(v: FakeVehicle) -> bytes:
         tuple(truth.specific_force_mps2[0]),
         tuple(truth.gyr_radps[0]),
         tuple(truth.mag_uT[0]),
-        MESSAGE,
     )
-    return bytes(v.encode(sample).pack(v.conn.mav))
+    return bytes(v.encode(sample, MESSAGE).pack(v.conn.mav))
 
 
 def _replace(**values: tuple[float, float, float] | None):  # type: ignore[no-untyped-def]

@@ -32,11 +32,11 @@ def _scipy_lowpass(x: np.ndarray, cutoff_hz: float, fs_hz: float) -> np.ndarray:
     return np.stack([scipy.signal.sosfilt(sos, x[:, c], zi=zi * x[0, c])[0] for c in range(x.shape[1])], axis=1)
 
 
-def _samples(t, acc, gyr, mag=None, mag_every=1, message="RAW_IMU") -> list[ImuSample]:
+def _samples(t, acc, gyr, mag=None, mag_every=1) -> list[ImuSample]:
     out = []
     for i in range(len(t)):
         m = None if mag is None or i % mag_every else tuple(float(v) for v in mag[i])
-        out.append(ImuSample(float(t[i]), tuple(map(float, acc[i])), tuple(map(float, gyr[i])), m, message))
+        out.append(ImuSample(float(t[i]), tuple(map(float, acc[i])), tuple(map(float, gyr[i])), m))
     return out
 
 
@@ -141,13 +141,13 @@ def test_screening_drops_bad_samples_and_flags_suspect_vectors() -> None:
     acc[50] = [np.nan, 0, -G]
     acc[60] = [0, 0, -200.0]  # beyond the 16 g full scale
     samples = _samples(t, acc, np.zeros((n, 3)), mag)
-    samples[70] = ImuSample(samples[70].time_s, samples[70].acc_mps2, samples[70].gyr_radps, (np.inf, 0, 0), "RAW_IMU")
+    samples[70] = ImuSample(samples[70].time_s, samples[70].acc_mps2, samples[70].gyr_radps, (np.inf, 0, 0))
     samples[80] = ImuSample(
         samples[80].time_s,
         samples[80].acc_mps2,
         samples[80].gyr_radps,
         samples[80].mag_uT,
-        "RAW_IMU",
+        None,
         frozenset({"gyr"}),
     )
     settings = FrontEndSettings(expected_field_uT=60.0)  # |B| = 44.7: 25 % off, beyond the 15 % tolerance
@@ -161,7 +161,7 @@ def test_screening_drops_bad_samples_and_flags_suspect_vectors() -> None:
     fe.set_expected_field_uT(math.hypot(20.0, 40.0))
     more = []
     for i in range(100):  # half a g of free fall for 0.5 s
-        more += fe.push(ImuSample(2.0 + i * 0.005, (0.0, 0.0, -5.0), (0, 0, 0), (20.0, 0.0, 40.0), "RAW_IMU"))
+        more += fe.push(ImuSample(2.0 + i * 0.005, (0.0, 0.0, -5.0), (0, 0, 0), (20.0, 0.0, 40.0)))
     assert more and not more[-1].flags & SampleFlag.MAG_NORM
     assert more[-1].flags & SampleFlag.ACC_NORM and more[-1].acc_std_scale == settings.suspect_std_scale
 
@@ -176,7 +176,7 @@ def _dead_bursts(n: int, zero_acc: list[range], zero_mag: list[range]) -> list[I
         acc[r] = 0.0
     for r in zero_mag:
         mag[r] = 0.0
-    return _samples(10.0 + np.arange(n) * 0.005, acc, np.zeros((n, 3)), mag, message="HIGHRES_IMU")
+    return _samples(10.0 + np.arange(n) * 0.005, acc, np.zeros((n, 3)), mag)
 
 
 FIELD_UT = np.array([21.9, 0.0, 44.9])
@@ -224,15 +224,15 @@ def test_the_dead_floor_is_a_fraction_of_g_and_of_the_known_field_else_of_the_we
     weak = (0.0, 0.0, 2.0)  # 2 µT: 4 % of a 50 µT reference, 9 % of the weakest field on Earth (22 µT)
     for expected, dead in ((50.0, True), (None, False)):
         fe = FrontEnd(FrontEndSettings(expected_field_uT=expected))
-        fe.push(ImuSample(1.0, (0.0, 0.0, -G), (0.0, 0.0, 0.0), weak, "HIGHRES_IMU"))
+        fe.push(ImuSample(1.0, (0.0, 0.0, -G), (0.0, 0.0, 0.0), weak))
         assert (fe.counters.mag_rejected == {"dead": 1}) is dead
     fe = FrontEnd(s)
     fe.set_expected_field_uT(50.0)  # the reference becoming known moves the floor
-    fe.push(ImuSample(1.0, (0.0, 0.0, -G), (0.0, 0.0, 0.0), weak, "HIGHRES_IMU"))
+    fe.push(ImuSample(1.0, (0.0, 0.0, -G), (0.0, 0.0, 0.0), weak))
     assert fe.counters.mag_rejected == {"dead": 1}
     # 0.04 g is dead, 0.06 g is a (suspect) live reading: the floor is 5 % of g.
     for i, (z, dead) in enumerate(((-0.04 * G, True), (-0.06 * G, False))):
-        fe.push(ImuSample(2.0 + i, (0.0, 0.0, z), (0.0, 0.0, 0.0), None, "HIGHRES_IMU"))
+        fe.push(ImuSample(2.0 + i, (0.0, 0.0, z), (0.0, 0.0, 0.0), None))
         assert (fe.counters.rejected["dead_acc"] == 1) is True
         assert fe.counters.accepted == 1 + (not dead)
 

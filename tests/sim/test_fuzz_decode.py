@@ -58,9 +58,8 @@ def _good_packets(message: str, n: int) -> list[bytes]:
             tuple(truth.specific_force_mps2[i]),
             tuple(truth.gyr_radps[i]),
             tuple(truth.mag_uT[i]),
-            message,
         )
-        fields = encode(sample, get_profile(PROFILES[message]))
+        fields = encode(sample, get_profile(PROFILES[message]), message)
         packets.append(bytes(getattr(mavlink2, f"MAVLink_{message.lower()}_message")(**fields).pack(mav)))
     return packets
 
