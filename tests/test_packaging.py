@@ -75,7 +75,7 @@ def _readme_invocations() -> list[list[str]]:
 def test_every_command_the_readme_shows_parses():
     parser = build_parser()
     invocations = _readme_invocations()
-    assert {"run", "demo", "bench"} <= {argv[0] for argv in invocations}
+    assert {"run", "demo"} <= {argv[0] for argv in invocations}
     for argv in invocations:
         try:
             parser.parse_args(argv)
