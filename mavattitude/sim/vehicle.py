@@ -260,8 +260,12 @@ class FakeVehicle:
         self._default_streams()
 
     def pause_imu(self, paused: bool = True) -> None:
-        """Stop (or resume) IMU messages while the script and everything else go on."""
-        self._imu_paused = paused
+        """Stop (or resume) IMU messages while the script and everything else go on.
+
+        Once it returns, :attr:`imu_sent` stays put while paused (each sample is counted and checked under
+        the same lock), so a test can compare it with what the service received."""
+        with self._cond:
+            self._imu_paused = paused
         if not paused:  # resume from now, not with a backlog of the silent time
             now = self.script_time()
             for msg_id, stream in list(self._streams.items()):
@@ -344,6 +348,8 @@ class FakeVehicle:
             # Logged before the send, so the log never lags the datagram (latency is then an upper bound
             # by the pack + sendto time, a few µs).
             with self._cond:
+                if self._imu_paused:
+                    return
                 self._sent_t_s.append(row.script_s)
                 self._sent_mono_s.append(time.monotonic())
                 self.imu_sent += 1

@@ -84,6 +84,33 @@ def wait_outputs(v: FakeVehicle, more: int, timeout_s: float = EVENT_TIMEOUT_S) 
     )
 
 
+def udp_drops(port: int) -> int:
+    """Datagrams the kernel dropped for the UDP socket on local ``port`` because its receive buffer was full
+    (its process starved of CPU on a loaded machine): the ``drops`` column of /proc/net/udp."""
+    for line in Path("/proc/net/udp").read_text().splitlines()[1:]:
+        fields = line.split()
+        if int(fields[1].rsplit(":", 1)[1], 16) == port:
+            return int(fields[-1])
+    raise AssertionError(f"no UDP socket on port {port} in /proc/net/udp")
+
+
+def drain(v: FakeVehicle, svc: ServiceProcess) -> tuple[int, int]:
+    """Pause the vehicle's IMU and wait until the service has taken in everything it was sent.
+
+    Returns (IMU messages sent, of them dropped by the kernel before the service read them): what the
+    service's ``received`` must then equal ``sent − dropped`` exactly, whatever the machine's load.
+    """
+    v.pause_imu(True)
+    sent, port = v.imu_sent, v.peers()[0][1]  # the first peer of the vehicle is the service
+
+    def taken_in() -> bool:
+        return bool(svc.counters) and svc.counters[-1].get("received", 0.0) + udp_drops(port) >= sent
+
+    if not svc.wait_until(taken_in, EVENT_TIMEOUT_S):
+        pytest.fail(f"the service never took in the {sent} IMU messages sent; log:\n{svc.log_tail()}")
+    return sent, udp_drops(port)
+
+
 def assert_all_outputs_valid(v: FakeVehicle) -> None:
     """The service's promise: every quaternion it sent was finite and unit."""
     _, _, q = v.outputs_since(0)

@@ -16,6 +16,7 @@ from .conftest import (
     FAST_SERVICE,
     START_TIMEOUT_S,
     assert_all_outputs_valid,
+    drain,
     wait_counter,
     wait_outputs,
 )
@@ -38,7 +39,7 @@ def test_profile_and_message(fly: Callable[..., Any], profile: str, message: str
     script = scenarios.slow_rotation(120.0)
     with fly(script, scenarios.paper_sensors(200.0), profile=profile, message=message) as (vehicle, service):
         wait_outputs(vehicle, 75)
-        sent_before_stop = vehicle.imu_sent
+        sent, dropped = drain(vehicle, service)
         assert service.stop() == 0
         final = service.final_counters()
     score = vehicle.score()
@@ -51,9 +52,10 @@ def test_profile_and_message(fly: Callable[..., Any], profile: str, message: str
     assert score.output_rate_hz == pytest.approx(50.0, abs=0.5)
     assert_all_outputs_valid(vehicle)
     # Counters agree with what went over the wire: every output the service counted arrived, and the
-    # vehicle only streams once asked, so the service received all it was sent (but the last few in flight).
+    # vehicle only streams once asked, so the service received all it was sent but what the kernel dropped
+    # from its full receive buffer (none on an idle machine): exact, whatever the load.
     assert final["emitted"] == len(vehicle.attitude_log)
-    assert final["received"] >= sent_before_stop - 10
+    assert final["received"] == sent - dropped
     assert final["acks.accepted"] >= 1 and final["rejected.decode"] == 0
 
 
