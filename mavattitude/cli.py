@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from types import ModuleType
 
 from mavattitude import __version__, commands
+from mavattitude.config import LOG_LEVELS
 from mavattitude.errors import MavAttitudeError
 
 EXIT_USER_ERROR = 2
@@ -36,7 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--log-level",
         type=str.upper,
-        choices=["DEBUG", "INFO", "WARNING", "ERROR"],
+        choices=LOG_LEVELS,
         help="how much to log (default INFO; for `run`, the config's logging.level)",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)

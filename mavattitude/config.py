@@ -34,6 +34,8 @@ from typing import Any
 import yaml
 
 from mavattitude.errors import ConfigError
+from mavattitude.estimation import METHODS
+from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
 
 ENV_VAR = "MAVATTITUDE_CONFIG"
 
@@ -42,9 +44,6 @@ Mat3 = tuple[Vec3, Vec3, Vec3]
 IDENTITY: Mat3 = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 ZERO: Vec3 = (0.0, 0.0, 0.0)
 
-MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
-PROFILES = ("ardupilot", "px4", "adis16405", "custom")
-METHODS = ("ign", "cgn", "ml", "triad", "fused")
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
 # Paths whose value is replaced whole by a higher layer (polymorphic: a string or a mapping/matrix).
 REPLACE_WHOLE = frozenset({"reference.magnetic", "mounting.rotation"})
@@ -203,7 +202,7 @@ class InputConfig:
     message: str = field(
         default="RAW_IMU", metadata=_meta(_choice(*MESSAGES, fold=str.upper), "MAVLink IMU message to read")
     )
-    profile: str = field(default="ardupilot", metadata=_meta(_choice(*PROFILES), "unit profile of that message"))
+    profile: str = field(default="ardupilot", metadata=_meta(_choice(*PROFILE_NAMES), "unit profile of that message"))
     input_timeout_s: float = field(
         default=0.5, metadata=_meta(_number(0.0, 60.0, lo_open=True), "input gap that stops output, s")
     )

@@ -37,7 +37,7 @@ import numpy as np
 
 from mavattitude.config import Config
 from mavattitude.errors import ConfigError, InputError, MavAttitudeError
-from mavattitude.estimation import NoiseModel, solve
+from mavattitude.estimation import SNAPSHOT_METHODS, NoiseModel, solve
 from mavattitude.estimation.conventions import Array
 from mavattitude.sensors.frontend import FrontEnd, FrontEndCounters, FrontEndSettings, ProcessedSample, SampleFlag
 from mavattitude.sensors.magref import MagneticReference
@@ -166,7 +166,7 @@ def _lazy(result: Any) -> Callable[[], Array]:
 
 
 class FusedEstimator:
-    """The gyro-aided filter (helper G's :class:`~mavattitude.estimation.fused.FusedFilter`)."""
+    """The gyro-aided filter, :class:`~mavattitude.estimation.fused.FusedFilter`."""
 
     wants_filtered = False
 
@@ -224,10 +224,7 @@ _RESET = frozenset({"RESET"})
 
 #: ``estimator.method`` → the estimator that runs it.
 ESTIMATORS: dict[str, Callable[[Config], Estimator]] = {
-    "ign": SnapshotEstimator,
-    "cgn": SnapshotEstimator,
-    "ml": SnapshotEstimator,
-    "triad": SnapshotEstimator,
+    **dict.fromkeys(SNAPSHOT_METHODS, SnapshotEstimator),
     "fused": FusedEstimator,
 }
 

@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # the checkout's package, installed or not
 
 from mavattitude.estimation import (  # noqa: E402
-    METHODS,
+    SNAPSHOT_METHODS,
     NoiseModel,
     cramer_rao_bound,
     kernel,
@@ -105,7 +105,7 @@ def static(n: int, seed: int) -> dict:
     acc = PAPER_GRAVITY_BODY_MPS2 + rng.normal(size=(n, 3)) * NOISE.accel_std
     mag = PAPER_MAG_BODY_UT + rng.normal(size=(n, 3)) * NOISE.mag_std
     out = {"acc": acc, "mag": mag, "q": {}, "res": {}}
-    for m in METHODS:
+    for m in SNAPSHOT_METHODS:
         res = solve_batch(acc, mag, PAPER_MAG_NED_UT, NOISE, method=m, acc_ref=DOWN, full_output=True)
         out["res"][m], out["q"][m] = res, res.q
     out["crb"] = cramer_rao_bound(PAPER_GRAVITY_BODY_MPS2, PAPER_MAG_BODY_UT, NOISE)
@@ -121,7 +121,7 @@ def static(n: int, seed: int) -> dict:
 
 def report_static(s: dict) -> str:
     rows = []
-    for m in METHODS:
+    for m in SNAPSHOT_METHODS:
         e = euler_errors_deg(s["q"][m], PAPER_Q)
         var, mean = e.var(0), np.abs(e).mean(0)
         fmt = lambda v: " / ".join(f"{x:.4f}" for x in v)  # noqa: E731
@@ -136,7 +136,7 @@ def report_static(s: dict) -> str:
     ]
     crb_tr = np.trace(s["crb"])
     rows = []
-    for m in METHODS:
+    for m in SNAPSHOT_METHODS:
         mc = np.cov(cv.body_error_angles(s["q"][m], PAPER_Q).T)
         pred = predicted_covariance(s["acc"], s["mag"], NOISE, m).mean(0)
         rows.append(
@@ -161,7 +161,7 @@ def report_static(s: dict) -> str:
         + str(PAPER_EQ39 / 1e-5)
         + f"\nratio of traces printed/ours: {np.trace(PAPER_EQ39) / np.trace(s['eq23']):.2f}"
     )  # fmt: skip
-    series = [(f"{m} from TRIAD", s["res"][m].iterations) for m in METHODS if m != "triad"]
+    series = [(f"{m} from TRIAD", s["res"][m].iterations) for m in SNAPSHOT_METHODS if m != "triad"]
     series.append(("ign from identity (literal)", s["cold_iterations"]))
     top = max(int(its.max()) for _, its in series)
     rows = [(name, *(str(int(np.sum(its == k))) for k in range(1, top + 1))) for name, its in series]
@@ -262,7 +262,7 @@ def dynamic(seed: int) -> dict:
     for case, acc_clean in (("gravity only", gravity_only), ("with accelerations", specific_force)):
         acc = acc_clean + acc_noise
         per = {}
-        for m in METHODS:
+        for m in SNAPSHOT_METHODS:
             res = solve_batch(acc, mag, PAPER_MAG_NED_UT, NOISE, method=m, acc_ref=(0.0, 0.0, -1.0), full_output=True)
             # The same per sample with the previous answer as warm start, as the service runs it.
             q_prev, warm_its, warm_conv = None, [], []
@@ -288,7 +288,7 @@ def report_dynamic(d: dict) -> str:
     )
     for case, per in d["cases"].items():
         rows = []
-        for m in METHODS:
+        for m in SNAPSHOT_METHODS:
             q, its, conv, warm_its, warm_same = per[m]
             e = euler_errors_deg(q, d["q_true"])
             fmt = lambda v: " / ".join(f"{x:.4f}" for x in v)  # noqa: E731

@@ -14,8 +14,9 @@ from typing import IO, TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 
-from mavattitude.config import METHODS, Config, load_config
+from mavattitude.config import Config, load_config
 from mavattitude.errors import ConfigError, DataFileError, MavAttitudeError
+from mavattitude.estimation import METHODS
 
 if TYPE_CHECKING:
     from mavattitude.pipeline import AttitudePipeline

@@ -14,8 +14,8 @@ import signal
 import time
 
 from mavattitude.commands.simulate import add_vehicle_arguments, vehicle_from_args
-from mavattitude.config import METHODS
 from mavattitude.errors import MavAttitudeError
+from mavattitude.estimation import METHODS
 from mavattitude.sim.daemon import ServiceProcess, config_for
 from mavattitude.sim.scoring import Score
 from mavattitude.sim.vehicle import FakeVehicle

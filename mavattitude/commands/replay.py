@@ -22,8 +22,8 @@ from typing import Any
 import numpy as np
 
 from mavattitude.commands._offline import add_config_arguments, config_from_args, output_row, summarise, write_outputs
-from mavattitude.config import MESSAGES, PROFILES
 from mavattitude.errors import DataFileError
+from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
 
 NAME = "replay"
 HELP = "the service's pipeline over a telemetry log (.tlog): attitude CSV, compared with the autopilot's"
@@ -42,7 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--message", choices=MESSAGES, type=str.upper, help="IMU message to read (config default: RAW_IMU)"
     )
-    parser.add_argument("--profile", choices=PROFILES, help="unit profile (config default: ardupilot)")
+    parser.add_argument("--profile", choices=PROFILE_NAMES, help="unit profile (config default: ardupilot)")
     parser.add_argument(
         "--plot", metavar="PNG", help="comparison plot file (default: the output's name with .png); --no-plot: none"
     )

@@ -14,7 +14,8 @@ import signal
 import threading
 from typing import Any
 
-from mavattitude.config import ENV_VAR, MESSAGES, PROFILES, Config, load_config
+from mavattitude.config import ENV_VAR, Config, load_config
+from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
 
 NAME = "run"
 HELP = "run the attitude service on a MAVLink link (the daemon)"
@@ -85,7 +86,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="drop unsigned or badly signed input (needs a signing key)",
     )
     parser.add_argument("--message", choices=MESSAGES, help=f"IMU message to read (default {d.input.message})")
-    parser.add_argument("--profile", choices=PROFILES, help=f"unit profile of that message (default {d.input.profile})")
+    parser.add_argument(
+        "--profile", choices=PROFILE_NAMES, help=f"unit profile of that message (default {d.input.profile})"
+    )
     parser.add_argument(
         "--input-timeout",
         type=float,

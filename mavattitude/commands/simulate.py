@@ -12,10 +12,10 @@ import logging
 import time
 
 from mavattitude.errors import MavAttitudeError
-from mavattitude.sensors.units import PROFILES
+from mavattitude.sensors.units import MESSAGES, PROFILES
 from mavattitude.sim import scenarios
 from mavattitude.sim.scoring import Score
-from mavattitude.sim.vehicle import IMU_MESSAGES, FakeVehicle, VehicleConfig
+from mavattitude.sim.vehicle import FakeVehicle, VehicleConfig
 
 NAME = "simulate"
 HELP = "run the scripted fake vehicle (a MAVLink 2 autopilot peer) on a connection and score what it hears"
@@ -52,7 +52,7 @@ def add_vehicle_arguments(parser: argparse.ArgumentParser, default_duration_s: f
     parser.add_argument(
         "--message",
         type=str.upper,
-        choices=IMU_MESSAGES,
+        choices=MESSAGES,
         help="IMU message (default: RAW_IMU for ardupilot/adis16405, HIGHRES_IMU for px4)",
     )
     parser.add_argument("--rate", type=float, default=200.0, metavar="HZ", help="IMU rate, Hz (default 200)")

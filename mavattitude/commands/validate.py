@@ -16,12 +16,12 @@ from pathlib import Path
 
 import yaml
 
-from mavattitude.config import METHODS, load_config
+from mavattitude.config import load_config
 from mavattitude.errors import ConfigError
+from mavattitude.estimation import METHODS, SNAPSHOT_METHODS
 from mavattitude.validation import find_recordings, load_recording
 from mavattitude.validation.report import markdown_table, text_table, write_markdown
 from mavattitude.validation.runner import (
-    BATCH_METHODS,
     PATHS,
     Evaluation,
     estimate_batch,
@@ -126,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
         (method, path)
         for method in args.methods or METHODS
         for path in args.paths_run or PATHS
-        if path == "stream" or method in BATCH_METHODS  # the fused filter exists only as a stream
+        if path == "stream" or method in SNAPSHOT_METHODS  # the fused filter exists only as a stream
     ]
     if not runs:
         raise ConfigError("nothing to run: the fused method has no batch path (use --path stream)")

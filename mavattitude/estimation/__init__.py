@@ -8,10 +8,14 @@ variant (matrix weights, reaches the Cramér–Rao bound) and TRIAD; see :mod:`.
 from .batch import BatchResult, solve_batch
 from .covariance import cramer_rao_bound, predicted_covariance
 from .noise import NoiseModel
-from .solve import METHODS, SolveResult, solve
+from .solve import SNAPSHOT_METHODS, SolveResult, solve
+
+#: Every ``estimator.method``: the per-sample solvers and ``fused``, the gyro-aided filter (:mod:`.fused`).
+METHODS = (*SNAPSHOT_METHODS, "fused")
 
 __all__ = [
     "METHODS",
+    "SNAPSHOT_METHODS",
     "BatchResult",
     "NoiseModel",
     "SolveResult",

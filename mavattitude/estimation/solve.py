@@ -35,7 +35,7 @@ from . import kernel
 from .conventions import quat_from_rotation_parts
 from .noise import NoiseModel
 
-METHODS = ("ign", "cgn", "ml", "triad")
+SNAPSHOT_METHODS = ("ign", "cgn", "ml", "triad")  # what solve and solve_batch compute
 MAX_ITERATIONS = 10
 TOLERANCE_RAD = 1e-12
 MIN_ANGLE_DEG = 5.0
@@ -80,8 +80,8 @@ class SolveResult:
 
 
 def check_method(method: str) -> None:
-    if method not in METHODS:
-        raise InputError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    if method not in SNAPSHOT_METHODS:
+        raise InputError(f"unknown method {method!r}; choose one of {', '.join(SNAPSHOT_METHODS)}")
 
 
 @functools.lru_cache(maxsize=16)

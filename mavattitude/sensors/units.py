@@ -45,11 +45,12 @@ INT16_MIN, INT16_MAX = -32768, 32767
 #: The time field of each IMU message, its size in seconds, and the period after which it wraps.
 TIME_FIELDS: dict[str, tuple[str, float, float | None]] = {
     "RAW_IMU": ("time_usec", 1e-6, None),
-    "HIGHRES_IMU": ("time_usec", 1e-6, None),
     "SCALED_IMU": ("time_boot_ms", 1e-3, 2.0**32 * 1e-3),
     "SCALED_IMU2": ("time_boot_ms", 1e-3, 2.0**32 * 1e-3),
     "SCALED_IMU3": ("time_boot_ms", 1e-3, 2.0**32 * 1e-3),
+    "HIGHRES_IMU": ("time_usec", 1e-6, None),
 }
+#: The IMU messages the project reads (``input.message``) and the fake vehicle sends.
 MESSAGES = tuple(TIME_FIELDS)
 INTEGER_MESSAGES = frozenset({"RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3"})
 
@@ -141,6 +142,8 @@ PROFILES: dict[str, UnitProfile] = {
         },
     ),
 }
+#: Every ``input.profile``: the fixed ones above, and ``custom`` (scales from ``input.custom``).
+PROFILE_NAMES = (*PROFILES, "custom")
 
 
 def custom_profile(
@@ -171,7 +174,7 @@ def get_profile(name: str, custom: Any = None) -> UnitProfile:
     try:
         return PROFILES[name]
     except KeyError:
-        raise SensorError(f"unknown unit profile {name!r}; known: {', '.join([*PROFILES, 'custom'])}") from None
+        raise SensorError(f"unknown unit profile {name!r}; known: {', '.join(PROFILE_NAMES)}") from None
 
 
 def _sign_extend(value: int, bits: int) -> int:

@@ -38,15 +38,14 @@ import numpy as np
 from mavattitude.errors import InputError, LinkError
 from mavattitude.estimation.conventions import Array
 from mavattitude.link.mavlink2 import force_mavlink2, mavlink2, mavutil, message_id
-from mavattitude.sensors.units import ImuSample, encode, get_profile, time_boot_ms
+from mavattitude.sensors.units import MESSAGES, ImuSample, encode, get_profile, time_boot_ms
 from mavattitude.sim.scoring import Comparison, Score, compare, score
 from mavattitude.sim.sensors import SensorModel
 from mavattitude.sim.trajectory import Script
 
 log = logging.getLogger(__name__)
 
-IMU_MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
-_IMU_MESSAGE_IDS = frozenset(message_id(name) for name in IMU_MESSAGES)
+_IMU_MESSAGE_IDS = frozenset(message_id(name) for name in MESSAGES)
 _MSG_GLOBAL_POSITION_INT = mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT
 _AUTOPILOT = {"px4": mavlink2.MAV_AUTOPILOT_PX4}
 _POSITION_RATE_HZ = 2.0

@@ -29,9 +29,7 @@ from mavattitude.sensors.units import ImuSample
 from mavattitude.validation.loaders import Recording, truth_at
 from mavattitude.validation.metrics import BroadScore, Px4Score, broad_errors, euler_differences
 
-PATHS = ("stream", "batch")
-# solve_batch is a per-sample solver; the gyro-aided filter exists only as a stream.
-BATCH_METHODS = ("ign", "cgn", "ml", "triad")
+PATHS = ("stream", "batch")  # batch: solve_batch, per sample (SNAPSHOT_METHODS); the fused filter is only a stream
 
 Progress = Callable[[int, int], None]
 

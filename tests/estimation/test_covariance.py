@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mavattitude.estimation import METHODS, cramer_rao_bound, predicted_covariance, solve, solve_batch
+from mavattitude.estimation import SNAPSHOT_METHODS, cramer_rao_bound, predicted_covariance, solve, solve_batch
 from mavattitude.estimation import conventions as cv
 from mavattitude.estimation.noise import unit_covariance
 from mavattitude.sim.scenarios import PAPER_GRAVITY_BODY_MPS2, PAPER_MAG_BODY_UT, PAPER_MAG_NED_UT, PAPER_Q
@@ -22,7 +22,7 @@ def monte_carlo():
     acc = PAPER_GRAVITY_BODY_MPS2 + rng.normal(size=(N, 3)) * PAPER_NOISE.accel_std
     mag = PAPER_MAG_BODY_UT + rng.normal(size=(N, 3)) * PAPER_NOISE.mag_std
     errors = {}
-    for method in METHODS:
+    for method in SNAPSHOT_METHODS:
         q = solve_batch(acc, mag, PAPER_MAG_NED_UT, PAPER_NOISE, method=method, acc_ref=GRAVITY_DOWN)
         errors[method] = cv.body_error_angles(q, PAPER_Q)
     return acc, mag, errors
@@ -38,14 +38,14 @@ def test_truth_is_the_papers_geometry():
 def test_ml_reaches_the_cramer_rao_bound_and_ign_cgn_do_not(monte_carlo):
     _, _, errors = monte_carlo
     crb = np.trace(cramer_rao_bound(PAPER_GRAVITY_BODY_MPS2, PAPER_MAG_BODY_UT, PAPER_NOISE))
-    ratio = {m: np.trace(np.cov(errors[m].T)) / crb for m in METHODS}
+    ratio = {m: np.trace(np.cov(errors[m].T)) / crb for m in SNAPSHOT_METHODS}
     assert abs(ratio["ml"] - 1.0) < 0.03  # the bound (sampling error 1.4 %)
     # docs/paper-notes.md: IGN ≈ 1.12×, CGN ≈ 1.15× the bound; 0.05 is 3.5 sampling σ.
     assert ratio["ign"] == pytest.approx(1.12, abs=0.05)
     assert ratio["cgn"] == pytest.approx(1.15, abs=0.05)
 
 
-@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("method", SNAPSHOT_METHODS)
 def test_reported_covariance_matches_monte_carlo(monte_carlo, method):
     acc, mag, errors = monte_carlo
     mc = np.cov(errors[method].T)
@@ -90,7 +90,7 @@ def test_covariance_is_lazy_and_cached():
     assert r.covariance is r.covariance
 
 
-@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("method", SNAPSHOT_METHODS)
 def test_per_sample_and_vectorised_covariance_agree(monte_carlo, method):
     acc, mag, _ = monte_carlo
     r = solve(acc[0], mag[0], PAPER_MAG_NED_UT, PAPER_NOISE, method=method, acc_ref=GRAVITY_DOWN)

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from mavattitude.errors import DegenerateGeometryError, InputError, MavAttitudeError
-from mavattitude.estimation import METHODS, NoiseModel, solve, solve_batch
+from mavattitude.estimation import SNAPSHOT_METHODS, NoiseModel, solve, solve_batch
 from mavattitude.estimation import conventions as cv
 from mavattitude.estimation.noise import paper_weight
 
@@ -42,7 +42,7 @@ def test_ign_equals_weighted_wahba_optimum_and_cgn_the_unweighted(rng):
 
 def test_result_fields(rng):
     acc, mag = simulate(cv.quat_from_euler(0.1, -0.2, 2.5), rng)
-    for method in METHODS:
+    for method in SNAPSHOT_METHODS:
         r = solve(acc[0], mag[0], MAG_REF_UT, PAPER_NOISE, method=method)
         assert r.q.shape == (4,) and abs(np.linalg.norm(r.q) - 1.0) < 1e-12
         assert r.covariance.shape == (3, 3) and np.all(np.linalg.eigvalsh(r.covariance) > 0)
@@ -102,7 +102,7 @@ def test_non_convergence_is_reported_not_hidden(rng):
 def test_batch_equals_per_sample(rng):
     q_true = cv.quat_normalize(rng.normal(size=(500, 4)))
     acc, mag = simulate(q_true, rng)
-    for method in METHODS:
+    for method in SNAPSHOT_METHODS:
         res = solve_batch(acc, mag, MAG_REF_UT, PAPER_NOISE, method=method, full_output=True)
         for i in range(0, 500, 5):
             r = solve(acc[i], mag[i], MAG_REF_UT, PAPER_NOISE, method=method)
@@ -128,7 +128,7 @@ def test_vector_buried_in_noise_or_sigma_in_wrong_units_is_refused():
 @given(
     st.tuples(*[st.floats(width=64)] * 3),
     st.tuples(*[st.floats(width=64)] * 3),
-    st.sampled_from(METHODS),
+    st.sampled_from(SNAPSHOT_METHODS),
     st.floats(min_value=1e-12, max_value=1e12),
 )
 def test_any_input_gives_an_answer_or_a_typed_error(acc, mag, method, sigma):
@@ -178,7 +178,7 @@ _sigma = st.tuples(*[st.floats(1e-6, 1e3)] * 3)
     mag=_vector,
     refs=st.tuples(_vector, _vector),
     q0=st.none() | st.tuples(_component, _component, _component, _component),
-    method=st.sampled_from(METHODS),
+    method=st.sampled_from(SNAPSHOT_METHODS),
     sigmas=st.tuples(_sigma, _sigma),
     min_angle_deg=st.floats(1e-9, 89.0),
 )
