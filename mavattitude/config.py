@@ -35,14 +35,10 @@ import yaml
 
 from mavattitude.errors import ConfigError
 from mavattitude.estimation import METHODS
+from mavattitude.sensors.calibration import Calibration, Mat3, Vec3
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
 
 ENV_VAR = "MAVATTITUDE_CONFIG"
-
-Vec3 = tuple[float, float, float]
-Mat3 = tuple[Vec3, Vec3, Vec3]
-IDENTITY: Mat3 = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
-ZERO: Vec3 = (0.0, 0.0, 0.0)
 
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
 # Paths whose value is replaced whole by a higher layer (polymorphic: a string or a mapping/matrix).
@@ -217,32 +213,6 @@ class MountingConfig:
 
 
 @dataclass(frozen=True)
-class AccelCalibration:
-    bias_mps2: Vec3 = field(default=ZERO, metadata=_meta(_vec3, "accelerometer bias b_a, m/s²"))
-    matrix: Mat3 = field(
-        default=IDENTITY, metadata=_meta(_mat3, "accelerometer scale/misalignment M_a: acc = M_a (raw − b_a)")
-    )
-
-
-@dataclass(frozen=True)
-class MagCalibration:
-    hard_iron_uT: Vec3 = field(default=ZERO, metadata=_meta(_vec3, "hard-iron offset h, µT"))
-    soft_iron: Mat3 = field(default=IDENTITY, metadata=_meta(_mat3, "soft-iron matrix S: mag = S (raw − h)"))
-
-
-@dataclass(frozen=True)
-class GyroCalibration:
-    bias_radps: Vec3 = field(default=ZERO, metadata=_meta(_vec3, "gyroscope bias, rad/s"))
-
-
-@dataclass(frozen=True)
-class CalibrationConfig:
-    accel: AccelCalibration = field(default_factory=AccelCalibration)
-    mag: MagCalibration = field(default_factory=MagCalibration)
-    gyro: GyroCalibration = field(default_factory=GyroCalibration)
-
-
-@dataclass(frozen=True)
 class FilterConfig:
     enabled: bool = field(
         default=True, metadata=_meta(_boolean, "low-pass + resample; false solves every input sample as it comes")
@@ -355,7 +325,7 @@ class Config:
     link: LinkConfig = field(default_factory=LinkConfig)
     input: InputConfig = field(default_factory=InputConfig)
     mounting: MountingConfig = field(default_factory=MountingConfig)
-    calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
+    calibration: Calibration = field(default_factory=Calibration)
     filter: FilterConfig = field(default_factory=FilterConfig)
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
@@ -397,11 +367,18 @@ def _build(cls: type, data: Any, path: str) -> Any:
         if f.name not in data:
             continue
         sub = f"{path}.{f.name}" if path else f.name
-        if "check" in f.metadata:
-            values[f.name] = f.metadata["check"](data[f.name], sub)
-        else:
-            values[f.name] = _build(hints[f.name], data[f.name], sub)
+        check = _check_of(f, hints[f.name])
+        values[f.name] = check(data[f.name], sub) if check else _build(hints[f.name], data[f.name], sub)
     return cls(**values)
+
+
+def _check_of(f: dataclasses.Field, hint: Any) -> Check | None:
+    """A key's check: its own (``_meta``), or by its type in the domain sections the config imports (their
+    fields carry only a description); ``None`` for a nested section."""
+    return f.metadata.get("check") or _CHECK_BY_TYPE.get(hint)
+
+
+_CHECK_BY_TYPE: dict[Any, Check] = {Vec3: _vec3, Mat3: _mat3}
 
 
 def _cross_check(c: Config) -> None:
@@ -525,7 +502,7 @@ def describe() -> list[tuple[str, Any, str]]:
         hints = typing.get_type_hints(cls)
         for f in dataclasses.fields(cls):
             key = f"{prefix}{f.name}"
-            if "check" in f.metadata:
+            if _check_of(f, hints[f.name]):
                 rows.append((key, _to_plain(getattr(cls(), f.name)), f.metadata["doc"]))
             else:
                 walk(hints[f.name], f"{key}.")

@@ -281,11 +281,9 @@ def bench_frontend(settings: Settings) -> list[Row]:
     t = np.sort(t + rng.normal(0.0, 0.1 / rate_hz, n))  # 10% timing jitter, as a real link has
     mag += (3.0, -2.0, 1.0)  # the hard iron the calibration below removes
     # A real calibration (hard and soft iron, accelerometer bias) so the calibrate step does its work.
-    cal = calibration.Calibration.from_mapping(
-        {
-            "accel": {"bias_mps2": [0.02, -0.01, 0.03]},
-            "mag": {"hard_iron_uT": [3.0, -2.0, 1.0], "soft_iron": [[1.02, 0.01, 0], [0.01, 0.98, 0], [0, 0, 1.0]]},
-        }
+    cal = calibration.Calibration(
+        accel=calibration.AccelCalibration(bias_mps2=(0.02, -0.01, 0.03)),
+        mag=calibration.MagCalibration((3.0, -2.0, 1.0), ((1.02, 0.01, 0.0), (0.01, 0.98, 0.0), (0.0, 0.0, 1.0))),
     )
     front_settings = frontend.FrontEndSettings(calibration=cal, expected_field_uT=float(np.linalg.norm(MAG_REF_NED_UT)))
     profile = units.get_profile("ardupilot")

@@ -85,7 +85,7 @@ class FrontEndSettings:
     """Everything the front end needs; :meth:`from_config` reads the project config."""
 
     mounting: Any = "NONE"  # ArduPilot rotation name or a 3×3 board → body matrix
-    calibration: Any = field(default_factory=Calibration)
+    calibration: Calibration = field(default_factory=Calibration)
     filter_enabled: bool = True
     cutoff_hz: float = 10.0
     output_rate_hz: float = 50.0

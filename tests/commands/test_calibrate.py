@@ -13,6 +13,7 @@ import yaml
 from pymavlink import mavutil
 
 from mavattitude.cli import main
+from mavattitude.config import from_dict
 from mavattitude.sensors.calibration import Calibration
 from mavattitude.sensors.units import ImuSample, encode, get_profile
 from tests.link.test_tlog import write_tlog
@@ -32,7 +33,7 @@ def _check_yaml(path: Path) -> Calibration:
     data = yaml.safe_load(path.read_text())
     assert set(data) == {"calibration"} and set(data["calibration"]) == {"mag"}
     assert set(data["calibration"]["mag"]) == {"hard_iron_uT", "soft_iron"}
-    cal = Calibration.from_mapping(data["calibration"])
+    cal = from_dict(data).calibration
     corrected = (_distorted(500, seed=9) - cal.mag.hard_iron_uT) @ np.asarray(cal.mag.soft_iron).T
     norms = np.linalg.norm(corrected, axis=1)
     assert np.std(norms) / np.mean(norms) < 0.01  # 0.2 µT noise on 48 µT and the integer rounding: ~0.5 %

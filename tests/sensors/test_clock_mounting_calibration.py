@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mavattitude.errors import CalibrationError, ConfigError
-from mavattitude.sensors.calibration import Calibration, mag_block, sensor_affines
+from mavattitude.config import from_dict
+from mavattitude.errors import ConfigError
+from mavattitude.sensors.calibration import mag_block, sensor_affines
 from mavattitude.sensors.clock import ClockEvent, VehicleClock
 from mavattitude.sensors.mounting import ARDUPILOT_ROTATIONS, mounting_matrix, rotation_angles_deg
 
@@ -80,7 +81,7 @@ def test_bad_mountings_are_config_errors() -> None:
 
 
 def test_calibration_chain_is_mounting_after_the_sensor_models() -> None:
-    cal = Calibration.from_mapping(
+    cal = _calibration(
         {
             "accel": {"bias_mps2": [0.1, -0.2, 0.3], "matrix": [[1.01, 0.002, 0], [0, 0.99, 0], [0, 0.001, 1.0]]},
             "mag": {"hard_iron_uT": [5, -3, 2], "soft_iron": [[1.1, 0.02, 0], [0.02, 0.9, 0], [0, 0, 1.05]]},
@@ -104,7 +105,12 @@ def test_calibration_yaml_keys_and_errors() -> None:
     assert block == {
         "calibration": {"mag": {"hard_iron_uT": [1.0, 2.0, 3.0], "soft_iron": [[1, 0, 0], [0, 2, 0], [0, 0, 3]]}}
     }
-    again = Calibration.from_mapping(block["calibration"])
+    again = _calibration(block["calibration"])
     assert again.mag.soft_iron[1][1] == 2.0 and again.accel.matrix[0][0] == 1.0  # missing keys: identity
-    with pytest.raises(CalibrationError, match="malformed"):
-        Calibration.from_mapping({"mag": {"hard_iron_uT": [1, 2]}})
+    with pytest.raises(ConfigError, match=r"calibration\.mag\.hard_iron_uT: expected a list of 3 numbers"):
+        _calibration({"mag": {"hard_iron_uT": [1, 2]}})
+
+
+def _calibration(block: dict):
+    """The ``calibration`` section as the config reads it from YAML."""
+    return from_dict({"calibration": block}).calibration
