@@ -36,6 +36,7 @@ import yaml
 from mavattitude.errors import ConfigError
 from mavattitude.estimation import METHODS
 from mavattitude.sensors.calibration import Calibration, Mat3, Vec3
+from mavattitude.sensors.magref import MagneticReference
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
 
 ENV_VAR = "MAVATTITUDE_CONFIG"
@@ -231,23 +232,11 @@ class NoiseConfig:
     mag_std_uT: Vec3 = field(default=(0.5, 0.5, 0.5), metadata=_meta(_per_axis_std, "magnetometer σ per axis, µT"))
 
 
-@dataclass(frozen=True)
-class MagneticReference:
-    """The NED magnetic field: ``auto`` (WMM at the vehicle's position), two angles, or a vector."""
-
-    mode: str = "auto"  # "auto" | "angles" | "vector"
-    declination_deg: float | None = None
-    inclination_deg: float | None = None
-    intensity_uT: float | None = None
-    field_ned_uT: Vec3 | None = None
-
-    def to_yaml(self) -> Any:
-        if self.mode == "auto":
-            return "auto"
-        if self.mode == "vector":
-            return {"field_ned_uT": list(self.field_ned_uT or ())}
-        out = {"declination_deg": self.declination_deg, "inclination_deg": self.inclination_deg}
-        return out if self.intensity_uT is None else {**out, "intensity_uT": self.intensity_uT}
+_ANGLES: dict[str, Check] = {
+    "declination_deg": _optional(_number(-180.0, 180.0)),
+    "inclination_deg": _optional(_number(-90.0, 90.0)),
+    "intensity_uT": _optional(_number(0.0, 1000.0, lo_open=True)),
+}
 
 
 def _magnetic(value: Any, path: str) -> MagneticReference:
@@ -259,20 +248,14 @@ def _magnetic(value: Any, path: str) -> MagneticReference:
         _fail(path, f"expected auto or a mapping, got {value!r}")
     if "field_ned_uT" in value:
         _reject_unknown(value, ("field_ned_uT",), path)
-        v = _vec3(value["field_ned_uT"], f"{path}.field_ned_uT")
-        if math.hypot(*v) == 0.0:
-            _fail(f"{path}.field_ned_uT", "the field vector is zero")
-        return MagneticReference(mode="vector", field_ned_uT=v)
-    _reject_unknown(value, ("declination_deg", "inclination_deg", "intensity_uT"), path)
-    for key in ("declination_deg", "inclination_deg"):
-        if key not in value:
-            _fail(f"{path}.{key}", "missing (give declination_deg and inclination_deg, or field_ned_uT)")
-    return MagneticReference(
-        mode="angles",
-        declination_deg=_number(-180.0, 180.0)(value["declination_deg"], f"{path}.declination_deg"),
-        inclination_deg=_number(-90.0, 90.0)(value["inclination_deg"], f"{path}.inclination_deg"),
-        intensity_uT=_optional(_number(0.0, 1000.0, lo_open=True))(value.get("intensity_uT"), f"{path}.intensity_uT"),
-    )
+        values = {"mode": "vector", "field_ned_uT": _vec3(value["field_ned_uT"], f"{path}.field_ned_uT")}
+    else:
+        _reject_unknown(value, _ANGLES, path)
+        values = {"mode": "angles", **{k: check(value.get(k), f"{path}.{k}") for k, check in _ANGLES.items()}}
+    try:
+        return MagneticReference(**values)
+    except ConfigError as exc:  # it names the key at fault
+        raise ConfigError(f"{path}.{exc}") from None
 
 
 @dataclass(frozen=True)

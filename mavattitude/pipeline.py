@@ -40,7 +40,7 @@ from mavattitude.errors import ConfigError, InputError, MavAttitudeError
 from mavattitude.estimation import SNAPSHOT_METHODS, NoiseModel, solve
 from mavattitude.estimation.conventions import Array
 from mavattitude.sensors.frontend import FrontEnd, FrontEndCounters, FrontEndSettings, ProcessedSample, SampleFlag
-from mavattitude.sensors.magref import MagneticReference
+from mavattitude.sensors.magref import ReferenceTracker
 from mavattitude.sensors.units import ImuSample
 
 log = logging.getLogger(__name__)
@@ -229,6 +229,19 @@ ESTIMATORS: dict[str, Callable[[Config], Estimator]] = {
 }
 
 
+def frontend_settings(config: Config, **overrides: Any) -> FrontEndSettings:
+    """The front end's settings from the config (``overrides`` replace fields)."""
+    values = {
+        "mounting": config.mounting.rotation,
+        "calibration": config.calibration,
+        "filter_enabled": config.filter.enabled,
+        "cutoff_hz": config.filter.cutoff_hz,
+        "output_rate_hz": config.filter.output_rate_hz,
+        "input_timeout_s": config.input.input_timeout_s,
+    }
+    return FrontEndSettings(**{**values, **overrides})
+
+
 class AttitudePipeline:
     """Front end + estimator, one sample at a time; see the module docstring."""
 
@@ -240,13 +253,13 @@ class AttitudePipeline:
             raise ConfigError(f"estimator.method: no estimator for {config.estimator.method!r}") from None
         filtered = config.filter.enabled and self.estimator.wants_filtered
         try:
-            self.frontend = FrontEnd(FrontEndSettings.from_config(config, filter_enabled=filtered))
+            self.frontend = FrontEnd(frontend_settings(config, filter_enabled=filtered))
         except MavAttitudeError as exc:
             raise ConfigError(f"front end: {exc}") from exc
         self.counters = PipelineCounters(self.frontend.counters)
         self.mag_ref_ned_uT: Array | None = None
         self.last_error: MavAttitudeError | None = None
-        self.magref = MagneticReference.from_config(config.reference.magnetic)
+        self.magref = ReferenceTracker(config.reference.magnetic)
         self._apply_reference()
 
     @property

@@ -82,7 +82,7 @@ class SampleFlag(IntFlag):
 
 @dataclass(frozen=True)
 class FrontEndSettings:
-    """Everything the front end needs; :meth:`from_config` reads the project config."""
+    """Everything the front end needs (:func:`mavattitude.pipeline.frontend_settings` reads the config's)."""
 
     mounting: Any = "NONE"  # ArduPilot rotation name or a 3×3 board → body matrix
     calibration: Calibration = field(default_factory=Calibration)
@@ -102,19 +102,6 @@ class FrontEndSettings:
     rate_window: int = 32  # input intervals averaged to measure the rate
     rate_tolerance: float = 0.1  # relative rate change that re-designs the filter
     reorder_window_s: float = 1.0  # a time further back than this is a reboot
-
-    @classmethod
-    def from_config(cls, config: Any, **overrides: Any) -> FrontEndSettings:
-        """From the project's :class:`~mavattitude.config.Config` (read by attribute, not imported)."""
-        values = {
-            "mounting": config.mounting.rotation,
-            "calibration": config.calibration,
-            "filter_enabled": config.filter.enabled,
-            "cutoff_hz": config.filter.cutoff_hz,
-            "output_rate_hz": config.filter.output_rate_hz,
-            "input_timeout_s": config.input.input_timeout_s,
-        }
-        return cls(**{**values, **overrides})
 
 
 @dataclass(frozen=True, slots=True)

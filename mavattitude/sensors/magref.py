@@ -1,6 +1,8 @@
 """The Earth's magnetic field in NED (µT): the solver's magnetometer reference.
 
-From the config: two angles (declination ``D``, inclination ``I``, optional intensity ``F``):
+:class:`MagneticReference` is the config's ``reference.magnetic`` (how the field is known),
+:class:`ReferenceField` the field known at a moment, :class:`ReferenceTracker` the one the service keeps
+current. From the config: two angles (declination ``D``, inclination ``I``, optional intensity ``F``):
 ``B = F [cos I cos D, cos I sin D, sin I]`` (without ``F`` a unit vector: the direction only, and no
 |B| screening); or a vector ``field_ned_uT``. ``auto``: the World Magnetic Model at the vehicle's
 position, through ``pygeomag`` (pure Python, WMM2025 coefficients valid 2025–2030, kept current with each
@@ -27,7 +29,7 @@ WMM_COEFFICIENTS = "wmm/WMM_2025.COF"
 
 
 @dataclass(frozen=True)
-class MagReference:
+class ReferenceField:
     """The reference field, or ``field_ned_uT is None`` while waiting for a position."""
 
     field_ned_uT: Vec3 | None
@@ -39,7 +41,51 @@ class MagReference:
         return self.field_ned_uT is None
 
 
-WAITING = MagReference(None, None, "waiting")
+WAITING = ReferenceField(None, None, "waiting")
+MODES = ("auto", "angles", "vector")
+
+
+@dataclass(frozen=True)
+class MagneticReference:
+    """How the NED field is known: ``auto`` (WMM at the vehicle's position), two angles, or a vector.
+
+    Checked on construction; a :class:`~mavattitude.errors.ConfigError` names the key at fault (the
+    config prefixes it with ``reference.magnetic.``).
+    """
+
+    mode: str = "auto"
+    declination_deg: float | None = None
+    inclination_deg: float | None = None
+    intensity_uT: float | None = None
+    field_ned_uT: Vec3 | None = None
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ConfigError(f"mode: {self.mode!r}: expected {', '.join(MODES)}")
+        if self.mode == "angles":
+            for key in ("declination_deg", "inclination_deg"):
+                if getattr(self, key) is None:
+                    raise ConfigError(f"{key}: missing (give declination_deg and inclination_deg, or field_ned_uT)")
+        if self.mode == "vector" and (self.field_ned_uT is None or math.hypot(*self.field_ned_uT) == 0.0):
+            raise ConfigError("field_ned_uT: the field vector is zero")
+
+    def fixed_field(self) -> ReferenceField:
+        """The field the config gives (``WAITING`` for ``auto``, known only once a position arrives)."""
+        if self.mode == "angles":
+            vec = field_from_angles(self.declination_deg, self.inclination_deg, self.intensity_uT or 1.0)
+            return ReferenceField(vec, self.intensity_uT, "config")
+        if self.mode == "vector":
+            vec = (float(self.field_ned_uT[0]), float(self.field_ned_uT[1]), float(self.field_ned_uT[2]))
+            return ReferenceField(vec, math.hypot(*vec), "config")
+        return WAITING
+
+    def to_yaml(self) -> Any:
+        if self.mode == "auto":
+            return "auto"
+        if self.mode == "vector":
+            return {"field_ned_uT": list(self.field_ned_uT or ())}
+        out = {"declination_deg": self.declination_deg, "inclination_deg": self.inclination_deg}
+        return out if self.intensity_uT is None else {**out, "intensity_uT": self.intensity_uT}
 
 
 def field_from_angles(declination_deg: float, inclination_deg: float, intensity_uT: float = 1.0) -> Vec3:
@@ -85,48 +131,14 @@ def distance_km(lat1_deg: float, lon1_deg: float, lat2_deg: float, lon2_deg: flo
     return 2.0 * EARTH_RADIUS_KM * math.asin(min(1.0, math.sqrt(a)))
 
 
-class MagneticReference:
+class ReferenceTracker:
     """The reference for the service: fixed from the config, or from WMM as positions arrive."""
 
-    def __init__(
-        self,
-        mode: str = "auto",
-        *,
-        declination_deg: float | None = None,
-        inclination_deg: float | None = None,
-        intensity_uT: float | None = None,
-        field_ned_uT: Vec3 | None = None,
-        recompute_distance_km: float = 5.0,
-    ) -> None:
-        self.mode = mode
+    def __init__(self, setting: MagneticReference, recompute_distance_km: float = 5.0) -> None:
+        self.mode = setting.mode
         self.recompute_distance_km = recompute_distance_km
         self._at: tuple[float, float] | None = None
-        if mode == "auto":
-            self.reference = WAITING
-        elif mode == "angles":
-            if declination_deg is None or inclination_deg is None:
-                raise ConfigError("magnetic reference: give declination_deg and inclination_deg")
-            vec = field_from_angles(declination_deg, inclination_deg, intensity_uT or 1.0)
-            self.reference = MagReference(vec, intensity_uT, "config")
-        elif mode == "vector":
-            if field_ned_uT is None or math.hypot(*field_ned_uT) == 0.0:
-                raise ConfigError("magnetic reference: field_ned_uT must be a non-zero vector")
-            vec = (float(field_ned_uT[0]), float(field_ned_uT[1]), float(field_ned_uT[2]))
-            self.reference = MagReference(vec, math.hypot(*vec), "config")
-        else:
-            raise ConfigError(f"magnetic reference mode {mode!r}: expected auto, angles or vector")
-
-    @classmethod
-    def from_config(cls, magnetic: Any, recompute_distance_km: float = 5.0) -> MagneticReference:
-        """From the config's ``reference.magnetic`` (mode, declination_deg, ... read by attribute)."""
-        return cls(
-            magnetic.mode,
-            declination_deg=magnetic.declination_deg,
-            inclination_deg=magnetic.inclination_deg,
-            intensity_uT=magnetic.intensity_uT,
-            field_ned_uT=magnetic.field_ned_uT,
-            recompute_distance_km=recompute_distance_km,
-        )
+        self.reference = setting.fixed_field()
 
     @property
     def waiting(self) -> bool:
@@ -140,7 +152,7 @@ class MagneticReference:
             return False
         vec = wmm_field_ned_uT(lat_deg, lon_deg, alt_m, when or dt.datetime.now(dt.timezone.utc).date())
         self._at = (lat_deg, lon_deg)
-        self.reference = MagReference(vec, math.hypot(*vec), "wmm")
+        self.reference = ReferenceField(vec, math.hypot(*vec), "wmm")
         log.info(
             "magnetic reference from WMM2025 at %.4f°, %.4f°, %.0f m: N %.2f E %.2f D %.2f µT",
             lat_deg,

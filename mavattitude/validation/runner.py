@@ -24,7 +24,6 @@ from mavattitude.errors import ConfigError
 from mavattitude.estimation import NoiseModel, solve_batch
 from mavattitude.estimation.conventions import Array
 from mavattitude.pipeline import AttitudePipeline
-from mavattitude.sensors.magref import MagneticReference
 from mavattitude.sensors.units import ImuSample
 from mavattitude.validation.loaders import Recording, truth_at
 from mavattitude.validation.metrics import BroadScore, Px4Score, broad_errors, euler_differences
@@ -140,7 +139,7 @@ def _ticks_within(start_s: float, stop_s: float, rate_hz: float) -> int:
 def estimate_batch(recording: Recording, config: Config) -> Estimate:
     """``solve_batch`` on the raw samples with the config's noise, references and method."""
     noise = NoiseModel(accel_std=config.noise.accel_std_mps2, mag_std=config.noise.mag_std_uT)
-    field_ned_uT = MagneticReference.from_config(config.reference.magnetic).reference.field_ned_uT
+    field_ned_uT = config.reference.magnetic.fixed_field().field_ned_uT
     if field_ned_uT is None:
         raise ConfigError("the batch path needs a fixed magnetic reference, not auto (no position in a recording)")
     start = time.monotonic()

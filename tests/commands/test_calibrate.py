@@ -118,14 +118,15 @@ def test_live_over_udp_with_coverage_progress(tmp_path: Path, capsys: pytest.Cap
 
 def test_the_written_block_is_a_config_the_front_end_applies(tmp_path: Path) -> None:
     from mavattitude.config import load_config
-    from mavattitude.sensors.frontend import FrontEnd, FrontEndSettings
+    from mavattitude.pipeline import frontend_settings
+    from mavattitude.sensors.frontend import FrontEnd
 
     src = tmp_path / "turns.csv"
     src.write_text("mag_x_uT,mag_y_uT,mag_z_uT\n" + "\n".join(",".join(map(str, r)) for r in _distorted(800)))
     out = tmp_path / "mag.yaml"
     assert main(["calibrate", "mag", str(src), "-o", str(out), "--field-uT", "48"]) == 0
     config = load_config(out, env={})
-    fe = FrontEnd(FrontEndSettings.from_config(config, filter_enabled=False))
+    fe = FrontEnd(frontend_settings(config, filter_enabled=False))
     raw = _distorted(1, seed=5)[0]
     (tick,) = fe.push(ImuSample(1.0, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), tuple(raw)))
     assert np.linalg.norm(tick.mag_uT) == pytest.approx(48.0, abs=0.5)  # 0.2 µT noise, the fit's residual

@@ -4,12 +4,17 @@ from __future__ import annotations
 
 import datetime as dt
 import math
-from types import SimpleNamespace
 
 import pytest
 
 from mavattitude.errors import ConfigError
-from mavattitude.sensors.magref import MagneticReference, distance_km, field_from_angles, wmm_field_ned_uT
+from mavattitude.sensors.magref import (
+    MagneticReference,
+    ReferenceTracker,
+    distance_km,
+    field_from_angles,
+    wmm_field_ned_uT,
+)
 
 DATE = dt.date(2026, 6, 1)
 
@@ -19,25 +24,25 @@ def test_angles_give_the_ned_field() -> None:
     assert math.hypot(n, e, d) == pytest.approx(50.0)
     assert math.degrees(math.atan2(e, n)) == pytest.approx(10.0)  # declination east of north
     assert math.degrees(math.atan2(d, math.hypot(n, e))) == pytest.approx(60.0)  # inclination, down positive
-    ref = MagneticReference("angles", declination_deg=10.0, inclination_deg=60.0)
+    ref = ReferenceTracker(MagneticReference("angles", declination_deg=10.0, inclination_deg=60.0))
     assert ref.reference.intensity_uT is None and math.hypot(*ref.reference.field_ned_uT) == pytest.approx(1.0)
 
 
-def test_vector_mode_and_config_object() -> None:
-    cfg = SimpleNamespace(mode="vector", declination_deg=None, inclination_deg=None, intensity_uT=None,
-                          field_ned_uT=(20.0, 1.0, 44.0))  # fmt: skip
-    ref = MagneticReference.from_config(cfg)
+def test_vector_mode_and_checks() -> None:
+    ref = ReferenceTracker(MagneticReference("vector", field_ned_uT=(20.0, 1.0, 44.0)))
     assert ref.reference.field_ned_uT == (20.0, 1.0, 44.0) and not ref.waiting
     assert ref.reference.intensity_uT == pytest.approx(math.hypot(20.0, 1.0, 44.0))
     assert ref.update_position(47.0, 8.0, 400.0) is False  # a fixed reference ignores positions
-    with pytest.raises(ConfigError, match="non-zero"):
+    with pytest.raises(ConfigError, match="field_ned_uT: the field vector is zero"):
         MagneticReference("vector", field_ned_uT=(0.0, 0.0, 0.0))
-    with pytest.raises(ConfigError, match="declination_deg and inclination_deg"):
+    with pytest.raises(ConfigError, match="inclination_deg: missing"):
         MagneticReference("angles", declination_deg=3.0)
+    with pytest.raises(ConfigError, match="mode: 'wmm': expected auto, angles, vector"):
+        MagneticReference("wmm")
 
 
 def test_auto_waits_for_a_position_then_uses_wmm() -> None:
-    ref = MagneticReference("auto")
+    ref = ReferenceTracker(MagneticReference("auto"))
     assert ref.waiting and ref.reference.source == "waiting" and ref.reference.field_ned_uT is None
     assert ref.update_position(48.137, 11.575, 520.0, DATE) is True  # Munich
     n, e, d = ref.reference.field_ned_uT
@@ -49,7 +54,7 @@ def test_auto_waits_for_a_position_then_uses_wmm() -> None:
 
 
 def test_auto_recomputes_only_after_moving_a_few_km() -> None:
-    ref = MagneticReference("auto", recompute_distance_km=5.0)
+    ref = ReferenceTracker(MagneticReference("auto"), recompute_distance_km=5.0)
     ref.update_position(-33.86, 151.21, 0.0, DATE)  # Sydney: the field points up (negative down component)
     assert ref.reference.field_ned_uT[2] < 0.0
     first = ref.reference

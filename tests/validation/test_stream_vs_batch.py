@@ -12,8 +12,8 @@ import numpy as np
 
 from mavattitude.estimation import NoiseModel, solve_batch
 from mavattitude.estimation.conventions import angle_between
-from mavattitude.pipeline import AttitudePipeline
-from mavattitude.sensors.frontend import FrontEndSettings, batch_inputs, process_batch
+from mavattitude.pipeline import AttitudePipeline, frontend_settings
+from mavattitude.sensors.frontend import batch_inputs, process_batch
 from mavattitude.validation.runner import estimate_batch, observable, samples, validation_config
 
 AGREEMENT_RAD = 1e-6
@@ -42,7 +42,7 @@ def test_filtered_stream_equals_solve_batch_on_the_front_ends_batch_output(recor
     config = validation_config(rec, "ign")
     t, q_stream = _stream(rec, config)
     ticks = process_batch(
-        FrontEndSettings.from_config(config),
+        frontend_settings(config),
         **batch_inputs(samples(rec)),
         expected_field_uT=float(np.linalg.norm(rec.reference.field_ned_uT)),
     )
