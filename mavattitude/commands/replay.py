@@ -26,7 +26,7 @@ from mavattitude.errors import DataFileError
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
 
 NAME = "replay"
-HELP = "the service's pipeline over a telemetry log (.tlog): attitude CSV, compared with the autopilot's"
+HELP = "the service's pipeline over a flight log (.tlog, DataFlash .bin, ULog .ulg): attitude CSV, vs the autopilot's"
 
 log = logging.getLogger(__name__)
 
@@ -37,7 +37,10 @@ MAX_ATTITUDE_GAP_S = 0.5
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.description = __doc__.split("\n", 2)[2]
-    parser.add_argument("log", help="telemetry log (.tlog), as MAVProxy or a ground station records it")
+    parser.add_argument(
+        "log",
+        help="flight log: telemetry (.tlog), ArduPilot DataFlash (.bin) or PX4 ULog (.ulg); format from its content",
+    )
     parser.add_argument("-o", "--output", required=True, help="output CSV (gzip-compressed if it ends in .gz)")
     parser.add_argument(
         "--message", choices=MESSAGES, type=str.upper, help="IMU message to read (config default: RAW_IMU)"
@@ -51,13 +54,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mavattitude.link.source import MavlinkDecoder
-    from mavattitude.link.tlog import TlogSource
+    from mavattitude.link.logs import open_log
     from mavattitude.replay import replay
 
     overrides = {"input.message": args.message, "input.profile": args.profile}
     config = config_from_args(args, {k: v for k, v in overrides.items() if v is not None})
-    source = TlogSource(args.log, MavlinkDecoder.from_config(config))
+    source = open_log(args.log, config)
     result = replay(source, config)
     _check_found(args.log, config.input.message, result)
     summarise(result.pipeline, result.counters.received, args.log)

@@ -1,0 +1,167 @@
+"""ArduPilot DataFlash logs (.bin) read with pymavlink's DFReader, into :class:`~mavattitude.link.logs.LogStreams`.
+
+DFReader parses the formats (FMT, FMTU) and indexes every record by type; the records replay needs are
+then unpacked all at once with numpy, with DFReader's own struct layout and multipliers, and converted
+by :mod:`mavattitude.sensors.dataflash_units`. Where the index leaves bytes out (damaged bytes skipped,
+a record of an undeclared type where DFReader stops, a last record cut short) is
+:attr:`LogStreams.damage`; DFReader's own report of it, printed on the process's stdout/stderr (its fast
+indexer is C), is kept off the terminal, so the user sees one line.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import struct
+import sys
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pymavlink import DFReader
+
+from mavattitude.errors import DataFileError
+from mavattitude.link.logs import LogStreams
+from mavattitude.sensors import dataflash_units as du
+
+_STRUCT_TO_NUMPY = {
+    "b": "i1", "B": "u1", "h": "i2", "H": "u2", "i": "i4", "I": "u4", "q": "i8", "Q": "u8",
+    "f": "f4", "d": "f8", "e": "f2",
+}  # fmt: skip
+GPS_FIX_3D = 3
+
+
+class _Index(DFReader.DFReader_binary):
+    """DFReader's format parsing and record index, without its clock: the times here are the records' own
+    TimeUS/TimeMS, and DFReader's clock set-up parses every record of a log without GPS (9 s for 30 min)."""
+
+    def init_clock(self) -> None:
+        self.clock = None
+
+
+def _dtype(fmt: Any) -> np.dtype:
+    """A numpy record type from DFReader's struct layout (``<QBffffffIIfBBHH``, strings as ``4s``)."""
+    fields = []
+    for name, code in zip(fmt.columns, re.findall(r"\d*[a-zA-Z]", fmt.msg_struct.lstrip("<")), strict=True):
+        fields.append((name, f"S{code[:-1]}" if code.endswith("s") else "<" + _STRUCT_TO_NUMPY[code]))
+    return np.dtype(fields)
+
+
+class _Reader:
+    """DFReader's index of one file, and the records of one type as columns."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        try:
+            with _silenced():
+                self.df = _Index(str(path), zero_time_base=False)
+        except (OSError, ValueError, struct.error, KeyError, IndexError, TypeError) as exc:
+            raise DataFileError(f"{path}: not a readable DataFlash log: {exc}") from exc
+        self.size = int(self.df.data_len)
+        self.damage = _unindexed(self.df, self.size)
+        self._bytes = np.frombuffer(self.df.data_map, dtype=np.uint8)
+
+    def has(self, name: str) -> bool:
+        return name in self.df.name_to_id and len(self.df.offsets[self.df.name_to_id[name]]) > 0
+
+    def table(self, name: str) -> dict[str, np.ndarray]:
+        """Every complete record of ``name`` as columns, DFReader's multipliers applied (empty if none)."""
+        if name not in self.df.name_to_id:
+            return {}
+        fmt = self.df.formats[self.df.name_to_id[name]]
+        offsets = np.asarray(self.df.offsets[fmt.type], dtype=np.int64)
+        complete = offsets + fmt.len <= self.size
+        if not complete.all():
+            first_cut = int(offsets[~complete][0])
+            self.damage = self.damage or f"truncated: the {name} record at byte {first_cut} is incomplete"
+            offsets = offsets[complete]
+        body = self._bytes[offsets[:, None] + np.arange(3, fmt.len)]
+        records = body.view(_dtype(fmt)).ravel()
+        return {
+            column: records[column] * mult if mult is not None else records[column]
+            for column, mult in zip(fmt.columns, fmt.msg_mults, strict=True)
+        }
+
+    def instance(self, base: str, instance: int) -> tuple[str, dict[str, np.ndarray]]:
+        """The records of one instance of a sensor (``IMU`` with an ``I`` column, or ``IMU2`` … in old logs)."""
+        table = self.table(base)
+        name = du.message_name(base, instance, "I" in table)
+        if "I" in table:
+            keep = table["I"] == instance
+            return f"{base}[I={instance}]", {k: v[keep] for k, v in table.items()}
+        return name, self.table(name) if name != base else table
+
+
+@contextlib.contextmanager
+def _silenced() -> Iterator[None]:
+    """File descriptors 1 and 2 to a scratch file while DFReader indexes (its C indexer prints there)."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    try:
+        with tempfile.TemporaryFile() as scratch:
+            os.dup2(scratch.fileno(), 1)
+            os.dup2(scratch.fileno(), 2)
+            yield
+    finally:
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in saved:
+            os.close(fd)
+
+
+def _unindexed(df: Any, size: int) -> str | None:
+    """Where DFReader's index leaves bytes out: skipped (damaged) bytes, or the rest of the file unread."""
+    spans = []
+    for mtype, offsets in enumerate(df.offsets):
+        if len(offsets) and mtype in df.formats:
+            spans.append(np.column_stack([offsets, np.asarray(offsets) + df.formats[mtype].len]))
+    if not spans:
+        return None
+    span = np.concatenate(spans)
+    span = span[np.argsort(span[:, 0], kind="stable")]
+    gaps = np.flatnonzero(span[1:, 0] > span[:-1, 1])
+    end = int(span[-1, 1])
+    if len(gaps):
+        skipped = int(np.sum(span[1:, 0][gaps] - span[:-1, 1][gaps]))
+        return f"damaged: {skipped} byte(s) skipped, the first at byte {int(span[gaps[0], 1])}"
+    if end < size:
+        return f"unreadable from byte {end} ({size - end} bytes are not records DFReader could read)"
+    return None
+
+
+def read_dataflash(path: str | Path, imu_instance: int = 0, mag_instance: int = 0) -> LogStreams:
+    """The IMU (instance ``imu_instance``), magnetometer, ATT and POS streams of a DataFlash log, SI."""
+    path = Path(path)
+    reader = _Reader(path)
+    imu_name, imu_table = reader.instance("IMU", imu_instance)
+    mag_name, mag_table = reader.instance("MAG", mag_instance)
+    empty3 = np.empty((0, 3))
+    try:
+        t, acc, gyr, wrap = (
+            du.imu(imu_table) if imu_table and len(imu_table["AccX"]) else (np.empty(0), empty3, empty3, None)
+        )
+        mag_t, mag = du.mag(mag_table) if mag_table and len(mag_table["MagX"]) else (np.empty(0), empty3)
+        att = reader.table("ATT")
+        att_t, att_q = du.attitude(att) if att else (np.empty(0), np.empty((0, 4)))
+        pos = reader.table("POS")
+        pos_t, positions = du.position(pos) if pos else (np.empty(0), empty3)
+    except KeyError as exc:
+        raise DataFileError(f"{path}: a record lacks a field replay reads: {exc}") from exc
+    streams = LogStreams(t, acc, gyr, mag_t, mag, att_t, att_q, pos_t, positions, _date(reader), wrap, reader.damage)
+    streams.check(str(path), imu_name, mag_name)
+    return streams
+
+
+def _date(reader: _Reader) -> Any:
+    """The day of the first GPS record with a 3D fix and a GPS week (new logs: GWk, GMS)."""
+    gps = reader.table("GPS")
+    if not gps or "GWk" not in gps:
+        return None
+    fixed = np.flatnonzero((gps["Status"] >= GPS_FIX_3D) & (gps["GWk"] > 0))
+    if len(fixed) == 0:
+        return None
+    return du.gps_date(int(gps["GWk"][fixed[0]]), int(gps["GMS"][fixed[0]]))

@@ -1,0 +1,184 @@
+"""Flight logs as message sources: format detection, and the sensor streams of a log made into live-like items.
+
+:func:`open_log` recognises a log by its first bytes (ULog's magic, DataFlash's FMT header; otherwise a
+telemetry log if its name ends in ``.tlog``) and returns its :class:`~mavattitude.link.source.MessageSource`.
+A DataFlash or ULog reader (:mod:`.dataflash`, :mod:`.ulog`) turns its file into :class:`LogStreams`:
+arrays in SI units on the vehicle clock, converted by the format's units module; :class:`StreamSource`
+hands them out as the items a live link would give, in time order:
+
+- one :class:`~mavattitude.sensors.units.ImuSample` per IMU record, carrying the newest magnetometer
+  reading logged at or before its time if that reading is new since the previous sample, else none (the
+  front end holds the last one, as it does for a live IMU message without a new magnetometer). A slower
+  magnetometer is thus held, never interpolated towards a reading that comes later; an all-zero reading
+  is no reading, as in MAVLink's integer messages;
+- the autopilot's attitude and the positions (with the log's date, for the World Magnetic Model).
+
+What cannot be used is a :class:`~mavattitude.errors.DataFileError` naming the file and where: unknown
+format, no IMU, no magnetometer, a magnetometer reading only zero. A log cut short (the last record
+incomplete) or with damaged bytes is read as far as it goes, and :attr:`StreamSource.damage` says where.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mavattitude.errors import DataFileError
+from mavattitude.link.source import AutopilotAttitude, MessageSource, PositionFix, Received, Sender
+from mavattitude.sensors.units import ImuSample, Position
+
+Array = NDArray[np.float64]
+
+#: The sender of every item from a log the autopilot wrote itself (DataFlash, ULog): it holds one vehicle.
+LOG_VEHICLE: Sender = (1, 1)
+CHUNK_ITEMS = 8192  # items per recv(): large enough to amortise the call, small enough for progress
+ULOG_MAGIC = b"ULog\x01\x12\x35"
+DATAFLASH_MAGIC = b"\xa3\x95\x80"  # a message header and the FMT message's type: every DataFlash log starts so
+LOG_SUFFIXES = (".tlog", ".bin", ".ulg")
+
+
+@dataclass
+class LogStreams:
+    """A log's sensor streams, SI units, on the vehicle clock (s); rows in time order within each stream."""
+
+    imu_t_s: Array  # (n,)
+    acc_mps2: Array  # (n, 3) board frame
+    gyr_radps: Array  # (n, 3)
+    mag_t_s: Array  # (m,)
+    mag_uT: Array  # (m, 3)
+    attitude_t_s: Array  # (k,) the autopilot's attitude
+    attitude_q: Array  # (k, 4) [w, x, y, z] body → NED
+    position_t_s: Array  # (p,)
+    position: Array  # (p, 3) latitude °, longitude °, altitude m AMSL
+    date: dt.date | None = None  # the day the log was recorded (GPS time), for the World Magnetic Model
+    time_wrap_s: float | None = None  # the IMU time field's wrap period (old DataFlash: uint32 ms)
+    damage: str | None = None  # where the file is truncated or damaged, if it is
+
+    def check(self, path: str, imu: str, mag: str) -> None:
+        """What replay cannot do without, as one :class:`DataFileError` naming the file and the record."""
+        if len(self.imu_t_s) == 0:
+            raise DataFileError(f"{path}: no {imu} records{self._damage_note()}")
+        if len(self.mag_t_s) == 0:
+            raise DataFileError(f"{path}: no {mag} records (no magnetometer){self._damage_note()}")
+        if not np.any(self.mag_uT):
+            raise DataFileError(f"{path}: {mag} reads zero in all {len(self.mag_t_s)} records: no magnetometer")
+
+    def _damage_note(self) -> str:
+        return f" ({self.damage})" if self.damage else ""
+
+
+def _mag_for_imu(imu_t_s: Array, mag_t_s: Array, mag_uT: Array) -> NDArray[np.int64]:
+    """For each IMU sample, the index of the magnetometer reading it carries (-1: none new)."""
+    newest = np.searchsorted(mag_t_s, imu_t_s, side="right") - 1  # at or before the sample: never ahead
+    carried = newest.copy()
+    carried[1:][newest[1:] == newest[:-1]] = -1  # not new since the previous sample: held by the front end
+    live = np.zeros(len(carried), dtype=bool)
+    valid = carried >= 0
+    live[valid] = np.any(mag_uT[carried[valid]] != 0.0, axis=1)  # all zero: no reading
+    return np.where(live, carried, -1)
+
+
+class StreamSource:
+    """:class:`LogStreams` as a finite message source (see the module docstring)."""
+
+    vehicle: Sender | None = LOG_VEHICLE
+
+    def __init__(self, name: str, streams: LogStreams) -> None:
+        self.name = name
+        self.streams = s = streams
+        self.damage = s.damage
+        self.finished = False
+        # all items in time order; at equal times a position first, the autopilot's attitude after the sample
+        times = np.concatenate([s.position_t_s, s.imu_t_s, s.attitude_t_s])
+        kinds = np.concatenate(
+            [
+                np.zeros(len(s.position_t_s), np.int8),
+                np.ones(len(s.imu_t_s), np.int8),
+                np.full(len(s.attitude_t_s), 2, np.int8),
+            ]
+        )
+        index = np.concatenate(
+            [np.arange(len(s.position_t_s)), np.arange(len(s.imu_t_s)), np.arange(len(s.attitude_t_s))]
+        )
+        order = np.lexsort((kinds, times))
+        self._times, self._kinds, self._index = times[order].tolist(), kinds[order].tolist(), index[order].tolist()
+        self._mag_index = _mag_for_imu(s.imu_t_s, s.mag_t_s, s.mag_uT).tolist()
+        self._acc, self._gyr, self._mag = s.acc_mps2.tolist(), s.gyr_radps.tolist(), s.mag_uT.tolist()
+        self._imu_t = s.imu_t_s.tolist()
+        self._next = 0
+
+    @property
+    def total(self) -> int:
+        """Items the source hands out in all (for progress)."""
+        return len(self._times)
+
+    @property
+    def done(self) -> int:
+        return self._next
+
+    def recv(self, timeout_s: float = 0.0) -> list[Received]:
+        start, stop = self._next, min(self._next + CHUNK_ITEMS, len(self._times))
+        self._next = stop
+        self.finished = stop >= len(self._times)
+        s, vehicle, wrap = self.streams, self.vehicle, self.streams.time_wrap_s
+        acc, gyr, mag, mag_index, imu_t = self._acc, self._gyr, self._mag, self._mag_index, self._imu_t
+        out: list[Received] = []
+        for t, kind, i in zip(self._times[start:stop], self._kinds[start:stop], self._index[start:stop], strict=True):
+            if kind == 1:
+                m = mag_index[i]
+                a, g = acc[i], gyr[i]
+                sample = ImuSample(
+                    imu_t[i], (a[0], a[1], a[2]), (g[0], g[1], g[2]), None if m < 0 else tuple(mag[m]), wrap
+                )
+                out.append((t, vehicle, sample))
+            elif kind == 2:
+                out.append((t, vehicle, AutopilotAttitude(t, tuple(s.attitude_q[i].tolist()))))
+            else:
+                lat, lon, alt = s.position[i].tolist()
+                out.append((t, vehicle, PositionFix(Position(lat, lon, alt), s.date)))
+        return out
+
+
+def detect_format(path: Path) -> str:
+    """``"ulog"``, ``"dataflash"`` or ``"tlog"`` from the file's first bytes (a .tlog has no magic: its name)."""
+    try:
+        with path.open("rb") as f:
+            head = f.read(len(ULOG_MAGIC))
+    except OSError as exc:
+        raise DataFileError(f"{path}: cannot open: {exc.strerror or exc}") from exc
+    if head.startswith(ULOG_MAGIC):
+        return "ulog"
+    if head.startswith(DATAFLASH_MAGIC):
+        return "dataflash"
+    if path.suffix.lower() == ".tlog":
+        return "tlog"
+    raise DataFileError(
+        f"{path}: not a flight log this reads (byte 0: {head[:4].hex(' ') or 'empty file'}): expected a DataFlash "
+        ".bin (starts a3 95 80), a ULog .ulg (starts 'ULog') or a telemetry log named .tlog"
+    )
+
+
+def open_log(path: str | Path, config: Any, imu_instance: int = 0, mag_instance: int = 0) -> MessageSource:
+    """The message source of one log file, its format recognised from its content (see the module docstring)."""
+    from mavattitude.link.source import MavlinkDecoder
+
+    path = Path(path)
+    kind = detect_format(path)
+    if kind == "tlog":
+        from mavattitude.link.tlog import TlogSource
+
+        return TlogSource(path, MavlinkDecoder.from_config(config))
+    if kind == "dataflash":
+        from mavattitude.link.dataflash import read_dataflash
+
+        streams = read_dataflash(path, imu_instance, mag_instance)
+    else:
+        from mavattitude.link.ulog import read_ulog
+
+        streams = read_ulog(path, imu_instance, mag_instance)
+    return StreamSource(str(path), streams)

@@ -1,0 +1,84 @@
+"""PX4 ULog files (.ulg) read with pyulog, into :class:`~mavattitude.link.logs.LogStreams`.
+
+Both topic layouts are read: the current one (``sensor_combined`` for the IMU, ``vehicle_magnetometer``
+for the magnetometer) and the old one (the magnetometer inside ``sensor_combined``, ``magnetometer_ga``).
+Units by :mod:`mavattitude.sensors.ulog_units`. pyulog reads a damaged or cut-off file as far as it can
+and says so (``file_corruption``); that becomes :attr:`LogStreams.damage`.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mavattitude.errors import DataFileError
+from mavattitude.link.logs import LogStreams
+from mavattitude.sensors import ulog_units as uu
+
+TOPICS = [
+    "sensor_combined",
+    "vehicle_magnetometer",
+    "vehicle_attitude",
+    "vehicle_gps_position",
+    "vehicle_global_position",
+]
+
+
+def _open(path: Path) -> Any:
+    from pyulog import ULog
+
+    try:
+        return ULog(str(path), TOPICS)
+    except Exception as exc:  # pyulog raises plain Exception (and struct, index, decode errors) on bad input
+        raise DataFileError(f"{path}: not a readable ULog file: {exc}") from exc
+
+
+def _topic(ulog: Any, name: str, instance: int = 0) -> dict[str, np.ndarray] | None:
+    for data in ulog.data_list:
+        if data.name == name and data.multi_id == instance and len(data.data["timestamp"]):
+            return data.data
+    return None
+
+
+def read_ulog(path: str | Path, imu_instance: int = 0, mag_instance: int = 0) -> LogStreams:
+    """The IMU, magnetometer (instance ``mag_instance``), attitude and position streams of a ULog file, SI."""
+    path = Path(path)
+    ulog = _open(path)
+    empty3 = np.empty((0, 3))
+    combined = _topic(ulog, "sensor_combined", imu_instance)
+    vehicle_mag = _topic(ulog, "vehicle_magnetometer", mag_instance)
+    try:
+        t, acc, gyr = uu.imu(combined) if combined is not None else (np.empty(0), empty3, empty3)
+        if vehicle_mag is not None:
+            mag_name, (mag_t, mag) = f"vehicle_magnetometer[{mag_instance}]", uu.mag(vehicle_mag)
+        elif combined is not None and f"{uu.MAG_FIELD}[0]" in combined:
+            mag_name, (mag_t, mag) = f"sensor_combined.{uu.MAG_FIELD}", uu.combined_mag(combined)
+        else:
+            mag_name, mag_t, mag = "vehicle_magnetometer", np.empty(0), empty3
+        vehicle_attitude = _topic(ulog, "vehicle_attitude")
+        att_t, att_q = (
+            uu.attitude(vehicle_attitude) if vehicle_attitude is not None else (np.empty(0), np.empty((0, 4)))
+        )
+        pos_t, positions, date = _positions(ulog)
+    except KeyError as exc:
+        raise DataFileError(f"{path}: a topic lacks a field replay reads: {exc}") from exc
+    damage = "damaged or cut off: pyulog skipped what it could not read" if ulog.file_corruption else None
+    streams = LogStreams(t, acc, gyr, mag_t, mag, att_t, att_q, pos_t, positions, date, None, damage)
+    streams.check(str(path), f"sensor_combined[{imu_instance}]", mag_name)
+    return streams
+
+
+def _positions(ulog: Any) -> tuple[np.ndarray, np.ndarray, dt.date | None]:
+    gps = _topic(ulog, "vehicle_gps_position")
+    if gps is not None:
+        t, rows = uu.gps_position(gps)
+        utc = np.asarray(gps.get("time_utc_usec", np.zeros(0)))
+        known = utc[utc > 0]
+        return t, rows, uu.utc_date(int(known[0])) if len(known) else None
+    fused = _topic(ulog, "vehicle_global_position")
+    if fused is not None:
+        return (*uu.global_position(fused), None)
+    return np.empty(0), np.empty((0, 3)), None

@@ -1,0 +1,88 @@
+"""ArduPilot DataFlash (.bin) log fields → SI: the only DataFlash unit conversions.
+
+The fields replay reads, with the units ArduPilot logs them in (its ``LogStructure.h`` and the log
+messages documentation; DataFlash's own FMTU units agree), after pymavlink's DFReader has applied the
+format's multiplier (``L``: 1e-7 °, ``e``: 0.01 m):
+
+===================  ==================  ==============  ==========================
+message              field               logged unit     SI / here
+===================  ==================  ==============  ==========================
+IMU (IMU2, IMU3)     TimeUS | TimeMS     µs | ms         s (TimeMS: uint32, wraps)
+                     AccX, AccY, AccZ    m/s²            m/s² (board frame, FRD)
+                     GyrX, GyrY, GyrZ    rad/s           rad/s
+MAG (MAG2, MAG3)     MagX, MagY, MagZ    milligauss      µT (× 0.1)
+ATT                  Roll, Pitch, Yaw    degrees         rad → quaternion body → NED
+POS                  Lat, Lng, Alt       °, °, m AMSL    °, °, m
+GPS                  GWk, GMS            week, ms        the date (GPS epoch 1980-01-06)
+===================  ==================  ==============  ==========================
+
+New logs put every instance in one message with an ``I`` column; old ones (TimeMS era) have IMU2, MAG2, …
+Functions take a table: column name → array (one message type's records), and return SI arrays.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mavattitude.estimation.conventions import quat_from_euler
+from mavattitude.sensors.units import MILLIGAUSS_UT
+
+Array = NDArray[np.float64]
+Table = dict[str, NDArray]
+
+#: SI per logged unit of each time field, and its wrap period (s; None: a uint64 of µs never wraps).
+TIME_FIELDS: dict[str, tuple[float, float | None]] = {"TimeUS": (1e-6, None), "TimeMS": (1e-3, 2.0**32 * 1e-3)}
+ACC_FIELDS, ACC_SI = ("AccX", "AccY", "AccZ"), 1.0  # m/s²
+GYR_FIELDS, GYR_SI = ("GyrX", "GyrY", "GyrZ"), 1.0  # rad/s
+MAG_FIELDS, MAG_SI = ("MagX", "MagY", "MagZ"), MILLIGAUSS_UT  # milligauss → µT
+ATT_FIELDS, ATT_SI = ("Roll", "Pitch", "Yaw"), math.radians(1.0)  # degrees → rad
+POS_FIELDS = ("Lat", "Lng", "Alt")  # °, °, m once DFReader's multipliers are applied
+GPS_EPOCH = dt.date(1980, 1, 6)
+
+
+def message_name(base: str, instance: int, table_has_instances: bool) -> str:
+    """The message holding ``instance`` of a sensor: ``IMU`` (with an ``I`` column), or ``IMU2`` … in old logs."""
+    return base if table_has_instances or instance == 0 else f"{base}{instance + 1}"
+
+
+def time_s(table: Table) -> tuple[Array, float | None]:
+    """The records' times on the vehicle clock, s, and the field's wrap period."""
+    for name, (scale, wrap) in TIME_FIELDS.items():
+        if name in table:
+            return np.asarray(table[name], dtype=float) * scale, wrap
+    raise KeyError(f"no time field (one of {', '.join(TIME_FIELDS)})")
+
+
+def _vectors(table: Table, fields: tuple[str, str, str], scale: float) -> Array:
+    return np.column_stack([np.asarray(table[f], dtype=float) for f in fields]) * scale
+
+
+def imu(table: Table) -> tuple[Array, Array, Array, float | None]:
+    """IMU records → times (s), specific force (m/s²), angular rate (rad/s), the time field's wrap period."""
+    t, wrap = time_s(table)
+    return t, _vectors(table, ACC_FIELDS, ACC_SI), _vectors(table, GYR_FIELDS, GYR_SI), wrap
+
+
+def mag(table: Table) -> tuple[Array, Array]:
+    """MAG records → times (s) and field (µT, board frame)."""
+    return time_s(table)[0], _vectors(table, MAG_FIELDS, MAG_SI)
+
+
+def attitude(table: Table) -> tuple[Array, Array]:
+    """ATT records → times (s) and the autopilot's attitude quaternion [w, x, y, z] body → NED."""
+    rpy = _vectors(table, ATT_FIELDS, ATT_SI)
+    return time_s(table)[0], quat_from_euler(rpy[:, 0], rpy[:, 1], rpy[:, 2]).reshape(-1, 4)
+
+
+def position(table: Table) -> tuple[Array, Array]:
+    """POS records → times (s) and (latitude °, longitude °, altitude m AMSL) rows."""
+    return time_s(table)[0], _vectors(table, POS_FIELDS, 1.0)
+
+
+def gps_date(week: int, ms_of_week: int) -> dt.date:
+    """The date of a GPS week and millisecond of week (GPS time, leap seconds ignored: a date is enough)."""
+    return GPS_EPOCH + dt.timedelta(days=7 * int(week) + int(ms_of_week) // 86_400_000)

@@ -1,0 +1,172 @@
+"""Synthetic flight logs written the way autopilots write them: DataFlash (.bin) records, for tests and benchmarks.
+
+:func:`write_dataflash` lays out FMT records and then the records of each message type in time order,
+byte for byte as ArduPilot does (``A3 95 <type>`` then the packed fields, little-endian). The ``new``
+layout is today's (TimeUS, one IMU and one MAG message with an instance column ``I``); the ``old`` one is
+ArduPilot's before 2015 (TimeMS, IMU2/MAG2 as separate messages). Values are given in SI and stored in
+the logged units of :mod:`mavattitude.sensors.dataflash_units` (MAG in milligauss, ATT in degrees).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mavattitude.sensors import dataflash_units as du
+from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2
+
+Array = NDArray[np.float64]
+HEADER = b"\xa3\x95"
+FMT_TYPE = 0x80
+_NUMPY = {"Q": "<u8", "I": "<u4", "B": "u1", "f": "<f4", "h": "<i2", "L": "<i4"}
+
+
+@dataclass(frozen=True)
+class _Format:
+    type: int
+    name: str
+    format: str
+    columns: tuple[str, ...]
+
+    @property
+    def dtype(self) -> np.dtype:
+        return np.dtype([(c, _NUMPY[f]) for c, f in zip(self.columns, self.format, strict=True)])
+
+    def fmt_record(self) -> bytes:
+        body = np.zeros(1, dtype=[("t", "u1"), ("len", "u1"), ("name", "S4"), ("fmt", "S16"), ("cols", "S64")])
+        body[0] = (
+            self.type,
+            3 + self.dtype.itemsize,
+            self.name.encode(),
+            self.format.encode(),
+            ",".join(self.columns).encode(),
+        )
+        return HEADER + bytes([FMT_TYPE]) + body.tobytes()
+
+
+@dataclass
+class SensorLog:
+    """What to write, SI, vehicle clock: IMU rows, magnetometer rows, optional ATT and POS rows."""
+
+    imu_t_s: Array
+    acc_mps2: Array
+    gyr_radps: Array
+    mag_t_s: Array
+    mag_uT: Array
+    attitude_t_s: Array | None = None
+    attitude_rpy_rad: Array | None = None
+    position_t_s: Array | None = None
+    position: Array | None = None  # latitude °, longitude °, altitude m
+
+
+def _formats(new: bool) -> dict[str, _Format]:
+    time_code, time_name = ("Q", "TimeUS") if new else ("I", "TimeMS")
+    imu_cols = ("GyrX", "GyrY", "GyrZ", "AccX", "AccY", "AccZ")
+    mag_cols = ("MagX", "MagY", "MagZ")
+    inst = ("I",) if new else ()
+    inst_code = "B" if new else ""
+    formats = {
+        "IMU": _Format(129, "IMU", time_code + inst_code + "ffffff", (time_name, *inst, *imu_cols)),
+        "MAG": _Format(130, "MAG", time_code + inst_code + "hhh", (time_name, *inst, *mag_cols)),
+        "ATT": _Format(
+            131, "ATT", time_code + "ffffff", (time_name, "DesRoll", "Roll", "DesPitch", "Pitch", "DesYaw", "Yaw")
+        ),
+        "POS": _Format(132, "POS", time_code + "LLf", (time_name, "Lat", "Lng", "Alt")),
+    }
+    if not new:
+        formats["IMU2"] = _Format(133, "IMU2", formats["IMU"].format, formats["IMU"].columns)
+        formats["MAG2"] = _Format(134, "MAG2", formats["MAG"].format, formats["MAG"].columns)
+    return formats
+
+
+def _records(
+    fmt: _Format, t_s: Array, columns: dict[str, Array], new: bool, instance: int = 0
+) -> tuple[Array, NDArray]:
+    rows = np.zeros(len(t_s), dtype=fmt.dtype)
+    rows[fmt.columns[0]] = np.round(t_s / du.TIME_FIELDS[fmt.columns[0]][0])
+    if new and "I" in fmt.columns:
+        rows["I"] = instance
+    for name, values in columns.items():
+        rows[name] = values
+    raw = np.empty((len(t_s), 3 + fmt.dtype.itemsize), dtype=np.uint8)
+    raw[:, :2] = np.frombuffer(HEADER, dtype=np.uint8)
+    raw[:, 2] = fmt.type
+    raw[:, 3:] = rows.view(np.uint8).reshape(len(t_s), fmt.dtype.itemsize)
+    return t_s, raw
+
+
+def write_dataflash(path: str | Path, log: SensorLog, new: bool = True, instances: int = 1) -> Path:
+    """Write ``log`` as a DataFlash file; with ``instances`` > 1 every IMU and MAG row is logged again for
+    instance 1, … (the copies scaled by 1 + instance/100, so a reader that takes the wrong one is seen)."""
+    formats = _formats(new)
+    parts: list[tuple[Array, NDArray]] = []
+    for k in range(instances):
+        gain = 1.0 + k / 100.0
+        imu_name = "IMU" if new or k == 0 else f"IMU{k + 1}"
+        mag_name = "MAG" if new or k == 0 else f"MAG{k + 1}"
+        acc, gyr = log.acc_mps2 * gain, log.gyr_radps * gain
+        imu_cols = {**_split(du.GYR_FIELDS, gyr), **_split(du.ACC_FIELDS, acc)}
+        parts.append(_records(formats[imu_name], log.imu_t_s, imu_cols, new, k))
+        mag = np.round(log.mag_uT * gain / du.MAG_SI)
+        parts.append(_records(formats[mag_name], log.mag_t_s, _split(du.MAG_FIELDS, mag), new, k))
+    if log.attitude_t_s is not None and log.attitude_rpy_rad is not None:
+        deg = np.degrees(log.attitude_rpy_rad)
+        parts.append(_records(formats["ATT"], log.attitude_t_s, _split(du.ATT_FIELDS, deg), new))
+    if log.position_t_s is not None and log.position is not None:
+        pos = {
+            "Lat": np.round(log.position[:, 0] * 1e7),
+            "Lng": np.round(log.position[:, 1] * 1e7),
+            "Alt": log.position[:, 2],
+        }
+        parts.append(_records(formats["POS"], log.position_t_s, pos, new))
+    path = Path(path)
+    with path.open("wb") as f:
+        for fmt in formats.values():
+            f.write(fmt.fmt_record())
+        f.write(_interleave(parts))
+    return path
+
+
+def _split(names: tuple[str, ...], values: Array) -> dict[str, Array]:
+    return {name: values[:, i] for i, name in enumerate(names)}
+
+
+def _interleave(parts: list[tuple[Array, NDArray]]) -> bytes:
+    """All records in time order (stable: at equal times in the order given), as one byte string."""
+    times = np.concatenate([t for t, _ in parts])
+    lengths = np.concatenate([np.full(len(t), raw.shape[1]) for t, raw in parts])
+    order = np.argsort(times, kind="stable")
+    start = np.empty(len(order), dtype=np.int64)
+    start[order] = np.concatenate([[0], np.cumsum(lengths[order])[:-1]])
+    out = np.empty(int(lengths.sum()), dtype=np.uint8)
+    first = 0
+    for _, raw in parts:
+        n, width = raw.shape
+        out[start[first : first + n, None] + np.arange(width)] = raw
+        first += n
+    return out.tobytes()
+
+
+def static_log(
+    seconds: float, imu_rate_hz: float = 400.0, mag_rate_hz: float = 10.0, yaw_rate_dps: float = 0.0
+) -> SensorLog:
+    """A vehicle level on the ground turning slowly in yaw at 47.4° N, 8.5° E (Zurich): noise-free specific
+    force, field (48.0 µT at 63.5° inclination, the WMM's there to a few tenths), ATT at 10 Hz, POS at 5 Hz."""
+    t = np.arange(round(seconds * imu_rate_hz)) / imu_rate_hz + 1.0
+    inc = math.radians(63.5)
+    field_ned = 48.0 * np.array([math.cos(inc), 0.0, math.sin(inc)])
+    acc = np.tile([0.0, 0.0, -STANDARD_GRAVITY_MPS2], (len(t), 1))
+    gyr = np.tile([0.0, 0.0, math.radians(yaw_rate_dps)], (len(t), 1))
+    mag_t = np.arange(round(seconds * mag_rate_hz)) / mag_rate_hz + 1.0
+    mag_yaw = np.radians(yaw_rate_dps) * (mag_t - 1.0)
+    c, s = np.cos(mag_yaw), np.sin(mag_yaw)
+    mag = np.column_stack([c * field_ned[0], -s * field_ned[0], np.full(len(mag_t), field_ned[2])])
+    att_t = np.arange(round(seconds * 10)) / 10.0 + 1.0
+    att_rpy = np.column_stack([np.zeros(len(att_t)), np.zeros(len(att_t)), np.radians(yaw_rate_dps) * (att_t - 1.0)])
+    pos_t = np.arange(round(seconds * 5)) / 5.0 + 1.0
+    pos = np.tile([47.4, 8.5, 450.0], (len(pos_t), 1))
+    return SensorLog(t, acc, gyr, mag_t, mag, att_t, att_rpy, pos_t, pos)

@@ -1,0 +1,135 @@
+"""Log sources: DataFlash written here byte for byte as ArduPilot does, the shared real logs, and bad files."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from mavattitude.errors import DataFileError
+from mavattitude.link.dataflash import read_dataflash
+from mavattitude.link.logs import LOG_VEHICLE, StreamSource, detect_format, open_log
+from mavattitude.link.source import AutopilotAttitude, PositionFix
+from mavattitude.link.ulog import read_ulog
+from mavattitude.sensors.units import ImuSample
+from mavattitude.sim.logwriter import static_log, write_dataflash
+from tests.shared import shared_path
+from tests.test_service import make_config
+
+
+@pytest.mark.parametrize("new", [True, False])
+@pytest.mark.parametrize("instance", [0, 1])
+def test_dataflash_both_generations_and_instances_read_back(tmp_path, new, instance):
+    log = static_log(2.0, yaw_rate_dps=10.0)
+    path = write_dataflash(tmp_path / "x.bin", log, new=new, instances=2)
+    s = read_dataflash(path, instance, instance)
+    gain = 1.0 + instance / 100.0  # the writer's mark of each instance
+    tick_s = 1e-6 if new else 1e-3  # TimeUS or TimeMS
+    assert s.imu_t_s == pytest.approx(log.imu_t_s, abs=0.501 * tick_s)  # rounded to the tick (+ float error)
+    assert s.acc_mps2 == pytest.approx(log.acc_mps2 * gain, rel=1e-6)  # float32 fields
+    assert s.mag_uT == pytest.approx(log.mag_uT * gain, abs=0.05)  # int16 milligauss: 0.05 µT rounding
+    assert s.time_wrap_s == (None if new else 2**32 / 1000)
+    assert len(s.attitude_t_s) == 20 and s.position[0].tolist() == pytest.approx([47.4, 8.5, 450.0], abs=1e-6)
+    assert s.damage is None
+
+
+def test_a_slower_magnetometer_is_carried_once_by_the_first_sample_at_or_after_it(tmp_path):
+    log = static_log(2.0, imu_rate_hz=400.0, mag_rate_hz=10.0)
+    log.mag_t_s = log.mag_t_s + 0.0013  # between two IMU samples
+    source = StreamSource("x", read_dataflash(write_dataflash(tmp_path / "m.bin", log)))
+    items = []
+    while not source.finished:
+        items += source.recv()
+    samples = [item for _, sender, item in items if isinstance(item, ImuSample)]
+    assert {sender for _, sender, _ in items} == {LOG_VEHICLE}
+    with_mag = [s for s in samples if s.mag_uT is not None]
+    assert len(with_mag) == len(log.mag_t_s)  # each reading once; the front end holds it in between
+    for sample, t_mag in zip(with_mag, log.mag_t_s, strict=True):
+        assert 0.0 <= sample.time_s - t_mag < 1 / 400.0  # never before the reading: no look into the future
+    assert sum(isinstance(i, AutopilotAttitude) for _, _, i in items) == 20
+    assert sum(isinstance(i, PositionFix) for _, _, i in items) == 10
+    times = [t for t, _, _ in items]
+    assert times == sorted(times)
+
+
+def test_a_truncated_log_is_read_up_to_the_cut_and_says_where(tmp_path):
+    path = write_dataflash(tmp_path / "t.bin", static_log(2.0))
+    data = path.read_bytes()
+    cut = len(data) * 2 // 3 + 5
+    path.write_bytes(data[:cut])
+    s = read_dataflash(path)
+    assert s.damage is not None and s.damage.startswith("truncated: the ")
+    at = int(s.damage.split("at byte ")[1].split()[0])
+    assert cut - 60 < at < cut  # the last record, which began before the cut
+    assert 0.6 * 800 < len(s.imu_t_s) < 0.7 * 800  # two thirds of the samples
+
+
+def test_damaged_bytes_are_skipped_and_said(tmp_path):
+    path = write_dataflash(tmp_path / "d.bin", static_log(2.0))
+    data = bytearray(path.read_bytes())
+    middle = data.index(b"\xa3\x95\x81", len(data) // 2)  # from an IMU record's first byte on
+    data[middle : middle + 40] = b"\xff" * 40  # no record header left in there: DFReader skips to the next one
+    path.write_bytes(bytes(data))
+    s = read_dataflash(path)
+    assert s.damage is not None and s.damage.startswith("damaged: ")
+    assert s.damage.endswith(f"the first at byte {middle}")
+    assert len(s.imu_t_s) >= 790  # one or two records lost, not the rest of the file
+
+
+def test_a_record_of_an_undeclared_type_ends_the_readable_part(tmp_path):
+    path = write_dataflash(tmp_path / "u.bin", static_log(2.0))
+    data = bytearray(path.read_bytes())
+    at = data.index(b"\xa3\x95\x81", len(data) // 2)  # an IMU record's header
+    data[at + 2] = 0x10  # a type no FMT declares: DFReader reads no further
+    path.write_bytes(bytes(data))
+    s = read_dataflash(path)
+    assert s.damage == f"unreadable from byte {at} ({len(data) - at} bytes are not records DFReader could read)"
+    assert 350 < len(s.imu_t_s) < 450  # what came before
+
+
+def test_what_a_log_lacks_is_one_error_naming_the_file(tmp_path):
+    log = static_log(1.0)
+    no_mag = write_dataflash(
+        tmp_path / "nomag.bin", dataclasses.replace(log, mag_t_s=np.empty(0), mag_uT=np.empty((0, 3)))
+    )
+    with pytest.raises(DataFileError, match=r"nomag\.bin: no MAG\[I=0\] records \(no magnetometer\)"):
+        read_dataflash(no_mag)
+    zero = write_dataflash(tmp_path / "zero.bin", dataclasses.replace(log, mag_uT=np.zeros_like(log.mag_uT)))
+    with pytest.raises(DataFileError, match=r"zero\.bin: MAG\[I=0\] reads zero in all 10 records"):
+        read_dataflash(zero)
+    with pytest.raises(DataFileError, match=r"IMU\[I=3\]"):
+        read_dataflash(write_dataflash(tmp_path / "one.bin", log), imu_instance=3)
+
+
+def test_unknown_formats_are_named_with_their_first_bytes(tmp_path):
+    junk = tmp_path / "junk.bin"
+    junk.write_bytes(b"\x01\x02\x03\x04 not a log")
+    with pytest.raises(DataFileError, match=r"junk\.bin: not a flight log this reads \(byte 0: 01 02 03 04\)"):
+        detect_format(junk)
+    empty = tmp_path / "empty.ulg"
+    empty.write_bytes(b"")
+    with pytest.raises(DataFileError, match="empty file"):
+        open_log(empty, make_config())
+
+
+def test_the_shared_sitl_flight_as_dataflash():
+    s = read_dataflash(shared_path("data", "ardupilot-sitl", "flightA.BIN"))
+    duration_s = s.imu_t_s[-1] - s.imu_t_s[0]
+    assert 138 < duration_s < 140  # TimeUS 44.9-184.0 s (README)
+    assert len(s.imu_t_s) / duration_s == pytest.approx(25.0, rel=0.01)  # IMU logged at 25 Hz
+    assert len(s.mag_t_s) / duration_s == pytest.approx(10.0, rel=0.02)
+    # 58.0 µT at home (README: WMM); the calibrated compass within a few per cent
+    assert np.median(np.linalg.norm(s.mag_uT, axis=1)) == pytest.approx(58.0, rel=0.03)
+    assert np.median(np.linalg.norm(s.acc_mps2, axis=1)) == pytest.approx(9.81, rel=0.02)
+    assert s.position[0].tolist() == pytest.approx([-35.363261, 149.165230, 584.0], abs=1.0)
+
+
+@pytest.mark.parametrize(("name", "mag"), [("sample.ulg", 87.0), ("sample_log_small.ulg", 49.0)])
+def test_both_ulog_generations(name, mag):
+    s = read_ulog(shared_path("data", "px4", name))
+    duration_s = s.imu_t_s[-1] - s.imu_t_s[0]
+    assert len(s.mag_t_s) / duration_s == pytest.approx(mag, rel=0.1)  # README: ~87 Hz old, 49 Hz new
+    assert np.median(np.linalg.norm(s.acc_mps2, axis=1)) == pytest.approx(9.81, rel=0.02)
+    assert 20.0 < np.median(np.linalg.norm(s.mag_uT, axis=1)) < 70.0  # gauss × 100: an Earth field
+    assert np.allclose(np.linalg.norm(s.attitude_q, axis=1), 1.0, atol=1e-5)

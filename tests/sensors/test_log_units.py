@@ -1,0 +1,82 @@
+"""The DataFlash and ULog unit tables against reference values: milligauss, gauss, degrees, GPS dates."""
+
+from __future__ import annotations
+
+import datetime as dt
+import math
+
+import numpy as np
+import pytest
+
+from mavattitude.estimation.conventions import quat_from_euler
+from mavattitude.sensors import dataflash_units as du
+from mavattitude.sensors import ulog_units as uu
+
+
+def test_dataflash_mag_is_milligauss_and_imu_is_si() -> None:
+    table = {"TimeUS": np.array([1_500_000]), "MagX": np.array([1000]), "MagY": np.array([-250]), "MagZ": np.array([0])}
+    t, mag = du.mag(table)
+    assert t.tolist() == [1.5]
+    assert mag.tolist() == [[100.0, -25.0, 0.0]]  # 1000 mG = 1 gauss = 100 µT
+    imu = {"TimeUS": np.array([2]), **{f: np.array([k + 1.0]) for k, f in enumerate((*du.GYR_FIELDS, *du.ACC_FIELDS))}}
+    _, acc, gyr, wrap = du.imu(imu)
+    assert gyr.tolist() == [[1.0, 2.0, 3.0]] and acc.tolist() == [[4.0, 5.0, 6.0]] and wrap is None
+
+
+def test_old_dataflash_time_is_a_wrapping_uint32_of_milliseconds() -> None:
+    t, wrap = du.time_s({"TimeMS": np.array([1234])})
+    assert t.tolist() == [1.234] and wrap == 2**32 / 1000
+
+
+def test_dataflash_attitude_degrees_become_the_body_to_ned_quaternion() -> None:
+    table = {"TimeUS": np.array([0]), "Roll": np.array([10.0]), "Pitch": np.array([-20.0]), "Yaw": np.array([350.0])}
+    _, q = du.attitude(table)
+    assert q[0] == pytest.approx(quat_from_euler(math.radians(10), math.radians(-20), math.radians(350)), abs=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("week", "ms", "date"),
+    [(0, 0, dt.date(1980, 1, 6)), (1024, 0, dt.date(1999, 8, 22)), (2048, 86_400_000 * 3 + 5, dt.date(2019, 4, 10))],
+)
+def test_gps_week_rollovers_give_their_known_dates(week: int, ms: int, date: dt.date) -> None:
+    assert du.gps_date(week, ms) == date
+
+
+def test_dataflash_instance_message_names() -> None:
+    assert du.message_name("IMU", 0, False) == "IMU"
+    assert du.message_name("IMU", 2, False) == "IMU3"  # old logs: IMU, IMU2, IMU3
+    assert du.message_name("MAG", 1, True) == "MAG"  # new logs: one message, an instance column
+
+
+def test_ulog_magnetometer_is_gauss_and_the_old_layout_keeps_each_reading_once() -> None:
+    topic = {"timestamp": np.array([1_000_000, 1_004_000, 1_008_000, 1_012_000])}
+    topic |= {
+        "magnetometer_ga[0]": np.array([0.2, 0.2, 0.3, 0.3]),
+        "magnetometer_ga[1]": np.zeros(4),
+        "magnetometer_ga[2]": np.full(4, 0.4),
+    }
+    topic["magnetometer_timestamp_relative"] = np.array([-1000, -5000, -500, -4400])  # re-based on each row
+    t, mag = uu.mag(topic)
+    assert t.tolist() == pytest.approx([1.0, 1.004, 1.008, 1.012])  # µs since boot
+    assert mag[0].tolist() == pytest.approx([20.0, 0.0, 40.0])  # 1 gauss = 100 µT
+    t_new, mag_new = uu.combined_mag(topic)
+    assert t_new.tolist() == pytest.approx([0.999, 1.0075])  # two readings, each at its own time
+    assert mag_new[:, 0].tolist() == pytest.approx([20.0, 30.0])
+
+
+@pytest.mark.parametrize(
+    "fields",
+    [
+        {"lat": np.array([474000000]), "lon": np.array([85000000]), "alt": np.array([450_000])},  # 1e-7 °, mm
+        {"latitude_deg": np.array([47.4]), "longitude_deg": np.array([8.5]), "altitude_msl_m": np.array([450.0])},
+    ],
+)
+def test_ulog_gps_position_both_generations(fields: dict) -> None:
+    topic = {"timestamp": np.array([5_000_000]), "fix_type": np.array([3]), **fields}
+    t, rows = uu.gps_position(topic)
+    assert t.tolist() == [5.0] and rows[0].tolist() == pytest.approx([47.4, 8.5, 450.0])
+    assert uu.gps_position({**topic, "fix_type": np.array([2])})[0].size == 0  # no 3D fix: no position
+
+
+def test_ulog_utc_date() -> None:
+    assert uu.utc_date(1_618_963_200_000_000) == dt.date(2021, 4, 21)
