@@ -286,6 +286,29 @@ class EstimatorConfig:
 
 
 @dataclass(frozen=True)
+class CompassConfig:
+    enabled: bool = field(
+        default=True,
+        metadata=_meta(_boolean, "judge the compass (dip, |B|); off, IGN takes only heading from it"),
+    )
+    window_s: float = field(
+        default=10.0, metadata=_meta(_number(1.0, 3600.0), "sliding window of the dip and |B| figures, s")
+    )
+    low_accel_fraction: float = field(
+        default=0.05, metadata=_meta(_number(0.0, 0.5, lo_open=True), "samples with ||a| − g| below this · g count")
+    )
+    max_rate_dps: float = field(
+        default=60.0, metadata=_meta(_number(0.0, 2000.0, lo_open=True), "and rotating slower than this, deg/s")
+    )
+    dip_allowance_deg: float = field(
+        default=10.0, metadata=_meta(_number(0.0, 90.0), "dip error calibration and field model explain, deg")
+    )
+    field_allowance: float = field(
+        default=0.15, metadata=_meta(_number(0.0, 1.0), "|B| error calibration and field model explain, fraction")
+    )
+
+
+@dataclass(frozen=True)
 class OutputConfig:
     stats_interval_s: float = field(
         default=10.0, metadata=_meta(_number(0.0, 86400.0, lo_open=True), "counters log line period, s")
@@ -313,6 +336,7 @@ class Config:
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
     estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
+    compass: CompassConfig = field(default_factory=CompassConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
     logging: LoggingConfig = field(default_factory=LoggingConfig)
 

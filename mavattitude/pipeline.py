@@ -14,6 +14,16 @@ The estimator is a small strategy chosen by ``estimator.method``:
   every calibrated input sample (the front end's low-pass and resampling off: the filter integrates the gyro
   at the input rate and makes its own output ticks).
 
+Before the estimator, every tick with a magnetometer reading feeds the compass monitor
+(:mod:`mavattitude.estimation.compass`, ``compass:`` in the config): the dip and |B| it measures while
+quiet (low acceleration, slow rotation) against the reference. While it judges the compass inconsistent
+(or, before it has enough samples to judge, while this tick's own dip is off) the tick is flagged
+``MAG_INCONSISTENT``; the snapshot estimator then takes only heading from the magnetometer, as it does
+for a tick whose |B| the front end flagged (``MAG_NORM``): the accelerometer's direction is kept exactly
+(TRIAD, accelerometer primary), the output flagged ``MAG_HEADING_ONLY`` and its covariance given the
+heading σ of a heading uniform over ±180°. A consistent, undisturbed compass leaves IGN the paper's IGN.
+The verdict's changes are kept in :attr:`AttitudePipeline.compass_events` for the service and replay.
+
 A sample the solver cannot use (degenerate geometry, bad numbers) is counted by exception type, logged at
 debug level and not emitted; so is a tick without a magnetometer reading, or before the magnetic reference
 is known (``reference.magnetic: auto`` waits for :meth:`AttitudePipeline.set_position`, which looks the
@@ -38,6 +48,7 @@ import numpy as np
 from mavattitude.config import Config
 from mavattitude.errors import ConfigError, InputError, MavAttitudeError
 from mavattitude.estimation import SNAPSHOT_METHODS, NoiseModel, solve
+from mavattitude.estimation.compass import CompassEvent, CompassMonitor, CompassSettings, heading_uncertain
 from mavattitude.estimation.conventions import Array
 from mavattitude.sensors.frontend import FrontEnd, FrontEndCounters, FrontEndSettings, ProcessedSample, SampleFlag
 from mavattitude.sensors.magref import ReferenceTracker
@@ -57,7 +68,7 @@ class AttitudeOutput:
     bias the fused filter estimated removed). ``covariance``: the
     predicted 3×3 body-frame error-angle covariance (rad²), computed on first access. ``flags``: names of
     what the front end or the estimator noticed (``RESET``, ``ACC_NORM``, ``MAG_NORM``, ``MAG_HELD``,
-    ``NOT_CONVERGED``, ``MAG_DISTURBED``).
+    ``NOT_CONVERGED``, ``MAG_DISTURBED``, ``MAG_INCONSISTENT``, ``MAG_HEADING_ONLY``).
     """
 
     time_s: float
@@ -123,6 +134,13 @@ def _noise_model(config: Config) -> NoiseModel:
     return NoiseModel(accel_std=config.noise.accel_std_mps2, mag_std=config.noise.mag_std_uT)
 
 
+def _compass_settings(config: Config) -> CompassSettings:
+    c = config.compass
+    return CompassSettings(
+        c.enabled, c.window_s, c.low_accel_fraction, c.max_rate_dps, c.dip_allowance_deg, c.field_allowance
+    )
+
+
 class SnapshotEstimator:
     """One accelerometer + magnetometer solve per tick, warm-started from the previous answer."""
 
@@ -154,15 +172,31 @@ class SnapshotEstimator:
         if "RESET" in names:
             self._q0 = None  # after a gap the previous answer is no better a start than TRIAD
         noise = self._noise_for(sample.acc_std_scale, sample.mag_std_scale)
-        r = solve(sample.acc_mps2, sample.mag_uT, mag_ref_ned_uT, noise, self.method, q0=self._q0, **self.options)
+        heading_only = not names.isdisjoint(_MAG_OFF)
+        method = "triad" if heading_only else self.method
+        r = solve(sample.acc_mps2, sample.mag_uT, mag_ref_ned_uT, noise, method, q0=self._q0, **self.options)
         self._q0 = r.q
         flags = names if r.converged else names | {"NOT_CONVERGED"}
         rates = np.array(sample.gyr_radps, dtype=float)
-        return [AttitudeOutput(sample.time_s, r.q, rates, r.iterations, r.converged, flags, _lazy(r))]
+        if heading_only:
+            flags |= _HEADING_ONLY
+            covariance = _heading_uncertain(r, sample.acc_mps2)
+        else:
+            covariance = _lazy(r)
+        return [AttitudeOutput(sample.time_s, r.q, rates, r.iterations, r.converged, flags, covariance)]
+
+
+#: Tick flags under which the magnetometer sets heading only: its |B| is off, or the compass is judged off.
+_MAG_OFF = frozenset({"MAG_NORM", "MAG_INCONSISTENT"})
+_HEADING_ONLY = frozenset({"MAG_HEADING_ONLY"})
 
 
 def _lazy(result: Any) -> Callable[[], Array]:
     return lambda: result.covariance
+
+
+def _heading_uncertain(result: Any, acc_mps2: Any) -> Callable[[], Array]:
+    return lambda: heading_uncertain(result.covariance, acc_mps2)
 
 
 class FusedEstimator:
@@ -257,6 +291,8 @@ class AttitudePipeline:
         except MavAttitudeError as exc:
             raise ConfigError(f"front end: {exc}") from exc
         self.counters = PipelineCounters(self.frontend.counters)
+        self.compass = CompassMonitor(_compass_settings(config), config.noise.accel_std_mps2, config.noise.mag_std_uT)
+        self.compass_events: list[CompassEvent] = []  # verdict changes not yet taken by the service or replay
         self.mag_ref_ned_uT: Array | None = None
         self.last_error: MavAttitudeError | None = None
         self.magref = ReferenceTracker(config.reference.magnetic)
@@ -290,7 +326,9 @@ class AttitudePipeline:
         if ref.shape != (3,) or not np.all(np.isfinite(ref)) or not np.any(ref):
             raise InputError(f"magnetic reference must be a finite, non-zero NED vector, got {ref!r}")
         self.mag_ref_ned_uT = ref
-        self.frontend.set_expected_field_uT(float(np.linalg.norm(ref)) if magnitude_known else None)
+        intensity_uT = float(np.linalg.norm(ref)) if magnitude_known else None
+        self.frontend.set_expected_field_uT(intensity_uT)
+        self.compass.set_reference(tuple(ref.tolist()), intensity_uT)
 
     def push(self, sample: ImuSample) -> list[AttitudeOutput]:
         out: list[AttitudeOutput] = []
@@ -304,9 +342,12 @@ class AttitudePipeline:
         if self.mag_ref_ned_uT is None:
             c.waiting += 1
             return []
-        if tick.mag_uT is None and self.estimator.wants_filtered:
-            c.rejected["no_mag"] += 1
-            return []
+        if tick.mag_uT is None:
+            if self.estimator.wants_filtered:
+                c.rejected["no_mag"] += 1
+                return []
+        elif self.compass.settings.enabled:
+            tick = self._judge_compass(tick, tick.mag_uT)
         try:
             outputs = self.estimator.estimate(tick, self.mag_ref_ned_uT)
         except MavAttitudeError as exc:
@@ -315,6 +356,21 @@ class AttitudePipeline:
             log.debug("t=%.3f s: not solved: %s", tick.time_s, exc)
             return []
         return [o for o in outputs if self._valid(o)]
+
+    def _judge_compass(self, tick: ProcessedSample, mag_uT: tuple[float, float, float]) -> ProcessedSample:
+        """Feed the compass monitor; flag the tick ``MAG_INCONSISTENT`` when it judges the field off."""
+        compass = self.compass
+        event = compass.update(tick.time_s, tick.acc_mps2, mag_uT, tick.gyr_radps)
+        if event is not None:
+            self.compass_events.append(event)
+        if compass.suspect(tick.acc_mps2, mag_uT, tick.gyr_radps):
+            return dataclasses.replace(tick, flags=tick.flags | SampleFlag.MAG_INCONSISTENT)
+        return tick
+
+    def take_compass_events(self) -> list[CompassEvent]:
+        """The compass verdict's changes since the last call."""
+        events, self.compass_events = self.compass_events, []
+        return events
 
     def _valid(self, output: AttitudeOutput) -> bool:
         c = self.counters

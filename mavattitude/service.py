@@ -19,6 +19,8 @@ service is the dispatcher's listener. What it does on the link:
 - input silent for longer than ``input_timeout_s``: says so once (log + STATUSTEXT); the output
   stops by itself, since outputs only come from input, and resumes with the next good sample;
 - STATUSTEXT on start (once locked on) and, rate-limited, on degenerate geometry;
+- the compass judged inconsistent (:mod:`mavattitude.estimation.compass`): said once (log warning with the
+  measured and expected dip, and a STATUSTEXT) until it clears; its figures go into the counters line;
 - while it waits (for the autopilot's HEARTBEAT, the IMU stream, a GPS position, the first attitude:
   :class:`Waiting`, read as :attr:`AttitudeService.waiting`) it says what for and the likely cause, first
   after ``WAIT_REPORT_FIRST_S`` and then at a slowing rate, so a wrong wiring does not look like a hang;
@@ -44,6 +46,7 @@ from mavattitude import __version__
 from mavattitude.config import Config
 from mavattitude.dispatch import DISPATCH_REJECTS, DispatchCounters, Dispatcher
 from mavattitude.errors import InputError
+from mavattitude.estimation.compass import CompassEvent, CompassFigures
 from mavattitude.link import MavlinkLink, load_signing_key, message_id
 from mavattitude.link.source import AutopilotAttitude, MavlinkDecoder, MavlinkSource, MessageSource, Sender
 from mavattitude.pipeline import AttitudeOutput, AttitudePipeline
@@ -361,8 +364,19 @@ class AttitudeService:
     def on_outputs(self, outputs: list[AttitudeOutput], t_rx: float) -> None:
         if self.pipeline.counters.rejected[DEGENERATE] != self._degenerate_before:
             self._statustext("degenerate", "mavattitude: acc and mag near collinear, no attitude", "warning")
+        if self.pipeline.compass_events:
+            for event in self.pipeline.take_compass_events():
+                self._on_compass(event)
         for out in outputs:
             self._emit(out, t_rx)
+
+    def _on_compass(self, event: CompassEvent) -> None:
+        """The compass verdict changed: said once each way (the monitor's hysteresis keeps it from flapping)."""
+        if event.inconsistent:
+            log.warning("%s", compass_warning(event.figures))
+            self._statustext("compass", compass_statustext(event.figures), "warning", log_it=False)
+        else:
+            log.info("compass consistent again: %s", event.figures.describe())
 
     def on_reject(self, reason: str, exc: BaseException) -> None:
         if reason != "internal_error":
@@ -414,17 +428,45 @@ class AttitudeService:
             self.counters.latency_p50_ms, self.counters.latency_p99_ms = float(p50), float(p99)
             self._latencies_s.clear()
         self.counters.mean_iterations = self.pipeline.counters.mean_iterations
-        line = counters_line(self.counters, self.link.counters, self.pipeline.counters)
+        compass = self.pipeline.compass.figures() if self.config.compass.enabled else None
+        line = counters_line(self.counters, self.link.counters, self.pipeline.counters, compass)
         log.info("%s: %s", label, line)
         waiting = self.waiting
         self.notifier.status(line if waiting is Waiting.RUNNING else self.waiting_text(waiting))
 
 
-def counters_line(counters: ServiceCounters, link_counters: Any, pipeline_counters: Any) -> str:
+def compass_warning(figures: CompassFigures) -> str:
+    """The log's words for an inconsistent compass."""
+    return f"{figures.describe()}: check the compass orientation and calibration"
+
+
+def compass_statustext(figures: CompassFigures) -> str:
+    """The same in STATUSTEXT's 50 ASCII characters: the figure that is off, and what to check."""
+    if abs(figures.dip_deg - figures.expected_dip_deg) > figures.threshold_dip_deg:
+        return f"compass dip {figures.dip_deg:+.0f} (expected {figures.expected_dip_deg:+.0f}): check mount, cal"
+    return f"compass |B| {100.0 * figures.field_ratio:.0f}% of expected: check calibration"
+
+
+def compass_pairs(figures: CompassFigures) -> list[tuple[str, float]]:
+    """The compass figures of the counters line (degrees, and |B| as a fraction of the reference's)."""
+    return [
+        ("compass_dip_deg", figures.dip_deg),
+        ("compass_dip_expected_deg", figures.expected_dip_deg),
+        ("compass_dip_std_deg", figures.dip_std_deg),
+        ("compass_dip_1min_deg", figures.first_dip_deg),
+        ("compass_field_ratio", figures.field_ratio),
+        ("compass_warnings", figures.warnings),
+    ]
+
+
+def counters_line(
+    counters: ServiceCounters, link_counters: Any, pipeline_counters: Any, compass: CompassFigures | None = None
+) -> str:
     """``key=value`` numbers, one line: what the e2e tests and an operator read.
 
     ``rejected.REASON`` sums the service's reasons, the front end's dropped input samples and the
-    solver's refused ticks; ``mag_rejected.REASON`` counts magnetometer readings the front end dropped.
+    solver's refused ticks; ``mag_rejected.REASON`` counts magnetometer readings the front end dropped;
+    ``compass_*`` are the compass monitor's figures (:func:`compass_pairs`), when it is on.
     """
     c = counters
     frontend = pipeline_counters.frontend
@@ -451,5 +493,6 @@ def counters_line(counters: ServiceCounters, link_counters: Any, pipeline_counte
         ("sent", link_counters.sent),
         ("send_failed", link_counters.send_failed),
         ("reconnects", link_counters.reconnects),
+        *(compass_pairs(compass) if compass is not None else ()),
     ]
     return " ".join(f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}" for k, v in pairs)

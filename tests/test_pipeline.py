@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as dt
 
 import numpy as np
@@ -11,6 +12,7 @@ from mavattitude import pipeline as pipeline_module
 from mavattitude.config import from_dict
 from mavattitude.errors import ConfigError
 from mavattitude.estimation import solve as real_solve
+from mavattitude.estimation.compass import measured_dip_deg
 from mavattitude.estimation.conventions import angle_between, quat_from_euler, rotate_ned_to_body
 from mavattitude.pipeline import AttitudePipeline
 from mavattitude.sensors.magref import field_from_angles, wmm_field_ned_uT
@@ -219,3 +221,42 @@ def test_the_fused_filter_takes_a_changed_reference_without_a_restart(monkeypatc
     assert run(p, samples[300:])
     assert p.estimator._filter is fused  # the state kept: no re-initialisation from IGN
     assert len(calls) == 1 and np.array_equal(calls[0], moved)
+
+
+def test_a_compass_upside_down_sets_heading_only_and_the_tilt_is_the_accelerometers():
+    flipped = [dataclasses.replace(s, mag_uT=(s.mag_uT[0], s.mag_uT[1], -s.mag_uT[2])) for s in static_samples(n=400)]
+    p = AttitudePipeline(from_dict(ANGLES))
+    out = run(p, flipped)
+    assert out and all("MAG_HEADING_ONLY" in o.flags for o in out)  # from the first tick: its own dip is off
+    for o, tick_acc in zip(out, _filtered_acc(flipped), strict=False):
+        down = -tick_acc / np.linalg.norm(tick_acc)
+        # sin of the angle between the output's vertical and the accelerometer's: zero to rounding
+        assert np.linalg.norm(np.cross(rotate_ned_to_body(o.q, [0.0, 0.0, 1.0]), down)) < 1e-12
+        assert down @ o.covariance @ down > 1.0  # rad²: the heading is unknown
+    events = p.take_compass_events()
+    assert [e.inconsistent for e in events] == [True] and p.take_compass_events() == []
+    mag_flipped = rotate_ned_to_body(Q_TRUE, FIELD_NED_UT) * [1.0, 1.0, -1.0]
+    expected_dip_deg = measured_dip_deg(tuple(rotate_ned_to_body(Q_TRUE, [0.0, 0.0, -G])), tuple(mag_flipped))
+    assert p.compass.figures().dip_deg == pytest.approx(expected_dip_deg, abs=0.5)  # noise: σ_dip 0.65°/√n
+
+
+def _ticks(samples: list[ImuSample]) -> list:
+    """The front end's ticks for these samples."""
+    frontend = AttitudePipeline(from_dict(ANGLES)).frontend
+    return [t for s in samples for t in frontend.push(s)]
+
+
+def _filtered_acc(samples: list[ImuSample]) -> list[np.ndarray]:
+    """The ticks' specific force (what the heading-only solution keeps exactly)."""
+    return [np.array(t.acc_mps2) for t in _ticks(samples)]
+
+
+def test_a_good_compass_leaves_ign_the_papers_ign():
+    p = AttitudePipeline(from_dict(ANGLES))
+    ticks = _ticks(static_samples(n=400))
+    out = run(p, static_samples(n=400))
+    assert not any("MAG_HEADING_ONLY" in o.flags or "MAG_INCONSISTENT" in o.flags for o in out)
+    assert p.compass.figures().warnings == 0 and p.take_compass_events() == []
+    noise = pipeline_module._noise_model(p.config)
+    plain = [real_solve(t.acc_mps2, t.mag_uT, FIELD_NED_UT, noise, "ign").q for t in ticks]
+    assert np.degrees(angle_between(np.array([o.q for o in out]), np.array(plain))).max() < 1e-6

@@ -127,6 +127,32 @@ def output_row(time_s: float, q: np.ndarray, iterations: int, converged: bool) -
     ]
 
 
+def summarise_compass(pipeline: AttitudePipeline, source: str, logger: logging.Logger) -> None:
+    """The compass verdict's changes (vehicle time) and its figures, as the service reports them live."""
+    from mavattitude.service import compass_warning
+
+    for event in pipeline.take_compass_events():
+        if event.inconsistent:
+            logger.warning("%s: t=%.1f s: %s", source, event.time_s, compass_warning(event.figures))
+        else:
+            logger.info("%s: t=%.1f s: compass consistent again: %s", source, event.time_s, event.figures.describe())
+    f = pipeline.compass.figures()
+    logger.info(
+        "%s: compass: dip %.1f° (spread %.1f°, first minute %.1f°) vs expected %.1f°, |B| %.2f of the expected "
+        "(spread %.2f, first minute %.2f), %d quiet samples, judged inconsistent %d time(s)",
+        source,
+        f.dip_deg,
+        f.dip_std_deg,
+        f.first_dip_deg,
+        f.expected_dip_deg,
+        f.field_ratio,
+        f.field_std,
+        f.first_field_ratio,
+        f.samples,
+        f.warnings,
+    )
+
+
 class Progress:
     """A progress line on stderr, redrawn in place on a terminal, every 10% otherwise."""
 
@@ -155,9 +181,12 @@ class Progress:
 
 
 def summarise(pipeline: AttitudePipeline, n_in: int, source: str) -> None:
-    """Log the counters; nothing solved at all is a failure, not an empty success."""
+    """Log the counters and the compass's figures; nothing solved at all is a failure, not an empty success."""
     counters = pipeline.counters
-    logging.getLogger("mavattitude").info("%s: %d samples in; %s", source, n_in, counters.summary())
+    logger = logging.getLogger("mavattitude")
+    logger.info("%s: %d samples in; %s", source, n_in, counters.summary())
+    if pipeline.config.compass.enabled:
+        summarise_compass(pipeline, source, logger)
     if counters.emitted == 0:
         reasons = dict(counters.rejected) or dict(counters.frontend.rejected) or "no output tick"
         raise MavAttitudeError(f"{source}: no attitude could be computed ({reasons})")

@@ -78,6 +78,7 @@ class SampleFlag(IntFlag):
     MAG_NORM = 4  # |B| far from the expected magnitude: down-weighted
     MAG_HELD = 8  # magnetometer held from its last sample, not interpolated
     NO_MAG = 16  # no magnetometer within input_timeout_s: mag_uT is None
+    MAG_INCONSISTENT = 32  # set by the pipeline: the compass monitor judges this field not the Earth's
 
 
 @dataclass(frozen=True)
@@ -415,7 +416,7 @@ class FrontEnd:
 _RESET, _ACC_NORM, _MAG_NORM, _MAG_HELD, _NO_MAG = (
     int(f) for f in (SampleFlag.RESET, SampleFlag.ACC_NORM, SampleFlag.MAG_NORM, SampleFlag.MAG_HELD, SampleFlag.NO_MAG)
 )
-_FLAGS = [SampleFlag(v) for v in range(32)]  # every combination, built once
+_FLAGS = [SampleFlag(v) for v in range(64)]  # every combination, built once
 _COUNTED_FLAGS = (SampleFlag.RESET, SampleFlag.ACC_NORM, SampleFlag.MAG_NORM, SampleFlag.NO_MAG)
 _COUNTED = int(SampleFlag.RESET | SampleFlag.ACC_NORM | SampleFlag.MAG_NORM | SampleFlag.NO_MAG)
 

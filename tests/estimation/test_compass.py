@@ -1,0 +1,130 @@
+"""Compass consistency: the dip and |B| figures, the thresholds, the verdict and its hysteresis."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mavattitude.estimation.compass import (
+    HEADING_UNKNOWN_STD_RAD,
+    NOISE_SIGMAS,
+    CompassMonitor,
+    CompassSettings,
+    heading_uncertain,
+    measured_dip_deg,
+    reference_dip_deg,
+    thresholds,
+)
+from mavattitude.estimation.conventions import quat_from_euler, rotate_ned_to_body
+from mavattitude.sensors.magref import field_from_angles
+
+G = 9.80665
+FIELD_NED = np.array(field_from_angles(12.8, 58.0, 50.0))
+STILL = (0.0, 0.0, 0.0)  # rad/s
+SIGMAS = ((0.05, 0.05, 0.05), (0.5, 0.5, 0.5))  # the config's default noise model
+
+
+def _body(q: np.ndarray, flip_z: bool = False) -> tuple[tuple, tuple]:
+    acc = rotate_ned_to_body(q, [0.0, 0.0, -G])
+    mag = rotate_ned_to_body(q, FIELD_NED) * (np.array([1.0, 1.0, -1.0]) if flip_z else 1.0)
+    return tuple(acc.tolist()), tuple(mag.tolist())
+
+
+def _feed(monitor: CompassMonitor, n: int, flip_z: bool = False, t0_s: float = 0.0, seed: int = 3) -> list:
+    rng = np.random.default_rng(seed)
+    events = []
+    for i in range(n):
+        q = quat_from_euler(*np.radians(rng.uniform([-20, -20, -180], [20, 20, 180])))
+        acc, mag = _body(q, flip_z)
+        event = monitor.update(t0_s + 0.02 * i, acc, mag, STILL)  # 50 Hz ticks
+        events += [event] if event is not None else []
+    return events
+
+
+def _monitor() -> CompassMonitor:
+    m = CompassMonitor(CompassSettings(), *SIGMAS)
+    m.set_reference(tuple(FIELD_NED), 50.0)
+    return m
+
+
+def test_the_dip_does_not_depend_on_the_attitude():
+    rng = np.random.default_rng(7)
+    for _ in range(50):
+        q = quat_from_euler(*rng.uniform(-math.pi, math.pi, 3) * np.array([1, 0.49, 1]))
+        acc, mag = _body(q)
+        assert measured_dip_deg(acc, mag) == pytest.approx(58.0, abs=1e-9)
+    assert reference_dip_deg(tuple(FIELD_NED)) == pytest.approx(58.0, abs=1e-12)
+
+
+def test_thresholds_are_the_allowance_plus_k_sigma_of_the_noise_model():
+    t = thresholds(CompassSettings(), *SIGMAS, 50.0)
+    sigma_dip_deg = math.degrees(math.hypot(0.5 / 50.0, 0.05 / G))  # 0.65°
+    assert t.dip_deg == pytest.approx(10.0 + NOISE_SIGMAS * sigma_dip_deg)
+    assert t.dip_noise_deg == pytest.approx(NOISE_SIGMAS * sigma_dip_deg)
+    assert t.field == pytest.approx(0.15 + NOISE_SIGMAS * 0.01)
+
+
+def test_a_good_compass_is_never_judged_inconsistent():
+    m = _monitor()
+    assert _feed(m, 3000) == []  # 60 s of random tilts and headings
+    f = m.figures()
+    assert f.dip_deg == pytest.approx(58.0, abs=1e-6) and f.field_ratio == pytest.approx(1.0, abs=1e-9)
+    assert f.first_dip_deg == pytest.approx(58.0, abs=1e-6) and not f.inconsistent and f.warnings == 0
+
+
+def test_an_upside_down_compass_is_reported_once_as_soon_as_it_can_be_judged():
+    m = _monitor()
+    events = _feed(m, 500, flip_z=True)
+    assert len(events) == 1 and events[0].inconsistent
+    assert events[0].time_s == pytest.approx(0.02 * (CompassSettings().min_samples - 1))
+    f = events[0].figures
+    assert f.dip_deg < 0.0  # flipped z: the field points up out of the ground at these tilts
+    assert f.describe() == f"compass dip {f.dip_deg:+.0f}° vs expected +58°, |B| 100 % of the expected"
+    assert m.figures().warnings == 1
+
+
+def test_the_verdict_clears_with_hysteresis_and_is_said_again_only_after_clearing():
+    m = _monitor()
+    _feed(m, 100, flip_z=True)
+    assert m.inconsistent
+    events = _feed(m, 1000, t0_s=2.0)  # the compass fixed: the window (10 s) fills with good samples
+    assert [e.inconsistent for e in events] == [False]
+    assert events[0].time_s < 2.0 + CompassSettings().window_s
+    assert [e.inconsistent for e in _feed(m, 200, flip_z=True, t0_s=30.0)] == [True]
+    assert m.warnings == 2
+
+
+def test_high_acceleration_samples_are_not_judged():
+    m = _monitor()
+    acc, mag = _body(quat_from_euler(0.0, 0.0, 0.0), flip_z=True)
+    strong = tuple(1.5 * a for a in acc)  # 1.5 g: the specific force is not gravity
+    assert all(m.update(0.02 * i, strong, mag, STILL) is None for i in range(200))
+    assert m.samples == 0 and not m.judged and not m.suspect(strong, mag, STILL)
+
+
+def test_a_single_sample_far_off_is_suspect_before_the_compass_is_judged():
+    m = _monitor()
+    acc, mag = _body(quat_from_euler(0.1, -0.2, 1.0))
+    _, flipped = _body(quat_from_euler(0.1, -0.2, 1.0), flip_z=True)
+    assert not m.suspect(acc, mag, STILL) and m.suspect(acc, flipped, STILL)
+
+
+def test_the_heading_uncertain_covariance_adds_variance_about_the_vertical_only():
+    acc, _ = _body(quat_from_euler(0.3, -0.2, 1.0))
+    base = np.diag([1e-6, 2e-6, 3e-6])
+    cov = heading_uncertain(base, acc)
+    down = -np.asarray(acc) / G
+    assert down @ cov @ down == pytest.approx(down @ base @ down + HEADING_UNKNOWN_STD_RAD**2)
+    across = np.cross(down, [1.0, 0.0, 0.0])
+    across /= np.linalg.norm(across)
+    assert across @ cov @ across == pytest.approx(across @ base @ across)
+
+
+def test_fast_rotation_is_not_judged():
+    m = _monitor()
+    acc, mag = _body(quat_from_euler(0.0, 0.0, 0.0), flip_z=True)
+    spinning = (0.0, 0.0, np.radians(CompassSettings().max_rate_dps + 1.0))
+    assert all(m.update(0.02 * i, acc, mag, spinning) is None for i in range(200))
+    assert m.samples == 0 and not m.suspect(acc, mag, spinning)

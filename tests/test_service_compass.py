@@ -1,0 +1,47 @@
+"""The service reports an inconsistent compass once, as a log warning, a STATUSTEXT and counters."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+
+from mavattitude.estimation.conventions import rotate_ned_to_body
+from mavattitude.service import compass_statustext
+from tests.test_dispatch import Peer, memory_service, sent, serve  # noqa: F401 (memory_service: a fixture)
+from tests.test_service import Q_TRUE, mag_ned_uT
+
+UPSIDE_DOWN = rotate_ned_to_body(Q_TRUE, mag_ned_uT()) * np.array([1.0, 1.0, -1.0])
+
+
+def test_a_compass_upside_down_is_said_once_in_the_log_and_as_a_statustext(memory_service, caplog):  # noqa: F811
+    service, link = memory_service
+    caplog.set_level(logging.INFO, logger="mavattitude.service")
+    vehicle = Peer()
+    link.deliver(vehicle.heartbeat(), *vehicle.stream(1000, mag_uT=UPSIDE_DOWN))  # 5 s at 200 Hz
+    serve(service, link)
+    warnings = [r.getMessage() for r in caplog.records if "compass dip" in r.getMessage()]
+    assert len(warnings) == 1 and warnings[0].endswith("check the compass orientation and calibration")
+    texts = [m.text for m in sent(link, "STATUSTEXT") if "compass" in m.text]
+    figures = service.pipeline.compass.figures()
+    assert texts == [compass_statustext(figures)] and len(texts[0]) <= 50
+    assert texts[0].startswith(f"compass dip {figures.dip_deg:+.0f} (expected +60)")
+    service._log_counters("counters")
+    line = [r.getMessage() for r in caplog.records if r.getMessage().startswith("counters:")][-1]
+    pairs = dict(item.split("=") for item in line.removeprefix("counters: ").split())
+    assert pairs["compass_warnings"] == "1" and pairs["compass_dip_expected_deg"] == "60.000"
+    # the tilt is kept from the accelerometer: every output after the first tick took heading only
+    assert service.counters.emitted > 0
+
+
+def test_a_good_compass_is_not_reported(memory_service, caplog):  # noqa: F811
+    service, link = memory_service
+    caplog.set_level(logging.INFO, logger="mavattitude.service")
+    vehicle = Peer()
+    link.deliver(vehicle.heartbeat(), *vehicle.stream(1000))
+    serve(service, link)
+    assert not any("compass dip" in r.getMessage() for r in caplog.records)
+    assert not any("compass" in m.text for m in sent(link, "STATUSTEXT"))
+    # RAW_IMU quantisation (1 mgauss of 500, 1 mG of 1000) moves the dip by < 0.2°
+    assert service.pipeline.compass.figures().dip_deg == pytest.approx(60.0, abs=0.5)
