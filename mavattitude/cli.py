@@ -56,13 +56,18 @@ def configure_logging(level: str) -> None:
     logging.basicConfig(level=level, format=fmt, stream=sys.stderr, force=True)
 
 
+def one_line(text: str) -> str:
+    """``text`` with what would break or garble a line (newlines, control bytes a file held) escaped."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_logging(args.log_level or "INFO")
     try:
         return int(args.handler(args))
     except MavAttitudeError as exc:
-        print(f"mavattitude {args.command}: error: {exc}", file=sys.stderr)
+        print(f"mavattitude {args.command}: error: {one_line(str(exc))}", file=sys.stderr)
         return EXIT_USER_ERROR
     except KeyboardInterrupt:
         return 130

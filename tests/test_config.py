@@ -190,8 +190,16 @@ def test_unreadable_and_malformed_files(tmp_path):
         load_config(tmp_path / "missing.yaml", env={})
     broken = tmp_path / "broken.yaml"
     broken.write_text("estimator: [unclosed\n", encoding="utf-8")
-    with pytest.raises(ConfigError, match=r"broken\.yaml: not valid YAML"):
-        load_config(broken, env={})
+    with pytest.raises(ConfigError, match=r"broken\.yaml:2:1: not valid YAML: expected ',' or ']'"):
+        load_config(broken, env={})  # where the parser gave up, 1-based line:column as editors count
+    twice = tmp_path / "twice.yaml"
+    twice.write_text("filter:\n  cutoff_hz: 5\n  enabled: true\n  cutoff_hz: 8\n", encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"twice\.yaml:4:3: not valid YAML: key 'cutoff_hz' given twice"):
+        load_config(twice, env={})  # PyYAML alone keeps the last one silently
+    binary = tmp_path / "binary.yaml"
+    binary.write_bytes(b"filter:\n  \xff\xfe\n")
+    with pytest.raises(ConfigError, match=r"binary\.yaml: not a YAML text file \(byte 10 is not UTF-8\)"):
+        load_config(binary, env={})
     listing = tmp_path / "list.yaml"
     listing.write_text("- a\n- b\n", encoding="utf-8")
     with pytest.raises(ConfigError, match=r"list\.yaml: expected a mapping of sections"):

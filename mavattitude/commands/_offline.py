@@ -4,19 +4,19 @@ from __future__ import annotations
 
 import argparse
 import csv
-import gzip
 import logging
 import sys
 import time
 from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 
 from mavattitude.config import Config, load_config
-from mavattitude.errors import ConfigError, DataFileError, MavAttitudeError
+from mavattitude.errors import ConfigError, MavAttitudeError
 from mavattitude.estimation import METHODS
+from mavattitude.files import open_text
 
 if TYPE_CHECKING:
     from mavattitude.pipeline import AttitudePipeline
@@ -89,17 +89,6 @@ def config_from_args(args: argparse.Namespace, extra: dict[str, Any] | None = No
         if getattr(args, flag) is not None:
             overrides[key] = getattr(args, flag)
     return load_config(args.config, overrides)
-
-
-def open_text(path: str | Path, mode: str) -> IO[str]:
-    """A text file, gzip-compressed when its name ends in .gz."""
-    path = Path(path)
-    try:
-        if path.suffix == ".gz":
-            return gzip.open(path, mode + "t", encoding="utf-8", newline="")  # type: ignore[return-value]
-        return path.open(mode, encoding="utf-8", newline="")
-    except OSError as exc:
-        raise DataFileError(f"{path}: cannot open: {exc.strerror or exc}") from exc
 
 
 def write_outputs(path: str | Path, rows: Iterable[Sequence[Any]]) -> int:

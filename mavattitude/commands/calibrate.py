@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import gzip
 import logging
 import sys
 import time
@@ -25,6 +24,7 @@ import numpy as np
 import yaml
 
 from mavattitude.errors import CalibrationError, DataFileError, SensorError
+from mavattitude.files import open_text, reading
 from mavattitude.sensors import magfit, units
 from mavattitude.sensors.calibration import mag_block
 
@@ -92,7 +92,10 @@ def run(args: argparse.Namespace) -> int:
         mag = _collect(_tlog_samples(Path(source), args), args, sys.stderr, live=False)
     else:
         mag = _collect(_live_samples(source, args), args, sys.stderr, live=True)
-    fit = magfit.fit_ellipsoid(mag, field_uT=args.field_uT, min_coverage=args.min_coverage)
+    try:
+        fit = magfit.fit_ellipsoid(mag, field_uT=args.field_uT, min_coverage=args.min_coverage)
+    except CalibrationError as exc:
+        raise CalibrationError(f"{source}: {exc}") from None
     Path(args.output).write_text(
         "# magnetometer calibration written by `mavattitude calibrate mag`: mag = soft_iron (raw − hard_iron_uT)\n"
         + yaml.safe_dump(mag_block(fit.hard_iron_uT, fit.soft_iron), sort_keys=False)
@@ -117,8 +120,7 @@ def read_csv_mag(path: Path) -> np.ndarray:
     """The magnetometer columns of a CSV (µT), skipping rows marked ``mag_new == 0``."""
     if not path.is_file():
         raise DataFileError(f"{path}: no such file")
-    opener = gzip.open if path.suffix == ".gz" else open
-    with opener(path, "rt", newline="") as f:
+    with reading(path), open_text(path, "r") as f:
         reader = csv.reader(f)
         header = next(reader, None)
         if header is None:
@@ -130,13 +132,15 @@ def read_csv_mag(path: Path) -> np.ndarray:
         cols = [header.index(c) for c in MAG_COLUMNS]
         new = header.index("mag_new") if "mag_new" in header else None
         rows = []
-        for number, row in enumerate(reader, start=2):
+        for row in reader:
+            if not row:
+                continue
             try:
                 if new is not None and float(row[new]) == 0.0:
                     continue
                 rows.append([float(row[c]) for c in cols])
             except (ValueError, IndexError) as exc:
-                raise DataFileError(f"{path}:{number}: not a number row: {exc}") from exc
+                raise DataFileError(f"{path}:{reader.line_num}: not a row of numbers: {exc}") from exc
     return np.array(rows, dtype=float).reshape(-1, 3)
 
 
@@ -187,7 +191,8 @@ def _collect(samples: Iterable[units.ImuSample], args: argparse.Namespace, out: 
     estimate: the offset is not fitted yet); the fit judges it again around the fitted centre.
     """
     rows: list[tuple[float, float, float]] = []
-    frac = 0.0
+    frac, shown = 0.0, -1.0
+    tty = out.isatty()  # redrawn in place on a terminal; a log or a pipe gets a line per change of coverage
     for sample in samples:
         if sample.mag_uT is None:
             continue
@@ -196,11 +201,15 @@ def _collect(samples: Iterable[units.ImuSample], args: argparse.Namespace, out: 
             seen = np.array(rows)
             frac, counts = magfit.coverage(seen - (seen.max(axis=0) + seen.min(axis=0)) / 2.0)
             bar = "".join("#" if c >= magfit.MIN_PER_CELL else "." for c in counts)
-            out.write(f"\rcoverage [{bar}] {frac:.0%} of orientations, {len(rows)} samples ")
-            out.flush()
+            line = f"coverage [{bar}] {frac:.0%} of orientations, {len(rows)} samples"
+            if tty or frac != shown:
+                out.write(f"\r{line} " if tty else f"{line}\n")
+                out.flush()
+                shown = frac
             if live and frac >= args.min_coverage and len(rows) >= LIVE_MIN_SAMPLES:
                 break
-    out.write("\n")
+    if tty:
+        out.write("\n")
     if not rows:
         raise CalibrationError(f"{args.input}: no magnetometer readings found")
     return np.array(rows, dtype=float)

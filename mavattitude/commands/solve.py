@@ -25,13 +25,13 @@ from mavattitude.commands._offline import (
     Progress,
     add_config_arguments,
     config_from_args,
-    open_text,
     output_row,
     summarise,
     write_outputs,
 )
 from mavattitude.config import Config
 from mavattitude.errors import ConfigError, DataFileError
+from mavattitude.files import load_numbers, open_text, reading
 
 NAME = "solve"
 HELP = "attitude for every sample of a CSV file (offline, same pipeline as the service)"
@@ -42,6 +42,7 @@ TIME = "t_s"
 ACC = ("acc_x_mps2", "acc_y_mps2", "acc_z_mps2")
 MAG = ("mag_x_uT", "mag_y_uT", "mag_z_uT")
 GYR = ("gyr_x_radps", "gyr_y_radps", "gyr_z_radps")
+LOG_SUFFIXES = (".tlog", ".bin", ".ulg")  # what replay reads
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -60,18 +61,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def read_samples(path: str | Path) -> dict[str, np.ndarray]:
     """The solve columns of a CSV: ``t_s`` (N,), ``acc``, ``mag`` and, if present, ``gyr`` (N, 3)."""
-    with open_text(path, "r") as f:
+    if Path(path).suffix.lower() in LOG_SUFFIXES:
+        raise DataFileError(f"{path}: a flight log, not a CSV of samples: `mavattitude replay {path}` reads it")
+    with reading(path), open_text(path, "r") as f:
         header = next(csv.reader([f.readline()]), [])
         columns = [name.strip() for name in header]
         missing = [c for c in (TIME, *ACC, *MAG) if c not in columns]
         if missing:
-            raise DataFileError(f"{path}: missing column(s) {', '.join(missing)} (header: {', '.join(columns)})")
+            shown = ", ".join(columns)[:200]
+            raise DataFileError(f"{path}: missing column(s) {', '.join(missing)} (header: {shown})")
         has_gyr = all(c in columns for c in GYR)
-        wanted = [TIME, *ACC, *MAG, *(GYR if has_gyr else ())]
-        try:
-            data = np.loadtxt(f, delimiter=",", usecols=[columns.index(c) for c in wanted], ndmin=2)
-        except ValueError as exc:
-            raise DataFileError(f"{path}: not a numeric CSV: {exc}") from None
+        usecols = [columns.index(c) for c in (TIME, *ACC, *MAG, *(GYR if has_gyr else ()))]
+        data = load_numbers(f, path, usecols)
     if len(data) == 0:
         raise DataFileError(f"{path}: no data rows")
     out = {"t_s": data[:, 0], "acc": data[:, 1:4], "mag": data[:, 4:7]}

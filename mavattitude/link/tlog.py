@@ -25,8 +25,8 @@ def _open(path: Path, dialect: str) -> Any:
         raise DataFileError(f"{path}: no such telemetry log")
     try:
         return mavutil.mavlink_connection(str(path), dialect=dialect, robust_parsing=True, notimestamps=False)
-    except (OSError, ValueError) as exc:
-        raise DataFileError(f"{path}: cannot open as a telemetry log: {exc}") from exc
+    except Exception as exc:  # pymavlink indexes the file on open, and fails on a damaged one with anything
+        raise DataFileError(f"{path}: not a readable telemetry log ({type(exc).__name__}: {exc})") from exc
 
 
 def read_messages(

@@ -30,6 +30,7 @@ MIN_SAMPLES = 50
 MIN_COVERAGE = 0.6  # fraction of the 26 direction cells holding a sample
 MIN_PER_CELL = 2
 MAX_AXIS_RATIO = 3.0  # a soft-iron matrix stretching one axis 3× the others is a bad fit or bad data
+MIN_TURN_SPAN = 0.2  # readings spanning less than this fraction of |B| on every axis: the vehicle stayed put
 MAX_ITERATIONS = 50
 TOLERANCE = 1e-10
 
@@ -62,7 +63,8 @@ def relative_spread(mag_uT: ArrayLike) -> float:
 def coverage(directions: ArrayLike, min_per_cell: int = MIN_PER_CELL) -> tuple[float, NDArray[np.int64]]:
     """Fraction of the 26 cells with at least ``min_per_cell`` directions, and the count per cell."""
     d = np.asarray(directions, dtype=float)
-    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    norm = np.linalg.norm(d, axis=1, keepdims=True)
+    d = d[norm[:, 0] > 0.0] / norm[norm[:, 0] > 0.0]  # a zero vector has no direction
     cells = np.argmax(d @ CELL_DIRECTIONS.T, axis=1)
     counts = np.bincount(cells, minlength=len(CELL_DIRECTIONS))
     return float(np.mean(counts >= min_per_cell)), counts
@@ -118,6 +120,17 @@ def _refine(m: Array, h: Array, s: Array, radius: float) -> tuple[Array, Array, 
     return h, s, iterations
 
 
+def _require_turns(m: Array) -> None:
+    """Readings that barely change are a vehicle left at rest, whatever an ellipsoid through them says."""
+    span_uT = float(np.max(np.ptp(m, axis=0)))
+    field_uT = float(np.median(np.linalg.norm(m, axis=1)))
+    if span_uT < MIN_TURN_SPAN * field_uT:
+        raise CalibrationError(
+            f"the vehicle was not turned: the readings span {span_uT:.1f} µT on |B| ≈ {field_uT:.0f} µT; "
+            "turn it through all attitudes, including upside down and on each side"
+        )
+
+
 def _require_coverage(frac: float, min_coverage: float) -> None:
     if frac < min_coverage:
         raise CalibrationError(
@@ -138,6 +151,7 @@ def fit_ellipsoid(
     m = m[np.all(np.isfinite(m), axis=1)]
     if len(m) < MIN_SAMPLES:
         raise CalibrationError(f"only {len(m)} finite magnetometer samples; at least {MIN_SAMPLES} are needed")
+    _require_turns(m)
     spread = np.linalg.eigvalsh(np.cov((m - m.mean(axis=0)).T))
     if spread[0] < 1e-3 * spread[2]:
         raise CalibrationError(
@@ -154,15 +168,15 @@ def fit_ellipsoid(
     radius = float(field_uT) if field_uT is not None else float(np.linalg.det(s) ** (-1.0 / 3.0))
     s = s * radius
     h, s, iterations = _refine(m, h, s, radius)
-    if field_uT is None:
-        det = np.linalg.det(s)
-        s, radius = s / det ** (1.0 / 3.0), radius / det ** (1.0 / 3.0)
     axes = np.linalg.eigvalsh(s)
     if axes[0] <= 0.0 or axes[2] / axes[0] > MAX_AXIS_RATIO:
         raise CalibrationError(
             f"the fitted soft-iron axes differ by {axes[2] / axes[0]:.2g}× (> {MAX_AXIS_RATIO:g}×): "
             "magnetic disturbance during the turns, or a broken sensor"
         )
+    if field_uT is None:  # S positive definite (checked above): its determinant is > 0
+        det = np.linalg.det(s)
+        s, radius = s / det ** (1.0 / 3.0), radius / det ** (1.0 / 3.0)
     corrected = (m - h) @ s.T
     residual = np.linalg.norm(corrected, axis=1) - radius
     return MagFit(

@@ -8,7 +8,6 @@ on the *whole* file's opening rest, so that a slice is scored against the same r
 
 from __future__ import annotations
 
-import gzip
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -16,6 +15,7 @@ import numpy as np
 
 from mavattitude.errors import DataFileError
 from mavattitude.estimation.conventions import Array, quat_normalize
+from mavattitude.files import load_numbers, open_text, reading
 from mavattitude.validation.frames import RestReference, ned_from_enu, rest_reference
 
 XYZ = ("x", "y", "z")
@@ -60,12 +60,9 @@ class Recording:
 
 
 def _read_csv(path: Path) -> dict[str, Array]:
-    try:
-        with gzip.open(path, "rt") if path.suffix == ".gz" else open(path) as f:
-            header = f.readline().strip().split(",")
-            data = np.loadtxt(f, delimiter=",", ndmin=2)
-    except (OSError, ValueError, EOFError) as exc:
-        raise DataFileError(f"{path}: cannot read as a CSV of numbers: {exc}") from exc
+    with reading(path), open_text(path, "r") as f:
+        header = f.readline().strip().split(",")
+        data = load_numbers(f, path, range(len(header)))
     if data.shape[1] != len(header) or len(data) < 2:
         raise DataFileError(f"{path}: {len(header)} columns in the header, rows of {data.shape[1]}, {len(data)} rows")
     return {name: data[:, i] for i, name in enumerate(header)}

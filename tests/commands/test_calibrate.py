@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import argparse
 import gzip
+import io
 import socket
 import threading
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +16,7 @@ import yaml
 from pymavlink import mavutil
 
 from mavattitude.cli import main
+from mavattitude.commands.calibrate import _collect
 from mavattitude.config import from_dict
 from mavattitude.sensors.calibration import Calibration
 from mavattitude.sensors.units import ImuSample, encode, get_profile
@@ -130,3 +134,40 @@ def test_the_written_block_is_a_config_the_front_end_applies(tmp_path: Path) -> 
     raw = _distorted(1, seed=5)[0]
     (tick,) = fe.push(ImuSample(1.0, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), tuple(raw)))
     assert np.linalg.norm(tick.mag_uT) == pytest.approx(48.0, abs=0.5)  # 0.2 µT noise, the fit's residual
+
+
+def test_a_vehicle_left_at_rest_is_told_to_turn_not_diagnosed(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    src = tmp_path / "static.csv"
+    rows = np.array([20.0, 5.0, 40.0]) + np.random.default_rng(1).normal(0.0, 0.3, (2000, 3))  # at rest: noise only
+    src.write_text("mag_x_uT,mag_y_uT,mag_z_uT\n" + "\n".join(",".join(map(str, r)) for r in rows))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no numpy warning on the way (a negative determinant's cube root was one)
+        assert main(["calibrate", "mag", str(src), "-o", str(tmp_path / "x.yaml")]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[-1].startswith(f"mavattitude calibrate: error: {src}: the vehicle was not turned: the readings span")
+    assert "soft-iron" not in err[-1]
+
+
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+@pytest.mark.parametrize("stream", [io.StringIO, _Terminal])
+def test_progress_is_redrawn_on_a_terminal_and_plain_lines_elsewhere(stream: type[io.StringIO]) -> None:
+    out = stream()
+    samples = [
+        ImuSample(0.005 * i, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), tuple(m)) for i, m in enumerate(_distorted(1000))
+    ]
+    args = argparse.Namespace(min_coverage=0.6, input="x")
+    _collect(samples, args, out, live=False)
+    text = out.getvalue()
+    assert "coverage [" in text
+    if stream is _Terminal:
+        assert text.count("\r") == 10 and text.endswith("\n")  # one redraw per 100 samples
+    else:
+        lines = text.splitlines()
+        assert "\r" not in text and 1 <= len(lines) < 10  # a line when the coverage changes, not per 100 samples
+        assert all(line.startswith("coverage [") for line in lines)

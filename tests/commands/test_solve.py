@@ -8,6 +8,7 @@ import os
 import re
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -164,6 +165,27 @@ def test_missing_columns_are_named(tmp_path, capsys):
     bad.write_text("t_s,acc_x_mps2,acc_y_mps2,acc_z_mps2,mag_x_uT\n0,0,0,-9.8,20\n")
     assert main(["solve", str(bad), "-o", str(tmp_path / "o.csv"), *REF]) == 2
     assert "missing column(s) mag_y_uT, mag_z_uT" in capsys.readouterr().err
+
+
+def test_a_bad_row_is_named_by_the_files_own_line_number(tmp_path, capsys):
+    src = write_csv(tmp_path / "in.csv", n=20)
+    lines = src.read_text().splitlines()
+    fields = lines[5].split(",")
+    lines[5] = ",".join([fields[0], "x", *fields[2:]])  # line 6 of the file (header = line 1)
+    lines.insert(3, "")  # a blank line 4: counted by an editor, skipped by numpy
+    src.write_text("\n".join(lines) + "\n")
+    assert main(["solve", str(src), "-o", str(tmp_path / "o.csv"), *REF]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err == [f"mavattitude solve: error: {src}:7: could not convert string to float: 'x'"]
+
+
+def test_a_header_only_file_is_refused_without_a_numpy_warning(tmp_path, capsys):
+    src = tmp_path / "empty.csv"
+    src.write_text("t_s,acc_x_mps2,acc_y_mps2,acc_z_mps2,mag_x_uT,mag_y_uT,mag_z_uT\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert main(["solve", str(src), "-o", str(tmp_path / "o.csv"), *REF]) == 2
+    assert capsys.readouterr().err.splitlines() == [f"mavattitude solve: error: {src}: no data rows"]
 
 
 def test_nothing_solvable_is_a_failure(tmp_path, capsys):

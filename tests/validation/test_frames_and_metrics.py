@@ -111,9 +111,9 @@ def test_bad_files_are_data_file_errors(tmp_path) -> None:
     with pytest.raises(DataFileError, match="neither a BROAD trial nor the PX4 log"):
         load_recording(wrong)
     broken = tmp_path / "broken.csv"
-    broken.write_text("t_s,acc_x_mps2\n0,x\n")
-    with pytest.raises(DataFileError, match="cannot read"):
-        load_recording(broken)
+    broken.write_text("t_s,acc_x_mps2\n0,1\n\n0,x\n")
+    with pytest.raises(DataFileError, match=r"broken\.csv:4: could not convert string to float: 'x'"):
+        load_recording(broken)  # the file's own line: header 1, blank line 3 counted
 
 
 def test_a_slice_outside_the_recording_is_refused(recordings) -> None:

@@ -1,0 +1,79 @@
+"""The user's input files: opened and read so that a damaged or mistaken one is one DataFileError naming it.
+
+Gzip (a name ending in .gz) is read transparently; a CSV row that is not numbers is reported with the file's
+own line number, as an editor shows it.
+"""
+
+from __future__ import annotations
+
+import csv
+import gzip
+import warnings
+import zlib
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import IO
+
+import numpy as np
+
+from mavattitude.errors import DataFileError
+
+
+def open_text(path: str | Path, mode: str) -> IO[str]:
+    """A text file, gzip-compressed when its name ends in .gz."""
+    path = Path(path)
+    try:
+        if path.suffix == ".gz":
+            return gzip.open(path, mode + "t", encoding="utf-8", newline="")  # type: ignore[return-value]
+        return path.open(mode, encoding="utf-8", newline="")
+    except OSError as exc:
+        raise DataFileError(f"{path}: cannot open: {exc.strerror or exc}") from exc
+
+
+@contextmanager
+def reading(path: str | Path) -> Iterator[None]:
+    """What a damaged or mistaken input file raises while it is read, as one DataFileError naming it."""
+    try:
+        yield
+    except gzip.BadGzipFile:
+        raise DataFileError(f"{path}: not gzip-compressed, though its name ends in .gz") from None
+    except (EOFError, zlib.error) as exc:
+        raise DataFileError(f"{path}: truncated or corrupt gzip data ({exc})") from None
+    except UnicodeDecodeError as exc:
+        raise DataFileError(f"{path}: not a text file (byte {exc.start} is not UTF-8)") from None
+    except csv.Error as exc:
+        raise DataFileError(f"{path}: not a CSV file ({exc})") from None
+
+
+def first_bad_row(path: str | Path, columns: Sequence[int]) -> str:
+    """``PATH:LINE: what is wrong`` for the first data row whose ``columns`` are not all numbers.
+
+    LINE is the file's own line number (the header is line 1, blank lines count), which numpy's row index
+    (0-based, over data rows, blank lines skipped) is not.
+    """
+    with reading(path), open_text(path, "r") as f:
+        reader = csv.reader(f)
+        next(reader, None)
+        for row in reader:
+            if not row:
+                continue
+            try:
+                for i in columns:
+                    float(row[i])
+            except IndexError:
+                return f"{path}:{reader.line_num}: {len(row)} field(s), the header has more"
+            except ValueError as exc:
+                return f"{path}:{reader.line_num}: {exc}"
+    return f"{path}: not a numeric CSV"
+
+
+def load_numbers(f: IO[str], path: str | Path, usecols: Sequence[int]) -> np.ndarray:
+    """The rest of an open CSV ``f`` as an (N, len(usecols)) array; a row that is not numbers is a
+    DataFileError with its line; no rows at all is an empty array (numpy's warning about it is not shown)."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            return np.loadtxt(f, delimiter=",", usecols=usecols, ndmin=2)
+    except ValueError:
+        raise DataFileError(first_bad_row(path, usecols)) from None

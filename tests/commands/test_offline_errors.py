@@ -1,0 +1,139 @@
+"""Every offline command against random bytes, truncated and wrong-format files: exit 2 and one line.
+
+A user who hands a command the wrong file must read one line naming it (and where there is one, the line),
+never a traceback or a numpy warning. The commands and the files they read are tables below, so a new
+command or input format is one more row.
+"""
+
+from __future__ import annotations
+
+import gzip
+import io
+import struct
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+import yaml
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from mavattitude.cli import EXIT_USER_ERROR, main
+
+REF = ["--declination", "0", "--inclination", "60"]
+# command → argv for an input file (and an output path); the suffixes it is handed.
+COMMANDS: dict[str, tuple[Callable[[Path, Path], list[str]], tuple[str, ...]]] = {
+    "solve": (lambda p, o: ["solve", str(p), "-o", str(o), *REF], (".csv", ".csv.gz", ".tlog")),
+    "replay": (lambda p, o: ["replay", str(p), "-o", str(o), *REF], (".tlog",)),
+    "calibrate": (lambda p, o: ["calibrate", "mag", str(p), "-o", str(o)], (".csv", ".csv.gz", ".tlog")),
+    "validate": (lambda p, o: ["validate", str(p), "--report", str(o)], (".csv", ".csv.gz")),
+    "check-config": (lambda p, o: ["check-config", str(p)], (".yaml",)),
+    "solve --config": (lambda p, o: ["solve", str(p), "-o", str(o), "--config", str(p)], (".yaml",)),
+}
+CASES = [(name, suffix) for name, (_, suffixes) in COMMANDS.items() for suffix in suffixes]
+SETTINGS = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+
+
+def good_csv(rows: int = 400) -> bytes:
+    lines = ["t_s,acc_x_mps2,acc_y_mps2,acc_z_mps2,mag_x_uT,mag_y_uT,mag_z_uT"]
+    lines += [f"{0.01 * i:.2f},0.1,0.2,-9.8,{20 + i % 7},{i % 5},{40 - i % 3}" for i in range(rows)]
+    return ("\n".join(lines) + "\n").encode()
+
+
+def good_tlog(n: int = 200) -> bytes:
+    out = io.BytesIO()
+    mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    for i in range(n):
+        msg = (
+            mav.heartbeat_encode(2, 3, 0, 0, 4)
+            if i % 50 == 0
+            else mav.raw_imu_encode(5000 * i, 0, 0, -1000, 0, 0, 0, 200, 0, 400)
+        )
+        out.write(struct.pack(">Q", 1_700_000_000_000_000 + 5000 * i) + msg.pack(mav))
+    return out.getvalue()
+
+
+def good_bytes(suffix: str) -> bytes:
+    if suffix == ".csv":
+        return good_csv()
+    if suffix == ".csv.gz":
+        return gzip.compress(good_csv(), mtime=0)
+    if suffix == ".tlog":
+        return good_tlog()
+    return b"filter:\n  cutoff_hz: 5\n"
+
+
+def run_on(tmp_path: Path, command: str, suffix: str, content: bytes) -> tuple[int, list[str], list[str]]:
+    """Exit code, stderr lines and warnings of ``command`` on a file holding ``content``."""
+    path = tmp_path / f"input{suffix}"
+    path.write_bytes(content)
+    argv, _ = COMMANDS[command]
+    capture = io.StringIO()
+    with warnings.catch_warnings(record=True) as caught, pytest.MonkeyPatch.context() as mp:
+        warnings.simplefilter("always")
+        warnings.simplefilter("ignore", ResourceWarning)  # never shown to a user (and pymavlink leaks on garbage)
+        mp.setattr("sys.stderr", capture)
+        mp.setattr("sys.stdout", io.StringIO())
+        code = main(argv(path, tmp_path / "out.csv"))
+    return code, capture.getvalue().splitlines(), [str(w.message) for w in caught]
+
+
+def assert_one_line_error(result: tuple[int, list[str], list[str]], command: str, path_part: str) -> None:
+    code, lines, caught = result
+    assert code == EXIT_USER_ERROR, lines
+    assert not caught, caught
+    errors = [line for line in lines if ": error: " in line]
+    assert len(errors) == 1 and lines[-1] == errors[0], lines
+    assert errors[0].startswith(f"mavattitude {command.split()[0]}: error: ") and path_part in errors[0], lines
+    assert not any("Traceback" in line or "Warning" in line for line in lines), lines
+
+
+def _not_a_valid_config(content: bytes) -> bool:
+    try:
+        return yaml.safe_load(content) not in (None, {})  # an empty file is the defaults: valid
+    except yaml.YAMLError:
+        return True
+
+
+@pytest.mark.parametrize(("command", "suffix"), CASES)
+@SETTINGS
+@given(content=st.binary(max_size=400))
+def test_random_bytes(tmp_path: Path, command: str, suffix: str, content: bytes) -> None:
+    assume(suffix != ".yaml" or _not_a_valid_config(content))
+    assert_one_line_error(run_on(tmp_path, command, suffix, content), command, "input")
+
+
+@pytest.mark.parametrize(("command", "suffix"), CASES)
+@SETTINGS
+@given(fraction=st.floats(0.0, 0.95))
+def test_truncated_files(tmp_path: Path, command: str, suffix: str, fraction: float) -> None:
+    good = good_bytes(suffix)
+    cut = good[: int(fraction * len(good))]
+    assume(suffix != ".yaml" or _not_a_valid_config(cut))
+    result = run_on(tmp_path, command, suffix, cut)
+    if result[0] == 0:  # a CSV or log cut at a row boundary may still be a good, shorter file
+        assume(False)
+    assert_one_line_error(result, command, "input")
+
+
+FORMATS = (".csv", ".csv.gz", ".tlog", ".yaml")
+
+
+@pytest.mark.parametrize(("command", "suffix"), CASES)
+@pytest.mark.parametrize("content", FORMATS)
+def test_a_file_whose_content_is_not_what_its_name_says(
+    tmp_path: Path, command: str, suffix: str, content: str
+) -> None:
+    if content == suffix:
+        pytest.skip("the content its name says")
+    assert_one_line_error(run_on(tmp_path, command, suffix, good_bytes(content)), command, "input")
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+@pytest.mark.parametrize("suffix", FORMATS)
+def test_a_format_the_command_does_not_read(tmp_path: Path, command: str, suffix: str) -> None:
+    if suffix in COMMANDS[command][1]:
+        pytest.skip("a format it reads")
+    assert_one_line_error(run_on(tmp_path, command, suffix, good_bytes(suffix)), command, "input")
