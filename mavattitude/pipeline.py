@@ -27,8 +27,10 @@ The verdict's changes are kept in :attr:`AttitudePipeline.compass_events` for th
 A sample the solver cannot use (degenerate geometry, bad numbers) is counted by exception type, logged at
 debug level and not emitted; so is a tick without a magnetometer reading, or before the magnetic reference
 is known (``reference.magnetic: auto`` waits for :meth:`AttitudePipeline.set_position`, which looks the
-field up in the World Magnetic Model through :mod:`mavattitude.sensors.magref`). A quaternion that
-is not finite and unit is never output: it is counted as ``invalid_quaternion`` and the warm start dropped.
+field up in the World Magnetic Model through :mod:`mavattitude.sensors.magref`). The pipeline is the one
+gate of every output, live or offline: a quaternion that is not finite and unit
+(:func:`~mavattitude.estimation.conventions.is_unit_quaternion_parts`) or rates that are not finite are
+never output: counted as ``invalid_quaternion`` / ``invalid_rates``, and the estimator's state dropped.
 """
 
 from __future__ import annotations
@@ -49,15 +51,12 @@ from mavattitude.config import Config
 from mavattitude.errors import ConfigError, InputError, MavAttitudeError
 from mavattitude.estimation import SNAPSHOT_METHODS, NoiseModel, solve
 from mavattitude.estimation.compass import CompassEvent, CompassMonitor, CompassSettings, heading_uncertain
-from mavattitude.estimation.conventions import Array
+from mavattitude.estimation.conventions import Array, is_unit_quaternion_parts
 from mavattitude.sensors.frontend import FrontEnd, FrontEndCounters, FrontEndSettings, ProcessedSample, SampleFlag
 from mavattitude.sensors.magref import ReferenceTracker
 from mavattitude.sensors.units import ImuSample
 
 log = logging.getLogger(__name__)
-
-# A quaternion whose norm is further than this from 1 is a numerical failure, not an attitude.
-UNIT_TOLERANCE = 1e-6
 
 
 @dataclass(frozen=True)
@@ -263,6 +262,15 @@ ESTIMATORS: dict[str, Callable[[Config], Estimator]] = {
 }
 
 
+def _invalid(output: AttitudeOutput) -> str | None:
+    """Why an estimate must not be output, or ``None``."""
+    if not is_unit_quaternion_parts(output.q.tolist()):
+        return "invalid_quaternion"
+    if not math.isfinite(sum(output.rates_radps.tolist())):  # inf − inf is NaN: any non-finite rate shows
+        return "invalid_rates"
+    return None
+
+
 def frontend_settings(config: Config, **overrides: Any) -> FrontEndSettings:
     """The front end's settings from the config (``overrides`` replace fields)."""
     values = {
@@ -374,13 +382,13 @@ class AttitudePipeline:
 
     def _valid(self, output: AttitudeOutput) -> bool:
         c = self.counters
-        q = output.q
-        w, x, y, z = q.tolist()
-        norm2 = w * w + x * x + y * y + z * z  # NaN or inf if any component is; |q|² − 1 ≈ 2 (|q| − 1)
-        if not (math.isfinite(norm2) and abs(norm2 - 1.0) <= 2.0 * UNIT_TOLERANCE):
-            c.rejected["invalid_quaternion"] += 1
+        reason = _invalid(output)
+        if reason:
+            c.rejected[reason] += 1
             self.estimator.reset()
-            log.warning("t=%.3f s: estimator returned a non-unit or non-finite quaternion %s", output.time_s, q)
+            log.warning(
+                "t=%.3f s: estimator returned %s: q=%s, rates=%s", output.time_s, reason, output.q, output.rates_radps
+            )
             return False
         c.emitted += 1
         c.iterations += output.iterations

@@ -45,7 +45,6 @@ import numpy as np
 from mavattitude import __version__
 from mavattitude.config import Config
 from mavattitude.dispatch import DISPATCH_REJECTS, DispatchCounters, Dispatcher
-from mavattitude.errors import InputError
 from mavattitude.estimation.compass import CompassEvent, CompassFigures
 from mavattitude.link import MavlinkLink, load_signing_key, message_id
 from mavattitude.link.source import AutopilotAttitude, MavlinkDecoder, MavlinkSource, MessageSource, Sender
@@ -60,7 +59,6 @@ HEARTBEAT_PERIOD_S = 1.0
 TICK_S = 0.05  # periodic work runs at least this often; also the longest wait on the link
 UNLOCKED_SYSTEM_ID = 1  # our system id before locking onto an autopilot in automatic mode
 ACK_TIMEOUT_S = 2.0
-REJECT_REASONS = (*DISPATCH_REJECTS, "invalid_output")
 DEGENERATE = "DegenerateGeometryError"  # the pipeline's reject reason for collinear acc and mag
 POSITION_MESSAGE = "GLOBAL_POSITION_INT"
 POSITION_RATE_HZ = 1.0
@@ -96,7 +94,7 @@ class ServiceCounters(DispatchCounters):
     """
 
     emitted: int = 0  # ATTITUDE_QUATERNION sent
-    rejected: dict[str, int] = field(default_factory=lambda: dict.fromkeys(REJECT_REASONS, 0))
+    rejected: dict[str, int] = field(default_factory=lambda: dict.fromkeys(DISPATCH_REJECTS, 0))
     input_lost: int = 0  # times the input went silent for longer than input_timeout_s
     interval_requests: int = 0
     acks: dict[str, int] = field(default_factory=dict)  # SET_MESSAGE_INTERVAL results by name
@@ -385,11 +383,7 @@ class AttitudeService:
             log.error("internal error in the pipeline; sample dropped (please report this)", exc_info=exc)
 
     def _emit(self, out: AttitudeOutput, t_rx: float) -> None:
-        try:
-            sent = self.link.send_attitude_quaternion(units.time_boot_ms(out.time_s), out.q, out.rates_radps)
-        except InputError as exc:
-            self._reject("invalid_output", exc)
-            return
+        sent = self.link.send_attitude_quaternion(units.time_boot_ms(out.time_s), out.q, out.rates_radps)
         if not sent:
             return
         latency_s = self.link.last_send_s - t_rx

@@ -14,7 +14,7 @@ from mavattitude.errors import ConfigError
 from mavattitude.estimation import solve as real_solve
 from mavattitude.estimation.compass import measured_dip_deg
 from mavattitude.estimation.conventions import angle_between, quat_from_euler, rotate_ned_to_body
-from mavattitude.pipeline import AttitudePipeline
+from mavattitude.pipeline import AttitudeOutput, AttitudePipeline
 from mavattitude.sensors.magref import field_from_angles, wmm_field_ned_uT
 from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2, ImuSample
 
@@ -140,6 +140,26 @@ def test_a_non_finite_or_non_unit_quaternion_is_never_output(monkeypatch, bad_q)
     assert run(p, static_samples(n=40)) == []
     assert p.counters.rejected["invalid_quaternion"] == p.counters.ticks > 0
     assert all(q0 is None for q0 in starts)  # a bad answer is never a warm start
+
+
+class _NonFiniteRates:
+    wants_filtered = True
+
+    def __init__(self):
+        self.resets = 0
+
+    def estimate(self, sample, mag_ref_ned_uT):
+        return [AttitudeOutput(sample.time_s, np.array([1.0, 0, 0, 0]), np.array([0.0, np.inf, -np.inf]), 1, True)]
+
+    def reset(self):
+        self.resets += 1
+
+
+def test_non_finite_rates_are_never_output():
+    p = AttitudePipeline(from_dict(ANGLES))
+    p.estimator = estimator = _NonFiniteRates()
+    assert run(p, static_samples(n=40)) == []
+    assert p.counters.rejected["invalid_rates"] == p.counters.ticks == estimator.resets > 0
 
 
 def test_auto_reference_waits_for_a_position_then_uses_the_world_magnetic_model():

@@ -25,6 +25,17 @@ from numpy.typing import ArrayLike, NDArray
 
 Array = NDArray[np.float64]
 
+#: ``| |q|² − 1 |`` at or beyond this is a numerical failure, not an attitude: float64 rounding leaves a
+#: normalised quaternion within ~1e-15 of unit, and an estimate gone wrong (a diverged solve, a filter
+#: state that blew up) is off by orders of magnitude more. (Near 1, ``|q|² − 1 ≈ 2 (|q| − 1)``.)
+UNIT_NORM2_TOLERANCE = 1e-6
+
+
+def is_unit_quaternion_parts(q: tuple) -> bool:
+    """Finite and unit to :data:`UNIT_NORM2_TOLERANCE`: the one test an attitude passes before it is output."""
+    norm2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]  # NaN or inf if any component is
+    return math.isfinite(norm2) and abs(norm2 - 1.0) < UNIT_NORM2_TOLERANCE
+
 
 def skew(v: ArrayLike) -> Array:
     """Cross-product matrix ``[v×]``, so that ``skew(v) @ x == np.cross(v, x)``."""

@@ -101,3 +101,13 @@ def test_level_specific_force_reads_minus_g_on_z():
     q_nose_up = cv.quat_from_euler(0.0, np.radians(30), 0.0)
     f_body = cv.rotate_ned_to_body(q_nose_up, [0, 0, -9.81])
     assert f_body[0] > 0  # nose up: the forward axis sees part of "up"
+
+
+def test_the_output_check_is_on_the_squared_norm_within_its_tolerance():
+    # Just inside and just outside |q|² − 1 = 1e-6 (|q| − 1 ≈ 5e-7); any non-finite component fails.
+    inside, outside = np.sqrt(1.0 + 0.9e-6), np.sqrt(1.0 + 1.1e-6)
+    assert cv.is_unit_quaternion_parts((inside, 0.0, 0.0, 0.0))
+    assert not cv.is_unit_quaternion_parts((outside, 0.0, 0.0, 0.0))
+    assert cv.is_unit_quaternion_parts(tuple(cv.quat_normalize([1.0, -2.0, 3.0, 0.5])))
+    for bad in (np.nan, np.inf):
+        assert not cv.is_unit_quaternion_parts((1.0, 0.0, bad, 0.0))
