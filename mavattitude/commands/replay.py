@@ -1,76 +1,280 @@
-"""`mavattitude replay LOG.tlog -o OUT.csv`: the service's pipeline, offline, over a telemetry log.
+"""`mavattitude replay LOG... -o OUT`: the service's pipeline, offline, over flight logs.
 
-The log's IMU messages (input.message, decoded with input.profile) go through the same pipeline as the
-service; the attitude is written as CSV (the columns of `mavattitude solve`). Like the service, replay
-follows one autopilot: link.vehicle_system_id, or (0) the first autopilot HEARTBEAT in the log; messages
-from other systems or components are skipped. With reference.magnetic auto, the World Magnetic Model is
-evaluated at the log's GLOBAL_POSITION_INT / GPS_RAW_INT positions, on the log's date.
+Each log (a telemetry log .tlog, an ArduPilot DataFlash .bin, a PX4 ULog .ulg: the format is read from
+the file's content) goes through the service's own dispatcher and pipeline (mavattitude.replay), as fast
+as the CPU goes. From a .tlog the IMU messages are input.message decoded with input.profile, and replay
+follows one autopilot as the service does (link.vehicle_system_id, or the first autopilot HEARTBEAT); a
+.bin or .ulg is the autopilot's own log (IMU and MAG instances chosen with --imu / --mag). With
+reference.magnetic auto, the World Magnetic Model is evaluated at the log's positions, on the log's date.
 
-Where the log holds the autopilot's own ATTITUDE, a comparison table (ours minus the autopilot's: roll,
-pitch, yaw and total angle, degrees) is printed, and a PNG plot written (needs matplotlib:
-pip install mavattitude[plot]; without it the plot is skipped with a warning).
+One log and OUT ending in .csv (or .csv.gz): the attitude is written there. Several logs, or a
+directory of them: OUT is a directory, with one CSV per log (the columns of `mavattitude solve`), and
+summary.csv, the table also printed: per log its duration, samples, outputs, ours-minus-autopilot
+roll / pitch / yaw RMS and p99 (degrees), rejected inputs and what was wrong with the file, if anything.
+-j N replays N logs at a time in worker processes. Where a log holds the autopilot's own attitude, a
+PNG comparison plot is written beside its CSV (needs matplotlib: pip install mavattitude[plot]).
+
+The snapshot methods (ign, the default) see only the accelerometer and magnetometer: during
+accelerations they take specific force for gravity, so their roll and pitch differ from a gyro-aided
+autopilot's by degrees there; --method fused integrates the gyro and follows it closely.
+
+A log that cannot be read is one line naming the file and what is wrong; one cut short or damaged is
+read up to the damage, its outputs written and the damage named. Either way the exit code is 2, and
+with several logs the others are replayed all the same (the summary marks the bad ones).
 """
 
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
+import csv
+import dataclasses
 import logging
+import math
 import sys
+from collections.abc import Iterable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from mavattitude.commands._offline import add_config_arguments, config_from_args, output_row, summarise, write_outputs
-from mavattitude.errors import DataFileError
+from mavattitude.config import Config
+from mavattitude.errors import DataFileError, MavAttitudeError
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
 
 NAME = "replay"
-HELP = "the service's pipeline over a flight log (.tlog, DataFlash .bin, ULog .ulg): attitude CSV, vs the autopilot's"
+HELP = "the service's pipeline over flight logs (.tlog, DataFlash .bin, ULog .ulg): attitude CSVs, vs the autopilot's"
 
 log = logging.getLogger(__name__)
 
 # Autopilot attitudes further apart than this are not interpolated between.
 MAX_ATTITUDE_GAP_S = 0.5
+LOG_SUFFIXES = (".tlog", ".bin", ".ulg")
+SNAPSHOT_NOTE = (
+    "{method} uses the accelerometer and magnetometer only: in accelerations it reads specific force as gravity, "
+    "so its roll/pitch differ from the gyro-aided autopilot's there (--method fused follows it)"
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.description = __doc__.split("\n", 2)[2]
     parser.add_argument(
-        "log",
-        help="flight log: telemetry (.tlog), ArduPilot DataFlash (.bin) or PX4 ULog (.ulg); format from its content",
+        "logs",
+        nargs="+",
+        metavar="LOG",
+        help="flight logs, or directories of them: telemetry (.tlog), DataFlash (.bin), ULog (.ulg)",
     )
-    parser.add_argument("-o", "--output", required=True, help="output CSV (gzip-compressed if it ends in .gz)")
     parser.add_argument(
-        "--message", choices=MESSAGES, type=str.upper, help="IMU message to read (config default: RAW_IMU)"
+        "-o", "--output", required=True, help="one log: output CSV (.csv/.csv.gz) or directory; several: directory"
     )
-    parser.add_argument("--profile", choices=PROFILE_NAMES, help="unit profile (config default: ardupilot)")
     parser.add_argument(
-        "--plot", metavar="PNG", help="comparison plot file (default: the output's name with .png); --no-plot: none"
+        "-j", "--jobs", type=_positive, default=1, metavar="N", help="logs replayed at once (default 1)"
+    )
+    parser.add_argument("--imu", type=int, default=0, metavar="I", help="IMU instance of a .bin/.ulg (default 0)")
+    parser.add_argument(
+        "--mag", type=int, default=0, metavar="I", help="magnetometer instance of a .bin/.ulg (default 0)"
+    )
+    parser.add_argument(
+        "--message", choices=MESSAGES, type=str.upper, help="IMU message of a .tlog (config default: RAW_IMU)"
+    )
+    parser.add_argument("--profile", choices=PROFILE_NAMES, help="unit profile of a .tlog (config default: ardupilot)")
+    parser.add_argument(
+        "--plot", metavar="PNG", help="plot file of a single log (default: the output's name with .png)"
     )
     parser.add_argument("--no-plot", action="store_true", help="write no plot")
     add_config_arguments(parser)
 
 
+def _positive(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text}: expected a whole number of at least 1")
+    return value
+
+
+@dataclass
+class LogResult:
+    """One log's line of the summary. ``columns`` holds what other parts add (compass health, cross-checks,
+    filter counters): name → value, shown after the fixed columns."""
+
+    log: str
+    status: str = "ok"  # ok | damaged (read up to the damage) | failed (nothing usable)
+    note: str = ""
+    duration_s: float = math.nan
+    samples: int = 0
+    outputs: int = 0
+    rms_deg: tuple[float, float, float] = (math.nan, math.nan, math.nan)  # roll, pitch, yaw: ours − autopilot
+    p99_deg: tuple[float, float, float] = (math.nan, math.nan, math.nan)
+    rejects: int = 0
+    columns: dict[str, Any] = field(default_factory=dict)
+
+    def row(self) -> dict[str, Any]:
+        fixed = {
+            "log": self.log,
+            "status": self.status,
+            "duration_s": round(self.duration_s, 1),
+            "samples": self.samples,
+            "outputs": self.outputs,
+            **{f"{a}_rms_deg": round(v, 2) for a, v in zip(("roll", "pitch", "yaw"), self.rms_deg, strict=True)},
+            **{f"{a}_p99_deg": round(v, 2) for a, v in zip(("roll", "pitch", "yaw"), self.p99_deg, strict=True)},
+            "rejects": self.rejects,
+        }
+        return {**fixed, **self.columns, "note": self.note}
+
+
+@dataclass(frozen=True)
+class Job:
+    """One log to replay and where its results go (picklable: it crosses to a worker process)."""
+
+    log: Path
+    csv: Path
+    plot: Path | None
+    config: Config
+    imu: int
+    mag: int
+    table: bool  # print the comparison table (one log only)
+
+
 def run(args: argparse.Namespace) -> int:
+    overrides = {"input.message": args.message, "input.profile": args.profile}
+    config = config_from_args(args, {k: v for k, v in overrides.items() if v is not None})
+    jobs = _jobs(args, config)
+    if len(jobs) == 1 and jobs[0].table:
+        result = replay_log(jobs[0])
+        if result.status != "ok":
+            raise DataFileError(result.note)
+        return 0
+    results = _replay_all(jobs, args.jobs)
+    summary = Path(args.output) / "summary.csv"
+    _write_summary(summary, results)
+    sys.stdout.write(summary_table(results, config.estimator.method) + "\n")
+    bad = [r for r in results if r.status != "ok"]
+    if bad:
+        raise DataFileError(f"{len(bad)} of {len(results)} logs not fully replayed ({summary}): {bad[0].note}")
+    return 0
+
+
+def _find_logs(names: Iterable[str]) -> list[Path]:
+    found: list[Path] = []
+    for name in names:
+        path = Path(name)
+        if path.is_dir():
+            inside = sorted(p for p in path.iterdir() if p.suffix.lower() in LOG_SUFFIXES and p.is_file())
+            if not inside:
+                raise DataFileError(f"{path}: a directory with no .tlog, .bin or .ulg file in it")
+            found += inside
+        else:
+            found.append(path)
+    return found
+
+
+def _jobs(args: argparse.Namespace, config: Config) -> list[Job]:
+    logs = _find_logs(args.logs)
+    out = Path(args.output)
+    plot = not args.no_plot
+    if len(logs) == 1 and out.name.endswith((".csv", ".csv.gz")):
+        png = Path(args.plot) if args.plot else Path(str(out).removesuffix(".gz")).with_suffix(".png")
+        return [Job(logs[0], out, png if plot else None, config, args.imu, args.mag, True)]
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DataFileError(f"{out}: cannot make the output directory: {exc.strerror or exc}") from exc
+    stems = [p.name for p in logs] if len({p.stem for p in logs}) < len(logs) else [p.stem for p in logs]
+    return [
+        Job(p, out / f"{stem}.csv", out / f"{stem}.png" if plot else None, config, args.imu, args.mag, False)
+        for p, stem in zip(logs, stems, strict=True)
+    ]
+
+
+def _replay_all(jobs: list[Job], workers: int) -> list[LogResult]:
+    progress = _LogProgress(len(jobs))
+    if workers == 1 or len(jobs) == 1:
+        results = []
+        for job in jobs:
+            results.append(replay_log(job))
+            progress.done()
+        return results
+    with concurrent.futures.ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as pool:
+        futures = [pool.submit(replay_log, job) for job in jobs]
+        for _ in concurrent.futures.as_completed(futures):
+            progress.done()
+        return [f.result() for f in futures]
+
+
+class _LogProgress:
+    """``replayed 3/10 logs`` redrawn in place on a terminal; nothing when stderr is not one."""
+
+    def __init__(self, total: int) -> None:
+        self.total, self.count = total, 0
+        self.enabled = total > 1 and sys.stderr.isatty()
+
+    def done(self) -> None:
+        self.count += 1
+        if self.enabled:
+            end = "\n" if self.count == self.total else "\r"
+            sys.stderr.write(f"replayed {self.count}/{self.total} logs{end}")
+            sys.stderr.flush()
+
+
+def replay_log(job: Job) -> LogResult:
+    """Replay one log to its CSV (and plot); what went wrong is the result's status and note, not an exception."""
     from mavattitude.link.logs import open_log
     from mavattitude.replay import replay
 
-    overrides = {"input.message": args.message, "input.profile": args.profile}
-    config = config_from_args(args, {k: v for k, v in overrides.items() if v is not None})
-    source = open_log(args.log, config)
-    result = replay(source, config)
-    _check_found(args.log, config.input.message, result)
-    summarise(result.pipeline, result.counters.received, args.log)
-    ours = result.output_array()
-    write_outputs(args.output, (output_row(o.time_s, o.q, o.iterations, o.converged) for o in result.outputs))
-    log.info("wrote %d attitudes to %s", len(ours), args.output)
-    if result.autopilot:
-        _compare(ours, result.autopilot_array(), args)
+    result = LogResult(str(job.log))
+    try:
+        source = open_log(job.log, job.config, job.imu, job.mag)
+        replayed = replay(source, job.config, _SampleProgress(job.log.name) if job.table else None)
+        _check_found(str(job.log), job.config.input.message, replayed)
+    except MavAttitudeError as exc:
+        return dataclasses.replace(result, status="failed", note=str(exc))
+    _fill(result, replayed)
+    write_outputs(job.csv, (output_row(o.time_s, o.q, o.iterations, o.converged) for o in replayed.outputs))
+    log.info("%s: wrote %d attitudes to %s", job.log, result.outputs, job.csv)
+    damage = getattr(source, "damage", None)
+    if damage:
+        result.status = "damaged"
+        result.note = f"{job.log}: {damage}: the {result.samples} samples before it replayed, written to {job.csv}"
+    if replayed.autopilot:
+        _compare(replayed.output_array(), replayed.autopilot_array(), job, result)
     else:
-        log.info("%s holds no ATTITUDE from the autopilot: no comparison", args.log)
-    return 0
+        log.info("%s holds no attitude from the autopilot: no comparison", job.log)
+    return result
+
+
+class _SampleProgress:
+    """A log's progress on a terminal (none when stderr is not one), from the source's position."""
+
+    def __init__(self, label: str) -> None:
+        self.label = label
+        self.enabled = sys.stderr.isatty()
+        self.shown = -1
+
+    def __call__(self, source: Any) -> None:
+        total, done = getattr(source, "total", 0), getattr(source, "done", 0)
+        if not self.enabled or not total:
+            return
+        percent = 100 * done // total
+        if percent != self.shown:
+            self.shown = percent
+            end = "\n" if source.finished else "\r"
+            sys.stderr.write(f"{self.label}: [{'#' * (percent // 5):<20}] {percent:3d}%{end}")
+            sys.stderr.flush()
+
+
+def _fill(result: LogResult, replayed: Any) -> None:
+    pipeline = replayed.pipeline.counters
+    result.samples = replayed.counters.received
+    result.outputs = len(replayed.outputs)
+    result.duration_s = replayed.last_sample_s - replayed.first_sample_s
+    result.rejects = (
+        sum(replayed.counters.rejected.values())
+        + sum(pipeline.frontend.rejected.values())
+        + sum(pipeline.rejected.values())
+    )
 
 
 def _check_found(path: str, message: str, result: Any) -> None:
@@ -89,6 +293,29 @@ def _check_found(path: str, message: str, result: Any) -> None:
             f"{path}: reference.magnetic is auto but the log holds no position with a fix: give --declination "
             "DEG --inclination DEG or --mag-ref-ned N E D"
         )
+    summarise(result.pipeline, result.counters.received, path)
+
+
+def summary_table(results: list[LogResult], method: str) -> str:
+    """The summary as aligned text: one line per log, then the note on snapshot methods."""
+    rows = [r.row() for r in results]
+    names = list(rows[0])
+    text = [[str(v) for v in row.values()] for row in rows]
+    widths = [max(len(n), *(len(t[i]) for t in text)) for i, n in enumerate(names)]
+    lines = ["  ".join(n.ljust(w) for n, w in zip(names, widths, strict=True)).rstrip()]
+    lines += ["  ".join(v.ljust(w) for v, w in zip(t, widths, strict=True)).rstrip() for t in text]
+    if method != "fused":
+        lines.append(SNAPSHOT_NOTE.format(method=method))
+    return "\n".join(lines)
+
+
+def _write_summary(path: Path, results: list[LogResult]) -> None:
+    rows = [r.row() for r in results]
+    names = list(dict.fromkeys(k for row in rows for k in row))
+    with path.open("w", encoding="utf-8", newline="") as f:
+        writer = csv.DictWriter(f, names, lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(rows)
 
 
 def compare(ours: np.ndarray, autopilot: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -124,25 +351,29 @@ def comparison_table(diff_deg: np.ndarray) -> str:
     for name, d in zip(("roll", "pitch", "yaw", "total angle"), diff_deg.T, strict=True):
         a = np.abs(d)
         lines.append(f"{name:<24}{d.mean():9.3f}{np.sqrt(np.mean(d**2)):9.3f}{np.percentile(a, 95):9.3f}{a.max():9.3f}")
-    lines.append(f"{len(diff_deg)} output samples compared with the autopilot's ATTITUDE")
+    lines.append(f"{len(diff_deg)} output samples compared with the autopilot's attitude")
     return "\n".join(lines)
 
 
-def _compare(ours: np.ndarray, autopilot: np.ndarray, args: argparse.Namespace) -> None:
+def _compare(ours: np.ndarray, autopilot: np.ndarray, job: Job, result: LogResult) -> None:
     t, q_ref, diff = compare(ours, autopilot) if len(ours) else (np.empty(0), np.empty((0, 4)), np.empty((0, 4)))
     if len(t) == 0:
-        log.warning("no output sample falls within the autopilot's ATTITUDE times: no comparison")
+        log.warning("%s: no output sample falls within the autopilot's attitude times: no comparison", job.log)
         return
-    sys.stdout.write(comparison_table(diff) + "\n")
-    if args.no_plot:
+    result.rms_deg = tuple(float(v) for v in np.sqrt(np.mean(diff[:, :3] ** 2, axis=0)))  # type: ignore[assignment]
+    result.p99_deg = tuple(float(v) for v in np.percentile(np.abs(diff[:, :3]), 99.0, axis=0))  # type: ignore[assignment]
+    if job.table:
+        method = job.config.estimator.method
+        note = "" if method == "fused" else SNAPSHOT_NOTE.format(method=method) + "\n"
+        sys.stdout.write(comparison_table(diff) + "\n" + note)
+    if job.plot is None:
         return
-    plot = Path(args.plot) if args.plot else Path(args.output.removesuffix(".gz")).with_suffix(".png")
     try:
-        _plot(plot, ours, t, q_ref, diff)
+        _plot(job.plot, ours, t, q_ref, diff)
     except ImportError:
         log.warning("matplotlib is not installed (pip install mavattitude[plot]): no plot written")
         return
-    log.info("wrote the comparison plot %s", plot)
+    log.info("wrote the comparison plot %s", job.plot)
 
 
 def _plot(path: Path, ours: np.ndarray, t: np.ndarray, q_ref: np.ndarray, diff: np.ndarray) -> None:

@@ -1,0 +1,135 @@
+"""`mavattitude replay` over DataFlash and ULog files, several at once, and bad ones among them."""
+
+from __future__ import annotations
+
+import csv
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from mavattitude.cli import main
+from mavattitude.estimation.conventions import angle_between, quat_from_euler
+from mavattitude.sim.logwriter import static_log, write_dataflash
+from tests.commands.test_replay import ENV_WITHOUT_OVERLAY, read_rows
+from tests.shared import shared_path
+
+YAW_RATE_DPS = 10.0
+# static_log's field: 48 µT at 63.5° inclination, declination 0 (magnetic north)
+REF = ["--declination", "0", "--inclination", "63.5"]
+# Noise-free input, int16 milligauss magnetometer (0.05 µT of 21 µT horizontal: 0.15° of heading). The
+# 10 Hz magnetometer is held between readings (never interpolated ahead): up to 0.1 s × 10°/s = 1.0° behind
+# in the turn, and the 10 Hz low-pass delays it by ~22 ms more (0.2°): 1.4° bounds them.
+MAX_ERR_DEG = 1.4
+
+
+def errors_deg(rows: np.ndarray) -> np.ndarray:
+    yaw = np.radians(YAW_RATE_DPS) * (rows[:, 0] - 1.0)
+    truth = quat_from_euler(np.zeros(len(rows)), np.zeros(len(rows)), yaw)
+    return np.degrees(angle_between(rows[:, 1:5], truth))
+
+
+def summary(path) -> dict[str, dict[str, str]]:
+    with path.open(encoding="utf-8") as f:
+        return {row["log"].rsplit("/", 1)[1]: row for row in csv.DictReader(f)}
+
+
+@pytest.mark.parametrize("new", [True, False])
+def test_one_dataflash_log_of_either_generation(tmp_path, capsys, new):
+    log = write_dataflash(tmp_path / "f.bin", static_log(3.0, yaw_rate_dps=YAW_RATE_DPS), new=new)
+    out = tmp_path / "f.csv"
+    assert main(["replay", str(log), "-o", str(out), *REF, "--no-plot"]) == 0
+    rows = read_rows(out)
+    assert len(rows) == pytest.approx(150, abs=2)  # 3 s at 50 Hz
+    assert errors_deg(rows[10:]).max() < MAX_ERR_DEG
+    assert "compared with the autopilot's attitude" in capsys.readouterr().out
+
+
+def test_a_directory_of_logs_with_bad_ones_among_them(tmp_path, capsys):
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    good = write_dataflash(logs / "a.bin", static_log(3.0, yaw_rate_dps=YAW_RATE_DPS))
+    write_dataflash(logs / "b.bin", static_log(3.0, yaw_rate_dps=YAW_RATE_DPS), new=False)
+    data = good.read_bytes()
+    (logs / "c_cut.bin").write_bytes(data[: len(data) // 2 + 7])
+    (logs / "d_junk.ulg").write_bytes(b"\x00" * 100)
+    out = tmp_path / "out"
+    assert main(["replay", str(logs), "-o", str(out), "-j", "2", *REF]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith("mavattitude replay: error: 2 of 4 logs not fully replayed")
+    table = summary(out / "summary.csv")
+    assert [table[n]["status"] for n in ("a.bin", "b.bin", "c_cut.bin", "d_junk.ulg")] == [
+        "ok",
+        "ok",
+        "damaged",
+        "failed",
+    ]
+    assert "truncated" in table["c_cut.bin"]["note"] and "not a flight log" in table["d_junk.ulg"]["note"]
+    assert float(table["a.bin"]["duration_s"]) == pytest.approx(3.0, abs=0.1)
+    assert int(table["a.bin"]["samples"]) == 1200 and float(table["a.bin"]["yaw_rms_deg"]) < MAX_ERR_DEG
+    for name in ("a", "b", "c_cut"):
+        assert errors_deg(read_rows(out / f"{name}.csv")[10:]).max() < MAX_ERR_DEG
+    assert len(read_rows(out / "c_cut.csv")) == pytest.approx(75, abs=5)  # the first half
+    assert (out / "a.png").read_bytes()[:4] == b"\x89PNG"
+    assert not (out / "d_junk.csv").exists()
+
+
+def test_a_truncated_log_alone_is_replayed_then_one_line_and_exit_2(tmp_path):
+    data = write_dataflash(tmp_path / "x.bin", static_log(3.0)).read_bytes()
+    cut = tmp_path / "cut.bin"
+    cut.write_bytes(data[: len(data) // 3])
+    out = tmp_path / "cut.csv"
+    done = subprocess.run(
+        [sys.executable, "-m", "mavattitude", "--log-level", "WARNING", "replay", str(cut), "-o", str(out), *REF],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=ENV_WITHOUT_OVERLAY,
+    )
+    assert done.returncode == 2
+    (line,) = done.stderr.strip().splitlines()
+    assert (
+        line.startswith(f"mavattitude replay: error: {cut}: truncated: the ") and "samples before it replayed" in line
+    )
+    assert len(read_rows(out)) > 40  # what came before the cut
+
+
+def test_the_shared_sitl_flight_ign_and_fused(tmp_path):
+    flight = shared_path("data", "ardupilot-sitl", "flightA.BIN")
+    figures = {}
+    for method in ("ign", "fused"):
+        out = tmp_path / method
+        main(["replay", str(flight), "-o", str(out), "--method", method, "--no-plot"])
+        figures[method] = summary(out / "summary.csv")["flightA.BIN"]
+        assert figures[method]["status"] == "damaged"  # the file ends in the first bytes of an IMU record
+    ign, fused = figures["ign"], figures["fused"]
+    # ../shared/data/ardupilot-sitl/README.md: fused 0.68 / 0.75° RMS roll / pitch, yaw 1.6°; IGN 6.6 / 8.7°
+    assert float(fused["roll_rms_deg"]) < 0.8 and float(fused["pitch_rms_deg"]) < 0.85
+    assert float(fused["yaw_rms_deg"]) < 1.8
+    assert 5.5 < float(ign["roll_rms_deg"]) < 7.5 and 7.5 < float(ign["pitch_rms_deg"]) < 9.5
+
+
+@pytest.mark.parametrize("name", ["sample.ulg", "sample_log_small.ulg"])
+def test_the_shared_px4_logs(tmp_path, name):
+    out = tmp_path / "px4.csv"
+    # PX4's attitude_estimator_q ran with declination 0 (../shared/data/README.md): magnetic north
+    assert (
+        main(
+            [
+                "replay",
+                str(shared_path("data", "px4", name)),
+                "-o",
+                str(out),
+                "--declination",
+                "0",
+                "--inclination",
+                "60",
+                "--no-plot",
+                "--method",
+                "fused",
+            ]
+        )
+        == 0
+    )
+    assert len(read_rows(out)) > 100
