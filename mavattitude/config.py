@@ -35,6 +35,7 @@ import yaml
 
 from mavattitude.errors import ConfigError
 from mavattitude.estimation import METHODS
+from mavattitude.estimation.fused.settings import FusedSettings
 from mavattitude.sensors.calibration import Calibration, Mat3, Vec3
 from mavattitude.sensors.magref import MagneticReference
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
@@ -283,6 +284,7 @@ class EstimatorConfig:
     min_angle_deg: float = field(
         default=5.0, metadata=_meta(_number(0.0, 90.0), "refuse acc/mag closer than this to collinear, deg")
     )
+    fused: FusedSettings = field(default_factory=FusedSettings)  # the gyro-aided filter (method: fused)
 
 
 @dataclass(frozen=True)
@@ -380,8 +382,12 @@ def _build(cls: type, data: Any, path: str) -> Any:
 
 
 def _check_of(f: dataclasses.Field, hint: Any) -> Check | None:
-    """A key's check: its own (``_meta``), or by its type in the domain sections the config imports (their
-    fields carry only a description); ``None`` for a nested section."""
+    """A key's check: its own (``_meta``), a number range (``range: (lo, hi, lo_open)``, as the settings that
+    live beside their code, e.g. :class:`FusedSettings`, give it), or by its type in the domain sections the
+    config imports (their fields carry only a description); ``None`` for a nested section."""
+    if "range" in f.metadata:
+        lo, hi, lo_open = f.metadata["range"]
+        return _number(lo, hi, lo_open=lo_open)
     return f.metadata.get("check") or _CHECK_BY_TYPE.get(hint)
 
 
@@ -401,6 +407,17 @@ def _cross_check(c: Config) -> None:
                 _fail(f"input.custom.{key}", "required with profile: custom")
     elif any(v is not None for v in scales.values()):
         _fail("input.custom", f"scales are only used with profile: custom (profile is {c.input.profile})")
+    if c.estimator.method == "fused" and c.noise != NoiseConfig():
+        key = next(
+            f.name
+            for f in dataclasses.fields(NoiseConfig)
+            if getattr(c.noise, f.name) != getattr(NoiseConfig(), f.name)
+        )
+        _fail(
+            f"noise.{key}",
+            f"not used by estimator.method fused (its σ are effective, tuned values): set estimator.fused.{key} "
+            "instead, and leave noise (and --accel-std / --mag-std) at the default",
+        )
     if c.filter.enabled and c.filter.cutoff_hz >= c.filter.output_rate_hz / 2:
         _fail("filter.cutoff_hz", f"must be below half of filter.output_rate_hz ({c.filter.output_rate_hz / 2:g} Hz)")
 

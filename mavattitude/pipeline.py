@@ -96,6 +96,7 @@ class PipelineCounters:
     rejected: Counter[str] = field(default_factory=Counter)  # ticks not emitted, by reason
     iterations: int = 0  # summed over emitted outputs
     not_converged: int = 0
+    estimator: Callable[[], dict[str, float]] = dict  # the estimator's own counters (the fused filter's)
 
     @property
     def mean_iterations(self) -> float:
@@ -107,6 +108,7 @@ class PipelineCounters:
             f"received={self.frontend.received} emitted={self.emitted} "
             f"rejected={{{rejected}}} input_rejected={{{_fmt(self.frontend.rejected)}}} "
             f"mean_iterations={self.mean_iterations:.2f} not_converged={self.not_converged}"
+            + "".join(f" {k}={v:.3g}" if isinstance(v, float) else f" {k}={v}" for k, v in self.estimator().items())
         )
 
 
@@ -126,6 +128,10 @@ class Estimator(Protocol):
 
     def reset(self) -> None:
         """Forget the state (the pipeline calls it after an invalid output)."""
+        ...
+
+    def counters(self) -> dict[str, float]:
+        """The estimator's own counters since the start (name → number), for the counters line."""
         ...
 
 
@@ -155,6 +161,9 @@ class SnapshotEstimator:
 
     def reset(self) -> None:
         self._q0 = None
+
+    def counters(self) -> dict[str, float]:
+        return {}
 
     def _noise_for(self, acc_scale: float, mag_scale: float) -> NoiseModel:
         """The noise model with the front end's down-weighting (few distinct scales: cached)."""
@@ -199,24 +208,38 @@ def _heading_uncertain(result: Any, acc_mps2: Any) -> Callable[[], Array]:
 
 
 class FusedEstimator:
-    """The gyro-aided filter, :class:`~mavattitude.estimation.fused.FusedFilter`."""
+    """The gyro-aided filter (:class:`~mavattitude.estimation.fused.FusedFilter`), set by ``estimator.fused``."""
 
     wants_filtered = False
 
     def __init__(self, config: Config) -> None:
-        from mavattitude.estimation.fused import FusedFilter, FusedSettings  # loaded only for this method
+        from mavattitude.estimation.fused import COUNTERS, FusedFilter  # loaded only for this method
 
-        self.settings = dataclasses.replace(
-            FusedSettings(),
+        self.settings = config.estimator.fused
+        self._counter_names = COUNTERS
+        self._new_filter = functools.partial(
+            FusedFilter,
+            self.settings,
             output_rate_hz=config.filter.output_rate_hz,
             max_gap_s=config.input.input_timeout_s,
         )
-        self._new_filter = functools.partial(FusedFilter, self.settings)
         self._filter: Any = None
         self._mag_ref: Array | None = None
+        self._past: Counter[str] = Counter()  # counters of the filters dropped by a reset
 
     def reset(self) -> None:
+        if self._filter is not None:
+            self._past.update(self._filter.counters)
         self._filter = None
+
+    def counters(self) -> dict[str, float]:
+        """The filter's event counts (summed over resets) and its learnt hard-iron offset, µT (body frame)."""
+        counts = self._past + Counter(self._filter.counters if self._filter is not None else {})
+        out: dict[str, float] = {k: counts[k] for k in self._counter_names}
+        if self._filter is not None:
+            x, y, z = self._filter.mag_offset_uT.tolist()
+            out |= {"mag_offset_x_uT": x, "mag_offset_y_uT": y, "mag_offset_z_uT": z}
+        return out
 
     def estimate(self, sample: ProcessedSample, mag_ref_ned_uT: Array) -> list[AttitudeOutput]:
         if self._filter is None:
@@ -298,7 +321,7 @@ class AttitudePipeline:
             self.frontend = FrontEnd(frontend_settings(config, filter_enabled=filtered))
         except MavAttitudeError as exc:
             raise ConfigError(f"front end: {exc}") from exc
-        self.counters = PipelineCounters(self.frontend.counters)
+        self.counters = PipelineCounters(self.frontend.counters, estimator=self.estimator.counters)
         self.compass = CompassMonitor(_compass_settings(config), config.noise.accel_std_mps2, config.noise.mag_std_uT)
         self.compass_events: list[CompassEvent] = []  # verdict changes not yet taken by the service or replay
         self.mag_ref_ned_uT: Array | None = None

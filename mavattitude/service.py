@@ -488,5 +488,6 @@ def counters_line(
         ("send_failed", link_counters.send_failed),
         ("reconnects", link_counters.reconnects),
         *(compass_pairs(compass) if compass is not None else ()),
+        *((f"fused.{k}", v) for k, v in pipeline_counters.estimator().items()),
     ]
     return " ".join(f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}" for k, v in pairs)

@@ -66,6 +66,19 @@ def test_example_file_comments_every_key_with_its_default(path):
         ({"link": {"vehicle_system_id": 255}}, r"link\.vehicle_system_id: 255 is out of range: must be ≤ 254"),
         ({"link": {"request_messages": "yes"}}, r"link\.request_messages: expected true or false"),
         ({"noise": {"mag_std_uT": -1}}, r"noise\.mag_std_uT: -1 is out of range: must be > 0"),
+        ({"estimator": {"fused": {"mag_std_uT": 0}}}, r"estimator\.fused\.mag_std_uT: 0 is out of range: must be > 0"),
+        (
+            {"estimator": {"fused": {"update_rate": 25}}},
+            r"estimator\.fused\.update_rate: unknown key; did you mean update_rate_hz\?",
+        ),
+        (
+            {"estimator": {"fused": {"gyro_scale_fraction": 0.7}}},
+            r"gyro_scale_fraction: 0\.7 is out of range: must be ≤ 0\.5",
+        ),
+        (
+            {"estimator": {"method": "fused"}, "noise": {"mag_std_uT": 0.3}},
+            r"noise\.mag_std_uT: not used by estimator\.method fused.*estimator\.fused\.mag_std_uT",
+        ),
         ({"noise": {"accel_std_mps2": [1, 2]}}, r"noise\.accel_std_mps2: expected a list of 3 numbers"),
         ({"calibration": {"mag": {"soft_iron": [[1, 0, 0], [0, 1, 0], [0, 0, 0]]}}}, r"soft_iron: .*singular"),
         ({"calibration": {"accel": {"bias_mps2": [0, "x", 0]}}}, r"calibration\.accel\.bias_mps2\[1\]: expected"),

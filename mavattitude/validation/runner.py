@@ -65,13 +65,16 @@ def validation_config(recording: Recording, method: str, base: Config | None = N
     """``base`` (or the defaults) with the recording's measured references and ``method``, then
     ``overrides`` (dotted keys, e.g. ``**{"filter.cutoff_hz": 5}``), which win over both."""
     ref = recording.reference
-    layer = {
+    layer: dict[str, Any] = {
         "estimator.method": method,
         "reference.magnetic": {"field_ned_uT": [float(v) for v in ref.field_ned_uT]},
-        "noise.accel_std_mps2": [float(v) for v in ref.acc_std_mps2],
-        "noise.mag_std_uT": [float(v) for v in ref.mag_std_uT],
-        **overrides,
     }
+    if method != "fused":  # the fused filter's σ are its own (estimator.fused), not the sensor noise
+        layer |= {
+            "noise.accel_std_mps2": [float(v) for v in ref.acc_std_mps2],
+            "noise.mag_std_uT": [float(v) for v in ref.mag_std_uT],
+        }
+    layer |= overrides
     merged = {} if base is None else base.to_dict()
     return load_config(None, overrides=_flatten(merged) | layer, env={})
 

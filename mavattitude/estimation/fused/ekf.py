@@ -1,0 +1,156 @@
+"""The error-state (multiplicative) Kalman filter on attitude and gyro bias: propagation and one update.
+
+Nominal state ``q`` (body → NED, scalar first) and gyro bias ``b`` (rad/s); error state ``x = [δθ, δb]``
+with ``q_true = q ⊗ exp(δθ)`` (body-frame error angles, the paper's Eq. 14/28–30), ``b_true = b + δb``,
+``P = E[x xᵀ]`` kept as three 3×3 blocks ``P_θθ``, ``P_θb``, ``P_bb`` (:mod:`.mat3`).
+
+Propagation — every input sample, ``ω = g − b``: ``q ← q ⊗ exp(ω Δt)``, composed in plain floats into
+``Δq`` (the rotation since the last update); ``P`` once per update interval ``T``::
+
+    Φ = [[A(Δq), −T (I + A(Δq)) / 2], [0, I]],   A(Δq) = R(Δq)ᵀ
+    P ← Φ P Φᵀ + diag((σ_g² T + (s_g θ)²) I, σ_b² T I),   θ = Σ |ω| Δt
+
+Update — one scalar measurement ``z ≈ hᵀ x + ν``, ``ν ~ N(0, r)`` (vector measurements with independent
+components are a sequence of these, which is exact for a diagonal ``R``)::
+
+    u = P h,   s = hᵀ u + r,   K = u / s,   x̂ = K z,   q ← q ⊗ exp(δθ̂),   b ← b + δb̂
+
+The gain may be restricted to a direction (``on``: only that component of ``K_θ`` and ``K_b``) or kept off
+one (``off``: that component of ``K_θ`` removed), so that a measurement corrects only what it is trusted
+for; for any such gain ``P ← (I − K hᵀ) P (I − K hᵀ)ᵀ + r K Kᵀ`` (Joseph) is exact, and with
+``w = s K − u`` it is ``P + w Kᵀ − K uᵀ`` (``w = 0`` for the optimal gain).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+from mavattitude.estimation.conventions import (
+    quat_from_rotvec_parts,
+    quat_multiply_parts,
+    quat_normalize_parts,
+    rotation_matrix_parts,
+)
+
+from . import mat3 as m3
+from .mat3 import ZERO3, Mat3, Vec3
+
+Quat = tuple[float, float, float, float]
+IDENTITY_Q: Quat = (1.0, 0.0, 0.0, 0.0)
+
+
+class ErrorStateFilter:
+    """Attitude, gyro bias and their covariance; the gyro-only attitude ``q_gyro`` rides along (never
+    corrected, for the accelerometer pre-filter)."""
+
+    def __init__(self, gyro_noise_radps: float, gyro_scale_fraction: float, gyro_bias_walk_radps2: float) -> None:
+        self._q_noise = (gyro_noise_radps**2, gyro_scale_fraction**2, gyro_bias_walk_radps2**2)
+        self.q: Quat = IDENTITY_Q
+        self.q_gyro: Quat = IDENTITY_Q
+        self.bias: Vec3 = (0.0, 0.0, 0.0)
+        self.p_tt: Mat3 = ZERO3
+        self.p_tb: Mat3 = ZERO3
+        self.p_bb: Mat3 = ZERO3
+        self.dq: Quat = IDENTITY_Q  # rotation since the last propagation
+        self.duration_s = 0.0
+        self.angle_rad = 0.0
+
+    def start(self, q: Quat, p_tt: Mat3, p_bb: Mat3 | None = None) -> None:
+        """(Re)initialise the attitude and its covariance; ``p_bb`` None keeps the bias and its covariance."""
+        self.q = self.q_gyro = quat_normalize_parts(q)
+        self.p_tt, self.p_tb = p_tt, ZERO3
+        if p_bb is not None:
+            self.p_bb = p_bb
+        self.dq, self.duration_s, self.angle_rad = IDENTITY_Q, 0.0, 0.0
+
+    def integrate(self, dt: float, gx: float, gy: float, gz: float) -> None:
+        """``Δq ← Δq ⊗ exp(ω Δt)`` with the sample's bias-corrected rate."""
+        b = self.bias
+        vx, vy, vz = dt * (gx - b[0]), dt * (gy - b[1]), dt * (gz - b[2])
+        self.dq = quat_multiply_parts(self.dq, quat_from_rotvec_parts(vx, vy, vz))
+        self.duration_s += dt
+        self.angle_rad += math.sqrt(vx * vx + vy * vy + vz * vz)
+
+    def current_q(self) -> Quat:
+        if self.duration_s == 0.0:  # just propagated: q is already normalised, with w ≥ 0
+            return self.q
+        return quat_normalize_parts(quat_multiply_parts(self.q, self.dq))
+
+    def propagate(self) -> None:
+        """Move the interval's rotation into ``q`` (and ``q_gyro``) and propagate ``P`` over it (``Φ``)."""
+        t = self.duration_s
+        r = rotation_matrix_parts(self.dq)  # R(Δq), row-major; A(Δq) = R(Δq)ᵀ
+        a, c = m3.transpose(r), -0.5 * t
+        # Φ = [[A, c (I + A)], [0, I]] by blocks: with X = [A, c (I + A)] P = A Y + c [P_θbᵀ, P_bb],
+        # Y = [P_θθ + c P_θbᵀ, P_θb + c P_bb]: P_θb ← X_b, P_θθ ← (X_θ + c X_b) Aᵀ + c X_b.
+        tt, tb, bb = self.p_tt, self.p_tb, self.p_bb
+        bt = m3.transpose(tb)
+        x_t = m3.mm(a, m3.axpy(tt, c, bt), c, bt)
+        x_b = m3.mm(a, m3.axpy(tb, c, bb), c, bb)
+        noise2, scale2, walk2 = self._q_noise
+        self.p_tt = m3.symmetric(m3.mm(m3.axpy(x_t, c, x_b), r, c, x_b), noise2 * t + scale2 * self.angle_rad**2)
+        self.p_tb = x_b
+        self.p_bb = m3.symmetric(bb, walk2 * t)
+        self.q = self.current_q()
+        self.q_gyro = quat_normalize_parts(quat_multiply_parts(self.q_gyro, self.dq))
+        self.dq, self.duration_s, self.angle_rad = IDENTITY_Q, 0.0, 0.0
+
+    def update(
+        self,
+        z: float,
+        h_theta: Vec3 | None,
+        r: float,
+        h_bias: Vec3 | None = None,
+        *,
+        on: Vec3 | None = None,
+        off: Vec3 | None = None,
+    ) -> None:
+        """One scalar measurement ``z ≈ h_θᵀ δθ + h_bᵀ δb + ν`` (module docstring); ``on``/``off`` restrict the
+        gain (unit vectors). Call :meth:`propagate` first: ``q`` must carry the whole interval."""
+        tt, tb, bb = self.p_tt, self.p_tb, self.p_bb
+        u_t, u_b, s = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), r
+        if h_theta is not None:
+            u_t, u_b = m3.matvec(tt, h_theta), m3.tmatvec(tb, h_theta)
+            s += m3.dot(h_theta, u_t)
+        if h_bias is not None:
+            v_t, v_b = m3.matvec(tb, h_bias), m3.matvec(bb, h_bias)
+            s += m3.dot(h_bias, v_b) + 2.0 * m3.dot(h_theta, v_t) if h_theta is not None else m3.dot(h_bias, v_b)
+            u_t = (u_t[0] + v_t[0], u_t[1] + v_t[1], u_t[2] + v_t[2])
+            u_b = (u_b[0] + v_b[0], u_b[1] + v_b[1], u_b[2] + v_b[2])
+        k_t, k_b = _scale(u_t, 1.0 / s), _scale(u_b, 1.0 / s)
+        if on is not None:
+            k_t, k_b = _scale(on, m3.dot(on, k_t)), _scale(on, m3.dot(on, k_b))
+        if off is not None:
+            c = m3.dot(off, k_t)
+            k_t = (k_t[0] - c * off[0], k_t[1] - c * off[1], k_t[2] - c * off[2])
+        tt, tb, bb = (
+            m3.outer_update(tt, k_t, u_t, -1.0),
+            m3.outer_update(tb, k_t, u_b, -1.0),
+            m3.outer_update(bb, k_b, u_b, -1.0),
+        )
+        if on is not None or off is not None:
+            w_t, w_b = _axpy3(k_t, s, u_t), _axpy3(k_b, s, u_b)
+            tt, tb, bb = (
+                m3.outer_update(tt, w_t, k_t, 1.0),
+                m3.outer_update(tb, w_t, k_b, 1.0),
+                m3.outer_update(bb, w_b, k_b, 1.0),
+            )
+        self.p_tt, self.p_tb, self.p_bb = m3.symmetric(tt), tb, m3.symmetric(bb)
+        self.apply(_scale(k_t, z), _scale(k_b, z))
+
+    def apply(self, d_theta: Sequence[float], d_bias: Sequence[float]) -> None:
+        """Reset: move the estimated error state ``[δθ, δb]`` into the nominal ``q`` and ``b``."""
+        correction = quat_from_rotvec_parts(d_theta[0], d_theta[1], d_theta[2])
+        self.q = quat_normalize_parts(quat_multiply_parts(self.q, correction))
+        b = self.bias
+        self.bias = (b[0] + d_bias[0], b[1] + d_bias[1], b[2] + d_bias[2])
+
+
+def _scale(v: Sequence[float], k: float) -> Vec3:
+    return (v[0] * k, v[1] * k, v[2] * k)
+
+
+def _axpy3(k: Vec3, s: float, u: Vec3) -> Vec3:
+    """``s k − u``."""
+    return (s * k[0] - u[0], s * k[1] - u[1], s * k[2] - u[2])

@@ -1,0 +1,347 @@
+"""The gyro-aided filter: error-state Kalman filter + accelerometer tilt + magnetometer heading.
+
+The paper (Liu et al. 2014) ends by noting that the accelerometer + magnetometer solution should aid a
+gyro, because under sustained acceleration the accelerometer no longer points along gravity. This is that
+filter. Pure math: no I/O, no clock (time comes from the samples), no logging (events are counted in
+:attr:`FusedFilter.counters` for the caller to report). ``docs/fused.md`` has the equations, the tuning
+and the measured figures; the parts are :mod:`.ekf` (state, propagation, the update),
+:mod:`.rest` (zero-rate update), :mod:`.magnetic` (checks, field learning, hard-iron offset).
+
+Accelerometer pre-filter (quasi-inertial low-pass): with ``q_g`` the gyro-only attitude,
+``a_I ← LP₂(R(q_g) a)``, ``ã = A(q_g) a_I`` — a second-order Butterworth low-pass at the update rate,
+cut-off ``√2 / (2π τ_a)`` (VQF's pre-filter, Laidig & Seel 2023), designed by
+:func:`mavattitude.sensors.lowpass.butter2` like the front end's.
+
+Tilt update — ``u = ã/|ã|`` against ``h = A(q) v_a``: ``u − h ≈ [h×] δθ``; along two unit vectors
+``e₁, e₂ ⊥ h``: ``zᵢ = eᵢ·(u − h)``, ``h_θ = eᵢ × h``, ``r = (σ_a'/|ã|)²``, gain kept off ``h`` (the
+heading), with ``σ_a'² = σ_a² + (k_n (|ã| − g))² + (k_a (|a| − g))² + (k_r g ε)²`` (``a``: the sample as it came,
+which sees an acceleration at once, where the pre-filtered ``ã`` lags it by ``τ_a``; ``ε``: the measured
+angle between ``ã`` and ``m`` minus the reference's, only while the field is clean).
+
+Heading update — the horizontal field ``m_h`` (of ``R(q) (m − o)``) against the reference's
+horizontal direction ``n``: ``z = atan2(m_h × n, m_h · n)``, ``h_θ = A(q) e_D`` (the vertical in the body),
+``r = σ_m'² / |m_h|²``, gain only along ``h_θ`` (attitude and bias): the magnetometer sets the heading and
+nothing else, so a wrong or disturbed field can never move roll and pitch.
+
+Start-up and gaps: the first sample with both vectors initialises ``q`` from IGN and ``P_θθ`` from its
+covariance, ``P_bb = σ_b0² I``; a gap longer than ``max_gap_s`` restarts from IGN, keeping the bias.
+
+Output: :meth:`FusedFilter.push` returns a :class:`FusedEstimate` for every ``output_rate_hz`` tick passed,
+the attitude carried to the tick with the current rate.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from mavattitude.errors import InputError
+from mavattitude.estimation import NoiseModel, solve
+from mavattitude.estimation.conventions import (
+    Array,
+    quat_from_rotvec_parts,
+    quat_multiply_parts,
+    quat_normalize_parts,
+    rotate_ned_to_body_parts,
+    rotation_matrix_parts,
+)
+from mavattitude.sensors.lowpass import butter2
+
+from .ekf import ErrorStateFilter, Quat
+from .magnetic import MagneticChecks
+from .mat3 import Vec3, cross, dot, symmetric
+from .rest import RestDetector
+from .settings import FusedSettings
+
+COUNTERS = (
+    "updates",
+    "tilt_only_updates",
+    "rest_updates",
+    "mag_disturbed",
+    "mag_relearned",
+    "mag_offset_learned",
+    "restarts",
+    "degenerate",
+    "skipped_updates",
+)
+_MAX_UNIT_STD = 0.5  # rad: the largest direction noise handed to a measurement update
+_MIN_HORIZONTAL = math.sin(math.radians(5.0))  # |m_h| / |m| below this: no heading from the field
+
+
+@dataclass(frozen=True)
+class FusedEstimate:
+    """One output tick: attitude (body → NED), body rates with the bias removed, 3×3 error covariance (rad²)."""
+
+    time_s: float
+    q: Array
+    rates_radps: Array
+    covariance: Array
+    bias_radps: Array
+    mag_disturbed: bool
+
+
+class FusedFilter:
+    """The gyro-aided filter; feed it every calibrated IMU sample with :meth:`push`."""
+
+    def __init__(
+        self,
+        settings: FusedSettings,
+        mag_ref: ArrayLike,
+        acc_ref: ArrayLike = (0.0, 0.0, -1.0),
+        *,
+        output_rate_hz: float = 50.0,
+        max_gap_s: float = 0.5,
+    ) -> None:
+        if not (output_rate_hz > 0.0 and max_gap_s > 0.0):
+            raise InputError(f"output_rate_hz and max_gap_s must be positive, got {output_rate_hz}, {max_gap_s}")
+        self.settings = s = settings
+        self.acc_ref = np.asarray(acc_ref, dtype=float)
+        self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
+        self._started = False
+        self._update_period_s = 1.0 / s.update_rate_hz
+        self._output_period_s = 1.0 / output_rate_hz
+        self._max_gap_s = max_gap_s
+        self._ekf = ErrorStateFilter(s.gyro_noise_radps, s.gyro_scale_fraction, s.gyro_bias_walk_radps2)
+        self._mag = MagneticChecks(s, self._update_period_s)
+        self._rest = RestDetector(s, self._update_period_s)
+        self._biquad = None
+        if s.accel_lowpass_s > 0.0:
+            self._biquad = butter2(math.sqrt(2.0) / (2.0 * math.pi * s.accel_lowpass_s), s.update_rate_hz)
+        self._acc_lp: list[list[float]] | None = None
+        self._noise = NoiseModel(accel_std=(s.accel_std_mps2,) * 3, mag_std=(s.mag_std_uT,) * 3)
+        self._t_last = 0.0
+        self._gyr_last: Vec3 = (0.0, 0.0, 0.0)
+        self._next_update_s = 0.0
+        self._next_output_s = 0.0
+        self.set_mag_ref(mag_ref)
+
+    # --- public state -------------------------------------------------------------------------------
+    @property
+    def q(self) -> Array:
+        """Current attitude, body → NED, ``w ≥ 0``."""
+        return np.array(self._current_q())
+
+    @property
+    def bias_radps(self) -> Array:
+        return np.array(self._ekf.bias)
+
+    @property
+    def mag_offset_uT(self) -> Array:
+        """The hard-iron offset learnt on top of the calibration (body frame, µT): subtract it from ``m``."""
+        return np.array(self._mag.offset_uT)
+
+    @property
+    def mag_disturbed(self) -> bool:
+        return self._mag.disturbed
+
+    @property
+    def covariance(self) -> Array:
+        """6×6 covariance of ``[δθ (rad), δb (rad/s)]`` at the last update."""
+        e = self._ekf
+        tt, tb, bb = (np.array(m).reshape(3, 3) for m in (e.p_tt, e.p_tb, e.p_bb))
+        return np.block([[tt, tb], [tb.T, bb]])
+
+    def set_mag_ref(self, mag_ref: ArrayLike) -> None:
+        """A new NED field (e.g. WMM after a move): used from the next update on, the state kept.
+
+        Its magnitude is a start value only (it is learnt from the data, see :mod:`.magnetic`)."""
+        mag = np.asarray(mag_ref, dtype=float)
+        if mag.shape != (3,) or self.acc_ref.shape != (3,):
+            raise InputError(f"references must be 3-vectors, got {mag_ref!r} and {self.acc_ref!r}")
+        norms = float(np.linalg.norm(mag)), float(np.linalg.norm(self.acc_ref))
+        if not all(math.isfinite(n) and n > 0.0 for n in norms):
+            raise InputError(f"references must be finite and non-zero, got {mag_ref!r} and {self.acc_ref!r}")
+        self.mag_ref = mag
+        self._v_acc: Vec3 = tuple(float(v) / norms[1] for v in self.acc_ref)  # type: ignore[assignment]
+        field: Vec3 = tuple(mag.tolist())  # type: ignore[assignment]
+        self._ref_angle = math.acos(max(-1.0, min(1.0, dot(self._v_acc, field) / norms[0])))
+        self._mag.set_reference(field, self._v_acc, self._started)
+
+    # --- the per-sample entry point -----------------------------------------------------------------
+    def push(
+        self,
+        time_s: float,
+        gyr_radps: ArrayLike,
+        acc_mps2: ArrayLike,
+        mag_uT: ArrayLike | None,
+    ) -> list[FusedEstimate]:
+        """Take one calibrated sample (body frame, SI, vehicle time); return the output ticks it completes."""
+        gx, gy, gz = gyr = (float(gyr_radps[0]), float(gyr_radps[1]), float(gyr_radps[2]))
+        if not math.isfinite(gx + gy + gz + time_s):
+            raise InputError(f"non-finite gyro sample or time at t={time_s!r}")
+        if not self._started:
+            return self._start(time_s, gyr, acc_mps2, mag_uT)
+        dt = time_s - self._t_last
+        if dt <= 0.0:
+            raise InputError(f"sample time {time_s!r} s does not advance past {self._t_last!r} s")
+        if dt > self._max_gap_s:
+            self.counters["restarts"] += 1
+            return self._start(time_s, gyr, acc_mps2, mag_uT)
+        self._ekf.integrate(dt, gx, gy, gz)
+        self._t_last = time_s
+        self._gyr_last = gyr
+        # A due update waits up to half a period for a sample that carries a magnetometer reading.
+        due = self._next_update_s
+        if time_s >= due and (mag_uT is not None or time_s >= due + 0.5 * self._update_period_s):
+            self._next_update_s = max(due + self._update_period_s, time_s)
+            self._update(acc_mps2, mag_uT, time_s)
+        if time_s < self._next_output_s:
+            return []
+        return self._outputs(time_s)
+
+    def _current_q(self) -> Quat:
+        if not self._started:
+            raise InputError("the fused filter has no attitude yet: it needs one sample with acc and mag")
+        return self._ekf.current_q()
+
+    # --- measurement updates ------------------------------------------------------------------------
+    def _update(self, acc_mps2: ArrayLike, mag_uT: ArrayLike | None, time_s: float) -> None:
+        """Propagate ``P`` to now, then the zero-rate, tilt and heading updates (module docstring)."""
+        ekf, s = self._ekf, self.settings
+        ekf.propagate()
+        raw = (float(acc_mps2[0]), float(acc_mps2[1]), float(acc_mps2[2]))
+        if not math.isfinite(raw[0] + raw[1] + raw[2]) or math.sqrt(dot(raw, raw)) < 1e-3 * s.gravity_mps2:
+            self.counters["skipped_updates"] += 1
+            return
+        self.counters["updates"] += 1
+        if s.rest_gyro_std_radps > 0.0:
+            self._rest_update(raw, time_s)
+        acc = self._inertial_lowpass(raw)
+        acc_norm = math.sqrt(dot(acc, acc))
+        r = rotation_matrix_parts(ekf.q)
+        down_body: Vec3 = (r[6], r[7], r[8])  # A(q) e_D
+        mag = None if mag_uT is None else self._mag.corrected((float(mag_uT[0]), float(mag_uT[1]), float(mag_uT[2])))
+        d = mag_norm = math.inf
+        if mag is not None:
+            d, mag_norm, dip = self._mag.check(mag, down_body, ekf.p_tt[0] + ekf.p_tt[4] + ekf.p_tt[8])
+            if math.isfinite(d):
+                self.counters["mag_relearned"] += self._mag.observe(d, mag_norm, dip, time_s)
+                self.counters["mag_offset_learned"] += self._mag.learn_offset(mag, self._mag.predicted_body(r), time_s)
+            self.counters["mag_disturbed"] += d >= 1.0
+        g = s.gravity_mps2
+        sigma_a2 = (
+            s.accel_std_mps2**2
+            + (s.accel_norm_gain * (acc_norm - g)) ** 2
+            + (s.accel_raw_norm_gain * (math.sqrt(dot(raw, raw)) - g)) ** 2
+        )
+        if mag is not None and d < 1.0:
+            sigma_a2 += (
+                s.accel_residual_gain * s.gravity_mps2 * self._vector_residual(acc, acc_norm, mag, mag_norm)
+            ) ** 2
+        # Past half a radian of direction noise the accelerometer tells nothing the gyro does not know.
+        self._tilt_update(acc, acc_norm, min(math.sqrt(sigma_a2), _MAX_UNIT_STD * acc_norm), r)
+        if mag is not None and d < 1.0:
+            sigma_m2 = s.mag_std_uT**2 * self._mag.sigma2_factor(d, time_s)
+            if self._heading_update(mag, mag_norm, min(sigma_m2, (_MAX_UNIT_STD * mag_norm) ** 2), down_body):
+                return
+        self.counters["tilt_only_updates"] += 1
+
+    def _inertial_lowpass(self, acc: Vec3) -> Vec3:
+        """Specific force low-passed in the gyro-only (quasi-inertial) frame, expressed in the body frame."""
+        if self._biquad is None:
+            return acc
+        r = rotation_matrix_parts(self._ekf.q_gyro)
+        x = (
+            r[0] * acc[0] + r[1] * acc[1] + r[2] * acc[2],
+            r[3] * acc[0] + r[4] * acc[1] + r[5] * acc[2],
+            r[6] * acc[0] + r[7] * acc[1] + r[8] * acc[2],
+        )
+        if self._acc_lp is None:
+            self._acc_lp = [[v, v, v, v] for v in x]  # x1, x2, y1, y2 at steady state
+        bq = self._biquad
+        y = []
+        for v, st in zip(x, self._acc_lp, strict=True):
+            out = bq.b0 * v + bq.b1 * st[0] + bq.b2 * st[1] - bq.a1 * st[2] - bq.a2 * st[3]
+            st[1], st[0], st[3], st[2] = st[0], v, st[2], out
+            y.append(out)
+        return rotate_ned_to_body_parts(r, y)
+
+    def _vector_residual(self, acc: Vec3, acc_norm: float, mag: Vec3, mag_norm: float) -> float:
+        """IGN residual as an angle: measured angle between the vectors minus the reference angle."""
+        cos_m = dot(acc, mag) / (acc_norm * mag_norm)
+        return abs(math.acos(max(-1.0, min(1.0, cos_m))) - self._ref_angle)
+
+    def _tilt_update(self, acc: Vec3, acc_norm: float, sigma_a: float, r: Sequence[float]) -> None:
+        """The accelerometer direction, along the two axes it measures; its gain is kept off the heading."""
+        h = rotate_ned_to_body_parts(r, self._v_acc)
+        u = (acc[0] / acc_norm, acc[1] / acc_norm, acc[2] / acc_norm)
+        e1 = _unit(cross(h, (1.0, 0.0, 0.0) if abs(h[0]) < 0.6 else (0.0, 1.0, 0.0)))
+        e2 = cross(h, e1)
+        var = (sigma_a / acc_norm) ** 2
+        for e in (e1, e2):
+            self._ekf.update(dot(e, u) - dot(e, h), cross(e, h), var, off=h)
+
+    def _heading_update(self, mag: Vec3, mag_norm: float, sigma_m2: float, down_body: Vec3) -> bool:
+        """The field's horizontal direction against the reference's: heading only. False if the field is
+        too close to vertical to give one."""
+        r = rotation_matrix_parts(self._ekf.q)
+        mn = r[0] * mag[0] + r[1] * mag[1] + r[2] * mag[2]
+        me = r[3] * mag[0] + r[4] * mag[1] + r[5] * mag[2]
+        horizontal2 = mn * mn + me * me
+        if horizontal2 < (_MIN_HORIZONTAL * mag_norm) ** 2:
+            self.counters["degenerate"] += 1
+            return False
+        n, e = self._mag.north
+        z = math.atan2(mn * e - me * n, mn * n + me * e)
+        self._ekf.update(z, down_body, sigma_m2 / horizontal2, on=down_body)
+        return True
+
+    def _rest_update(self, acc: Vec3, time_s: float) -> None:
+        """Zero-rate update of the bias once the gyro and accelerometer have been still for ``rest_min_s``."""
+        rate = self._rest.rate(self._gyr_last, acc, self._ekf.bias, time_s)
+        if rate is None:
+            return
+        var, before = self.settings.rest_gyro_std_radps**2, self._ekf.bias
+        for axis, h in enumerate(_AXES):  # z = ḡ − b with b as the previous axes' updates left it
+            self._ekf.update(rate[axis] + before[axis] - self._ekf.bias[axis], None, var, h)
+        self.counters["rest_updates"] += 1
+
+    # --- start-up and output ------------------------------------------------------------------------
+    def _start(self, time_s: float, gyr: Vec3, acc: ArrayLike, mag: ArrayLike | None) -> list[FusedEstimate]:
+        """(Re)initialise from IGN on a sample with both vectors; a restart keeps the bias and its covariance."""
+        if mag is None:
+            self._started = False
+            return []
+        r = solve(acc, mag, self.mag_ref, self._noise, acc_ref=self.acc_ref)
+        q: Quat = tuple(float(v) for v in r.q)  # type: ignore[assignment]
+        p_tt = tuple(r.covariance.ravel().tolist())
+        if self._started:
+            self._ekf.start(q, p_tt)  # type: ignore[arg-type]
+        else:
+            self._ekf.start(q, p_tt, symmetric((0.0,) * 9, self.settings.gyro_bias_init_radps**2))  # type: ignore[arg-type]
+            self._mag.start(self._mag.corrected((float(mag[0]), float(mag[1]), float(mag[2]))))
+        self._started = True
+        self._acc_lp = None
+        self._t_last = time_s
+        self._gyr_last = gyr
+        self._next_update_s = time_s + self._update_period_s
+        self._next_output_s = time_s
+        return self._outputs(time_s)
+
+    def _outputs(self, time_s: float) -> list[FusedEstimate]:
+        """Estimates for every output tick up to ``time_s``, the attitude carried back to the tick time."""
+        b, g = self._ekf.bias, self._gyr_last
+        wx, wy, wz = g[0] - b[0], g[1] - b[1], g[2] - b[2]
+        rates = np.array([wx, wy, wz])
+        q_now = self._current_q()
+        out = []
+        while self._next_output_s <= time_s:
+            back = self._next_output_s - time_s
+            carry = quat_from_rotvec_parts(wx * back, wy * back, wz * back)
+            q_tick = np.array(quat_normalize_parts(quat_multiply_parts(q_now, carry)))
+            cov = np.array(self._ekf.p_tt).reshape(3, 3)
+            out.append(FusedEstimate(self._next_output_s, q_tick, rates, cov, np.array(b), self._mag.disturbed))
+            self._next_output_s += self._output_period_s
+        return out
+
+
+def _unit(v: Vec3) -> Vec3:
+    n = math.sqrt(dot(v, v))
+    return (v[0] / n, v[1] / n, v[2] / n)
+
+
+_AXES: tuple[Vec3, Vec3, Vec3] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))

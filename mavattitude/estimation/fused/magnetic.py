@@ -1,0 +1,157 @@
+"""Magnetic checks, field learning and the hard-iron offset the filter learns while the vehicle turns.
+
+Disturbance measure — field magnitude and dip against the reference, the dip measured against the
+*predicted* vertical (so an accelerating vehicle does not look magnetically disturbed)::
+
+    d = max(| |m| − |m_ref| | / (τ_n |m_ref|),  |δ(m, q) − δ_ref| / (τ_δ + 3 √tr P_θθ))
+
+``|m_ref|`` is the magnitude as calibrated on the vehicle, learnt (a running mean) over the first
+``mag_reference_s`` of clean field from start-up. ``d ≥ 1``: disturbed, the magnetometer updates nothing.
+``d < 1``: ``σ_m'² = σ_m² (1 + (d/d₀)²) ρ``, with the recovery factor after a disturbance that lasted
+``T_c``: ``ρ = 1 + (ρ₀ − 1) min(1, T_c/T_r) max(0, 1 − t_clean/T_r)``.
+
+A field disturbed for ``mag_relearn_s`` without a break is adopted as the new reference (magnitude and
+dip: the vehicle has moved, not the magnet). The magnetometer corrects only the heading (the filter's
+heading update), so an adopted field — right or wrong — never moves roll and pitch.
+
+Hard-iron offset — a magnet fixed to the body adds a constant ``o`` in the body frame: ``m = A(q) B + o``.
+While the field is disturbed the heading coasts on the gyro, and the residual ``e = m − o − A(q) B``
+(``B``: the reference direction with the learnt magnitude and dip) is gathered over ``mag_offset_window_s``.
+If over that window the body turned (the predicted field direction moved: ``1 − |mean(A(q) B̂)| ≥
+mag_offset_turn_fraction``, which separates a body-fixed offset from an earth-fixed disturbance) and the
+residual stayed constant (RMS about its mean below ``τ_n |m_ref|``), its mean is added to ``o``; the
+corrected field ``m − o`` then passes the checks and the magnetometer corrects the heading again. A
+window that fails either test starts again.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+from .mat3 import Vec3, dot
+from .settings import FusedSettings
+
+
+class MagneticChecks:
+    """Reference, disturbance state, recovery and the learnt hard-iron offset (``offset_uT``)."""
+
+    def __init__(self, settings: FusedSettings, period_s: float) -> None:
+        self.s = settings
+        self._period_s = period_s
+        self.norm_ref = 1.0
+        self.dip_ref = 0.0
+        self.north: tuple[float, float] = (1.0, 0.0)  # horizontal direction of the reference, NED
+        self._field_n = 0.0
+        self.disturbed = False
+        self._disturbed_since_s = -math.inf
+        self._clean_since_s = -math.inf
+        self._coast_s = 0.0
+        self.offset_uT: Vec3 = (0.0, 0.0, 0.0)
+        self._window = [0.0] * 9  # n, Σe (3), Σ|e|², Σĥ (3), disturbed samples: one window from a disturbance on
+        self._window_start_s = math.inf
+
+    def set_reference(self, field_ned_uT: Vec3, acc_ref_unit: Vec3, started: bool) -> None:
+        """A new reference direction (magnitude too before the start: it is learnt from the data after)."""
+        norm = math.sqrt(dot(field_ned_uT, field_ned_uT))
+        self.dip_ref = math.asin(max(-1.0, min(1.0, -dot(field_ned_uT, acc_ref_unit) / norm)))
+        horizontal = math.hypot(field_ned_uT[0], field_ned_uT[1])
+        if horizontal > 0.0:
+            self.north = (field_ned_uT[0] / horizontal, field_ned_uT[1] / horizontal)
+        if not started:
+            self.norm_ref = norm
+
+    def start(self, mag: Vec3) -> None:
+        self.norm_ref = math.sqrt(dot(mag, mag))
+        self._field_n = 1.0
+
+    def corrected(self, mag: Vec3) -> Vec3:
+        o = self.offset_uT
+        return (mag[0] - o[0], mag[1] - o[1], mag[2] - o[2])
+
+    def check(self, mag: Vec3, down_body: Vec3, p_trace: float) -> tuple[float, float, float]:
+        """``(d, |m|, dip)``: ``d`` of the module docstring (≥ 1 disturbed); ``down_body``: the predicted
+        vertical (NED down in the body frame), ``p_trace``: ``tr P_θθ``."""
+        s = self.s
+        norm = math.sqrt(dot(mag, mag))
+        if not math.isfinite(norm) or norm == 0.0:
+            return math.inf, norm, 0.0
+        dip = math.asin(max(-1.0, min(1.0, dot(down_body, mag) / norm)))
+        d_norm = abs(norm - self.norm_ref) / (s.mag_norm_tolerance_fraction * self.norm_ref)
+        if s.mag_dip_tolerance_deg == 0.0:
+            return d_norm, norm, dip
+        # The predicted vertical is itself uncertain: widen the dip tolerance by 3σ of the attitude error.
+        tolerance = math.radians(s.mag_dip_tolerance_deg) + 3.0 * math.sqrt(p_trace)
+        return max(d_norm, abs(dip - self.dip_ref) / tolerance), norm, dip
+
+    def observe(self, d: float, norm: float, dip: float, time_s: float) -> bool:
+        """Track the disturbance and learn the field; True when a disturbed field was adopted."""
+        disturbed = d >= 1.0
+        if disturbed and not self.disturbed:
+            self._disturbed_since_s = time_s
+        elif self.disturbed and not disturbed:
+            self._clean_since_s = time_s
+            self._coast_s = time_s - self._disturbed_since_s
+        self.disturbed = disturbed
+        relearned = disturbed and time_s - self._disturbed_since_s >= self.s.mag_relearn_s
+        if relearned:
+            self._disturbed_since_s, self._field_n, self.dip_ref = time_s, 0.0, dip
+        if (disturbed and not relearned) or self._field_n * self._period_s >= self.s.mag_reference_s:
+            return relearned
+        self._field_n += 1.0
+        self.norm_ref += (norm - self.norm_ref) / self._field_n
+        return relearned
+
+    def sigma2_factor(self, d: float, time_s: float) -> float:
+        """``(1 + (d/d₀)²) ρ``: the σ_m² multiplier below the disturbance threshold."""
+        s = self.s
+        factor = 1.0 + (d / s.mag_soft_fraction) ** 2
+        elapsed = time_s - self._clean_since_s
+        if s.mag_recovery_s == 0.0 or not elapsed < s.mag_recovery_s:
+            return factor
+        depth = min(1.0, self._coast_s / s.mag_recovery_s)
+        return factor * (1.0 + (s.mag_recovery_factor - 1.0) * depth * (1.0 - elapsed / s.mag_recovery_s))
+
+    def predicted_body(self, r: Sequence[float]) -> Vec3:
+        """``A(q) B``: the reference direction with the learnt magnitude and dip, in the body frame (``r``: R(q))."""
+        c, sd = self.norm_ref * math.cos(self.dip_ref), self.norm_ref * math.sin(self.dip_ref)
+        b = (c * self.north[0], c * self.north[1], sd)
+        return (
+            r[0] * b[0] + r[3] * b[1] + r[6] * b[2],
+            r[1] * b[0] + r[4] * b[1] + r[7] * b[2],
+            r[2] * b[0] + r[5] * b[1] + r[8] * b[2],
+        )
+
+    def learn_offset(self, mag: Vec3, predicted: Vec3, time_s: float) -> bool:
+        """Gather ``e = m − o − A(q) B`` over windows; True when a window's mean was added to ``o``."""
+        s = self.s
+        if s.mag_offset_window_s == 0.0:
+            return False
+        if time_s < self._window_start_s:
+            if not self.disturbed:
+                return False
+            self._window, self._window_start_s = [0.0] * 9, time_s
+        w, norm = self._window, self.norm_ref
+        e = (mag[0] - predicted[0], mag[1] - predicted[1], mag[2] - predicted[2])
+        w[0] += 1.0
+        w[8] += self.disturbed
+        for i in range(3):
+            w[1 + i] += e[i]
+            w[5 + i] += predicted[i] / norm
+        w[4] += dot(e, e)
+        if time_s - self._window_start_s < s.mag_offset_window_s:
+            return False
+        self._window_start_s = math.inf
+        n = w[0]
+        mean = (w[1] / n, w[2] / n, w[3] / n)
+        spread2 = w[4] / n - dot(mean, mean)
+        turned = 1.0 - math.sqrt(w[5] ** 2 + w[6] ** 2 + w[7] ** 2) / n
+        if (
+            w[8] < 0.5 * n
+            or turned < s.mag_offset_turn_fraction
+            or spread2 > (s.mag_norm_tolerance_fraction * norm) ** 2
+        ):
+            return False
+        o = self.offset_uT
+        self.offset_uT = (o[0] + mean[0], o[1] + mean[1], o[2] + mean[2])
+        return True

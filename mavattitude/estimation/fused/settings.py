@@ -1,0 +1,80 @@
+"""The gyro-aided filter's settings: one frozen dataclass, each field with its range and description.
+
+The same fields are the ``estimator.fused`` section of the YAML config (:mod:`mavattitude.config` reads
+the range and description from each field's metadata, so a key is checked once, by the same rule, in the
+file and here). Units are in the names; the dimensionless ones end in ``_fraction``, ``_gain`` or
+``_factor``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from mavattitude.errors import InputError
+
+
+def _setting(default: float, doc: str, lo: float = 0.0, hi: float = 1e6, *, lo_open: bool = False) -> Any:
+    """A field whose value must be finite and in ``[lo, hi]`` (``(lo, hi]`` with ``lo_open``)."""
+    return dataclasses.field(default=default, metadata={"doc": doc, "range": (lo, hi, lo_open)})
+
+
+@dataclass(frozen=True)
+class FusedSettings:
+    """Tuning of the gyro-aided filter (one configuration for every vehicle unless a config says otherwise).
+
+    The σ values are *effective* noise: they include model error (sensor calibration residue,
+    non-gravitational acceleration, local field) as well as sensor noise, which is why they are far above
+    a data sheet's figures. ``docs/fused.md`` has the equations and what each value was tuned on.
+    """
+
+    gyro_noise_radps: float = _setting(0.003, "σ_g: gyro angle random walk, rad/s/√Hz (effective)")
+    gyro_scale_fraction: float = _setting(0.005, "s_g: gyro scale-factor error, per rad turned", hi=0.5)
+    gyro_bias_walk_radps2: float = _setting(3e-5, "σ_b: gyro bias random walk, rad/s/√s")
+    gyro_bias_init_radps: float = _setting(0.02, "σ_b0: start-up gyro bias uncertainty, rad/s")
+    accel_std_mps2: float = _setting(0.2, "σ_a: pre-filtered specific force σ per axis, m/s²", lo_open=True)
+    accel_lowpass_s: float = _setting(0.7, "τ_a: quasi-inertial accelerometer pre-filter, s (0: off)", hi=60.0)
+    accel_norm_gain: float = _setting(8.0, "k_n: σ_a added per m/s² of | |a| − g |")
+    accel_raw_norm_gain: float = _setting(0.0, "k_a: σ_a added per m/s² of | |a| − g | of the raw sample")
+    accel_residual_gain: float = _setting(0.0, "k_r: σ_a added per g·rad of the IGN residual angle")
+    mag_std_uT: float = _setting(3.5, "σ_m: magnetometer σ per axis, µT", lo_open=True)
+    mag_norm_tolerance_fraction: float = _setting(
+        0.1, "τ_n: |B| off its reference by this fraction is a disturbance", hi=10.0, lo_open=True
+    )
+    mag_dip_tolerance_deg: float = _setting(
+        10.0, "τ_δ: dip off its reference by this much is a disturbance, deg", hi=90.0
+    )
+    mag_reference_s: float = _setting(
+        20.0, "τ_ref: |B| is learnt over this much clean field from the start, s", lo_open=True
+    )
+    mag_relearn_s: float = _setting(
+        60.0, "T_new: a field disturbed this long with the tilt agreeing is adopted (heading only), s", lo_open=True
+    )
+    mag_soft_fraction: float = _setting(0.5, "d₀: σ_m inflation scale below the disturbance threshold", lo_open=True)
+    mag_recovery_factor: float = _setting(10.0, "ρ₀: σ_m² multiplier just after a long disturbance", lo=1.0)
+    mag_recovery_s: float = _setting(3.0, "T_r: the recovery ramp's length, s", hi=3600.0)
+    mag_offset_window_s: float = _setting(
+        3.0,
+        "a disturbance this long, turning, with a constant body-frame residual: learnt as hard iron, s (0: off)",
+        hi=3600.0,
+    )
+    mag_offset_turn_fraction: float = _setting(
+        0.05, "the turn the offset needs: 1 − |mean predicted field direction| over the window", hi=1.0
+    )
+    rest_gyro_threshold_radps: float = _setting(math.radians(2.0), "rest: gyro deviation and rate below this, rad/s")
+    rest_accel_threshold_mps2: float = _setting(0.5, "rest: accelerometer deviation below this, m/s²")
+    rest_min_s: float = _setting(1.5, "rest: still for this long before the zero-rate update, s", hi=3600.0)
+    rest_filter_s: float = _setting(0.5, "τ_r: the rest detector's low-pass time constant, s", hi=60.0, lo_open=True)
+    rest_gyro_std_radps: float = _setting(0.002, "σ_r: the zero-rate update's σ, rad/s (0: off)")
+    gravity_mps2: float = _setting(9.80665, "g, m/s²", lo=1.0, hi=100.0)
+    update_rate_hz: float = _setting(50.0, "measurement updates per second, Hz", hi=1000.0, lo_open=True)
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            lo, hi, lo_open = f.metadata["range"]
+            if not (math.isfinite(value) and (value > lo if lo_open else value >= lo) and value <= hi):
+                bounds = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]"
+                raise InputError(f"FusedSettings.{f.name} must be finite and in {bounds}, got {value!r}")
