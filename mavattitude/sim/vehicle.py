@@ -336,11 +336,15 @@ class FakeVehicle:
         sensors = self.sensors.at_rate(stream.rate_hz)
         t = sensors.sample_times(stream.next_t_s, now_s, self._rng)
         stream.next_t_s = max(stream.next_t_s, np.ceil(now_s * stream.rate_hz) / stream.rate_hz)
+        # One epoch for the batch, and only its samples: a reboot (another thread) may have come after this
+        # loop took its time, and jitter may put a sample just before the boot. Samples due before the boot
+        # are lost with it; stamped in the new epoch they would go out with a negative time.
+        epoch = self._epoch
+        t = t[t >= epoch.boot_script_s]
         if not len(t):
             return
         acc, gyr, mag = sensors.measure(self.script, t, self._rng)
         name = mavlink2.mavlink_map[msg_id].msgname
-        epoch = self._epoch
         rows = [ImuRow(t[i], epoch.vehicle_time(t[i]), _vec(acc[i]), _vec(gyr[i]), _vec(mag[i])) for i in range(len(t))]
         for row in self._apply_fault(rows):
             msg = self.encode(ImuSample(row.vehicle_s, row.acc_mps2, row.gyr_radps, row.mag_uT), name)

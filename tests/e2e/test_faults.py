@@ -39,6 +39,7 @@ RATE_HZ = 200.0
 INPUT_TIMEOUT_S = 0.3
 # Paper noise, static: the error is ≈ 0.3° RMS; 2° is far outside it and far inside any real failure.
 HEALTHY_DEG = 2.0
+UPTIME_BEFORE_REBOOT_S = 30.0
 
 
 @pytest.fixture(scope="module")
@@ -208,6 +209,14 @@ def test_time_jumping_forward_restarts_the_filter(link: Flight) -> None:
 
 def test_vehicle_reboot(link: Flight) -> None:
     v, svc = link
+    # A reboot is the clock going back by more than the service's reorder window (FrontEndSettings:
+    # 1 s; less is reordered datagrams, dropped) once the stream resumes, which the service re-requests
+    # within request_repeat_s (1 s). So first the vehicle has been up for far longer than both, whatever
+    # ran before this case (alone, it would reboot under a second after its start): a jump forward.
+    gaps = counter(svc, "gap_resets")
+    v.jump_clock(UPTIME_BEFORE_REBOOT_S)
+    wait_counter(svc, "gap_resets", gaps + 1)
+    assert_healthy(v, HEALTHY_DEG)
     before = counter(svc, "reboots")
     requests = counter(svc, "interval_requests")
     v.reboot()  # boot time restarts at 0 and the IMU stream is off again, as on a real autopilot

@@ -105,3 +105,27 @@ def test_clock_faults_are_checked(vehicle: FakeVehicle) -> None:
     now = vehicle.script_time()
     assert vehicle.vehicle_time(now + 1.0) == pytest.approx(1.0, abs=0.01)  # boot time restarts, offset gone
     assert vehicle.stream_rate("RAW_IMU") is None  # back to silent, like a freshly booted ArduPilot
+
+
+def test_a_batch_the_send_loop_took_before_a_reboot_sends_no_time_from_before_the_boot() -> None:
+    # The send loop takes the time and the stream, then a reboot lands before it encodes the batch: the
+    # samples due from before the boot must not be stamped with the new epoch (negative time: the send
+    # thread died packing HIGHRES_IMU's unsigned time_usec). At 10⁵x, script time runs 1 s per 10 µs.
+    config = VehicleConfig("udpin:127.0.0.1:0", message="HIGHRES_IMU", profile="px4", stream_on_start=True, speed=1e5)
+    v = FakeVehicle(scenarios.paper_static(600.0), scenarios.consumer_sensors(200.0), config)  # not started
+    try:
+        msg_id = mavlink2.MAVLINK_MSG_ID_HIGHRES_IMU
+        stream = v._streams[msg_id]
+        start_s = stream.next_t_s
+        v.reboot()
+        boot_s = v.script_time()
+        sent: list[object] = []
+        v.send = sent.append  # type: ignore[method-assign]
+        v._send_imu_until(msg_id, stream, boot_s + 1.0)
+        assert boot_s - start_s > 0.05  # samples (200 Hz) were due from before the boot
+        times_s = [m.time_usec * 1e-6 for m in sent]  # type: ignore[attr-defined]
+        assert times_s and min(times_s) >= 0.0
+        for m in sent:
+            m.pack(v.conn.mav)  # type: ignore[attr-defined]
+    finally:
+        v.stop()
