@@ -13,8 +13,12 @@ service is the dispatcher's listener. What it does on the link:
 - sends its own HEARTBEAT at 1 Hz as the vehicle's system id (an onboard controller, component
   ``link.component_id``). Until it has locked on in automatic mode it has no id to use and sends as
   system 1 (never 255), so that a ``udpout`` peer learns where we are and starts talking;
-- asks for the input with MAV_CMD_SET_MESSAGE_INTERVAL on locking and every ``request_repeat_s``
-  (unless ``request_messages`` is off) and logs the COMMAND_ACK result whenever it changes;
+- asks for the input (and the position, with ``reference.magnetic: auto``) with
+  MAV_CMD_SET_MESSAGE_INTERVAL on locking, every ``request_repeat_s``, and as soon as the link (re)opens
+  (unless ``request_messages`` is off); each COMMAND_ACK is matched to the request it answers
+  (:mod:`mavattitude.link.requests`), and each stream's answer (or its absence) is said once;
+- measures the input rate it receives, and says once (log + STATUSTEXT) when it stays below the requested
+  rate (a slow serial link, a busy autopilot), with the measured rate and what to do, and when it recovers;
 - emits ATTITUDE_QUATERNION per pipeline output, stamped with the vehicle time of the sample;
 - input silent for longer than ``input_timeout_s``: says so once (log + STATUSTEXT); the output
   stops by itself, since outputs only come from input, and resumes with the next good sample;
@@ -33,6 +37,7 @@ from __future__ import annotations
 
 import enum
 import logging
+import math
 import threading
 import time
 from collections import Counter
@@ -47,6 +52,7 @@ from mavattitude.config import Config
 from mavattitude.dispatch import DISPATCH_REJECTS, DispatchCounters, Dispatcher
 from mavattitude.estimation.compass import CompassEvent, CompassFigures
 from mavattitude.link import MavlinkLink, load_signing_key, message_id
+from mavattitude.link.requests import LOW_FRACTION, PendingRequests, RateMonitor, StreamRequest
 from mavattitude.link.source import AutopilotAttitude, MavlinkDecoder, MavlinkSource, MessageSource, Sender
 from mavattitude.pipeline import AttitudeOutput, AttitudePipeline
 from mavattitude.sensors import units
@@ -59,6 +65,8 @@ HEARTBEAT_PERIOD_S = 1.0
 TICK_S = 0.05  # periodic work runs at least this often; also the longest wait on the link
 UNLOCKED_SYSTEM_ID = 1  # our system id before locking onto an autopilot in automatic mode
 ACK_TIMEOUT_S = 2.0
+ACK_FORGET_S = 10.0  # an unanswered request still matches a late ACK for this long
+RATE_WINDOW_S = 5.0  # the input rate is measured over windows this long
 DEGENERATE = "DegenerateGeometryError"  # the pipeline's reject reason for collinear acc and mag
 POSITION_MESSAGE = "GLOBAL_POSITION_INT"
 POSITION_RATE_HZ = 1.0
@@ -97,8 +105,11 @@ class ServiceCounters(DispatchCounters):
     rejected: dict[str, int] = field(default_factory=lambda: dict.fromkeys(DISPATCH_REJECTS, 0))
     input_lost: int = 0  # times the input went silent for longer than input_timeout_s
     interval_requests: int = 0
-    acks: dict[str, int] = field(default_factory=dict)  # SET_MESSAGE_INTERVAL results by name
+    acks: dict[str, int] = field(default_factory=dict)  # SET_MESSAGE_INTERVAL results by name (of our requests)
     ack_timeouts: int = 0
+    acks_unmatched: int = 0  # ACKs of SET_MESSAGE_INTERVAL addressed to us with no request of ours waiting
+    input_rate_hz: float = float("nan")  # received, over the last RATE_WINDOW_S
+    rate_warnings: int = 0  # times the input stayed below the requested rate
     mean_iterations: float = float("nan")
     latency_p50_ms: float = float("nan")  # input read from the socket -> ATTITUDE_QUATERNION handed to the OS
     latency_p99_ms: float = float("nan")
@@ -172,16 +183,16 @@ class AttitudeService:
         self.notifier = notifier if notifier is not None else default_notifier()
         self.counters = ServiceCounters()
         self._input_name = config.input.message
-        self._input_id = message_id(config.input.message)
-        self._wants_position = config.reference.magnetic.mode == "auto"
-        self._position_id = message_id(POSITION_MESSAGE)
         self._limiter = _RateLimiter(config.output.statustext_interval_s, time.monotonic)
         self._latencies_s: list[float] = []
         self._last_input: float | None = None
         self._input_lost = False
         self._attitude_sent = False
-        self._last_ack: str | None = None
-        self._ack_due: float | None = None
+        self._streams = self._stream_requests(config)
+        self._pending = PendingRequests(ACK_TIMEOUT_S, ACK_FORGET_S)
+        self._answers_said: set[tuple[str, str]] = set()  # (stream, result) logged once each
+        self._rate = RateMonitor(config.link.request_rate_hz, RATE_WINDOW_S) if config.link.request_messages else None
+        self._reconnects_seen = 0
         now = time.monotonic()
         self._next_tick = now
         self._next_heartbeat = now
@@ -231,14 +242,17 @@ class AttitudeService:
         if now >= self._next_heartbeat:
             self._next_heartbeat = now + HEARTBEAT_PERIOD_S
             self.link.send_heartbeat()
+        if self.link.counters.reconnects != self._reconnects_seen:
+            self._reconnects_seen = self.link.counters.reconnects
+            if self.vehicle is not None and self._streams:
+                self._next_request = now  # a new connection: the autopilot may have lost our requests
         if now >= self._next_request:
-            self._request_input(now)
-        if self._ack_due is not None and now >= self._ack_due:
-            self._ack_due = None
+            self._request_streams(now)
+        for request in self._pending.timed_out(now):
             self.counters.ack_timeouts += 1
-            if self._last_ack != "TIMEOUT":  # said when the answer changes, like the ACK results
-                log.warning("no COMMAND_ACK for SET_MESSAGE_INTERVAL within %.0f s", ACK_TIMEOUT_S)
-            self._last_ack = "TIMEOUT"
+            self._say_answer(request, "TIMEOUT")
+        if self._rate is not None:
+            self._check_rate(self._rate, now)
         if not self._input_lost and self._last_input is not None:
             silent_s = now - self._last_input
             if silent_s > self.config.input.input_timeout_s:
@@ -308,19 +322,27 @@ class AttitudeService:
         self.link.set_source_system(vehicle[0])
         log.info("locked onto the autopilot: system %d, component %d", *vehicle)
         self._statustext("start", f"mavattitude {__version__}: attitude from {self._input_name}", "info")
-        if self.config.link.request_messages:
+        if self._streams:
             self._next_request = time.monotonic()
         self._next_heartbeat = time.monotonic()  # announce ourselves under the vehicle's id at once
 
-    def _request_input(self, now: float) -> None:
+    @staticmethod
+    def _stream_requests(config: Config) -> list[StreamRequest]:
+        """What to ask the autopilot to stream: the input, and the position for the WMM (when asked to ask)."""
+        if not config.link.request_messages:
+            return []
+        streams = [StreamRequest(config.input.message, message_id(config.input.message), config.link.request_rate_hz)]
+        if config.reference.magnetic.mode == "auto":
+            streams.append(StreamRequest(POSITION_MESSAGE, message_id(POSITION_MESSAGE), POSITION_RATE_HZ))
+        return streams
+
+    def _request_streams(self, now: float) -> None:
         assert self.vehicle is not None
         self._next_request = now + self.config.link.request_repeat_s
-        if self.link.request_message_interval(self.vehicle, self._input_id, self.config.link.request_rate_hz):
-            self.counters.interval_requests += 1
-            if self._ack_due is None:
-                self._ack_due = now + ACK_TIMEOUT_S
-        if self._wants_position:
-            self.link.request_message_interval(self.vehicle, self._position_id, POSITION_RATE_HZ)
+        for stream in self._streams:
+            if self.link.request_message_interval(self.vehicle, stream.message_id, stream.rate_hz):
+                self.counters.interval_requests += 1
+                self._pending.sent(stream, now)
 
     def on_message(self, msg: Any, t_rx: float) -> None:
         if msg.get_type() == "COMMAND_ACK":
@@ -331,29 +353,58 @@ class AttitudeService:
 
     def _on_ack(self, msg: Any) -> None:
         result = self.link.interval_ack_result(msg)
-        if result is None:
+        if result is None or not self.link.addressed_to_us(msg):
             return
-        self._ack_due = None
+        request = self._pending.answered(time.monotonic())
+        if request is None:
+            self.counters.acks_unmatched += 1
+            return
         self.counters.acks[result] = self.counters.acks.get(result, 0) + 1
-        if result == self._last_ack:
+        self._say_answer(request, result)
+
+    def _say_answer(self, request: StreamRequest, result: str) -> None:
+        """Log the autopilot's answer to a stream request, once per stream and answer (no flip-flop)."""
+        if (request.name, result) in self._answers_said:
             return
-        self._last_ack = result
-        rate = self.config.link.request_rate_hz
+        self._answers_said.add((request.name, result))
         if result == "ACCEPTED":
-            log.info("autopilot accepted %s at %g Hz", self._input_name, rate)
+            log.info("autopilot accepted %s", request.describe())
+        elif result == "TIMEOUT":
+            log.warning("no COMMAND_ACK for SET_MESSAGE_INTERVAL(%s) within %.0f s", request.describe(), ACK_TIMEOUT_S)
         else:
             log.warning(
-                "autopilot answered SET_MESSAGE_INTERVAL(%s, %g Hz) with %s; if it streams the message by "
-                "itself, set link.request_messages: false",
-                self._input_name,
-                rate,
+                "autopilot answered SET_MESSAGE_INTERVAL(%s) with %s; if it streams the message by itself, "
+                "set link.request_messages: false",
+                request.describe(),
                 result,
             )
+
+    def _check_rate(self, rate: RateMonitor, now: float) -> None:
+        turned = rate.update(now)
+        self.counters.input_rate_hz = rate.rate_hz
+        if turned is None:
+            return
+        if turned:
+            self.counters.rate_warnings += 1
+            log.warning(
+                "%s arrives at %.0f Hz, below the %g Hz asked for (a slow link or a busy autopilot): lower "
+                "link.request_rate_hz to about %.0f Hz, or use a faster link",
+                self._input_name,
+                rate.rate_hz,
+                rate.requested_hz,
+                math.floor(LOW_FRACTION * rate.rate_hz),
+            )
+            text = f"mavattitude: {self._input_name} {rate.rate_hz:.0f} Hz < {rate.requested_hz:g} asked"
+            self._statustext("input_rate", text, "warning", log_it=False)
+        else:
+            log.info("%s arrives at %.0f Hz again", self._input_name, rate.rate_hz)
 
     # -- input and output -----------------------------------------------------------------------------
 
     def on_input(self, sample: ImuSample, t_rx: float) -> None:
         self._last_input = t_rx
+        if self._rate is not None:
+            self._rate.count(t_rx)
         if self._input_lost:
             self._input_lost = False
             log.info("input %s is back", self._input_name)
@@ -398,7 +449,9 @@ class AttitudeService:
         text = f"mavattitude: no {self._input_name} for {silent_s:.1f} s, output stopped"
         log.warning("%s", text)
         self._statustext("input_lost", text, "warning", log_it=False)
-        if self.config.link.request_messages and self.vehicle is not None:
+        if self._rate is not None:
+            self._rate.restart()
+        if self._streams and self.vehicle is not None:
             self._next_request = time.monotonic()  # a rebooted autopilot has forgotten our request: ask now
 
     def _reject(self, reason: str, exc: BaseException, counted: bool = False) -> None:
@@ -482,6 +535,9 @@ def counters_line(
         ("interval_requests", c.interval_requests),
         *((f"acks.{k.lower()}", v) for k, v in sorted(c.acks.items())),
         ("ack_timeouts", c.ack_timeouts),
+        ("acks_unmatched", c.acks_unmatched),
+        ("input_rate_hz", c.input_rate_hz),
+        ("rate_warnings", c.rate_warnings),
         ("bad_data", link_counters.bad_data),
         ("signature_rejected", link_counters.signature_rejected),
         ("sent", link_counters.sent),

@@ -166,8 +166,10 @@ class _Udp(mavutil.mavudp):
 
     on_truncated: Any = None  # called once per dropped incomplete frame
 
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, timeout=UDP_PEER_TIMEOUT_S, **kwargs)
+    def __init__(self, address: str, *, input: bool, **kwargs: Any) -> None:
+        if input:
+            _check_port_free(address)
+        super().__init__(address, input=input, timeout=UDP_PEER_TIMEOUT_S, **kwargs)
         # room for a burst while the loop is busy (the kernel caps this at net.core.rmem_max)
         self.port.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, UDP_RECEIVE_BUFFER_BYTES)
         self._sender: tuple[str, int] | None = None
@@ -198,6 +200,21 @@ class _Udp(mavutil.mavudp):
         # no mavutil.post_message: its per-system bookkeeping (two message copies per instance-keyed
         # message such as RAW_IMU) is a third of the receive cost and nothing here reads it
         return msg
+
+
+def _check_port_free(address: str) -> None:
+    """Raise ``EADDRINUSE`` when another socket already holds this UDP address.
+
+    pymavlink binds ``udpin`` with SO_REUSEADDR, which on Linux lets a second socket bind the same port
+    when both set it: a second instance (a CLI run beside the systemd service) would bind silently and
+    the two would share the datagrams, the first going deaf. A probe bound *without* the option fails
+    while any other socket holds the address, and is closed before pymavlink binds.
+    """
+    host, _, port = address.rpartition(":")
+    if int(port) == 0:
+        return  # an ephemeral port is free by definition
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind((host, int(port)))
 
 
 class _StampedWriter:
@@ -270,7 +287,9 @@ class MavlinkLink:
             self._open()
         except OSError as exc:
             if self.endpoint.kind != "tcp":
-                raise LinkError(f"cannot open {connect}: {exc.strerror or exc}") from exc
+                in_use = " (another program holds it: a second mavattitude, the systemd service, a router?)"
+                hint = in_use if exc.errno == errno.EADDRINUSE else ""
+                raise LinkError(f"cannot open {connect}: {exc.strerror or exc}{hint}") from exc
             log.info("waiting for the autopilot at %s (%s); retrying with back-off", connect, exc)
             self._schedule_retry()
 
@@ -453,6 +472,13 @@ class MavlinkLink:
             return None
         entry = mavlink2.enums["MAV_RESULT"].get(msg.result)
         return entry.name.removeprefix("MAV_RESULT_") if entry is not None else str(msg.result)
+
+    def addressed_to_us(self, msg: Message) -> bool:
+        """A message with MAVLink 2's ``target_system``/``target_component`` (COMMAND_ACK's extension fields)
+        meant for us: each 0 (unset, or a MAVLink 1 sender) or our own id. A ground station's ACK, which a
+        router forwards to every peer, is not."""
+        system, component = getattr(msg, "target_system", 0), getattr(msg, "target_component", 0)
+        return system in (0, self._source[0]) and component in (0, self._source[1])
 
     # -- sending --------------------------------------------------------------------------------------
 

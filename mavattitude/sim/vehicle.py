@@ -8,7 +8,7 @@ It behaves like an autopilot on a companion-computer link:
 - honours MAV_CMD_SET_MESSAGE_INTERVAL (interval µs; −1 stops, 0 restores the default) and answers every
   COMMAND_LONG with COMMAND_ACK. Like ArduPilot Copter it starts with the IMU stream off until asked
   (``stream_on_start`` turns it on), and like ArduPilot it denies the command when param3 is not 0
-  (``deny_nonzero_param3``);
+  (``deny_nonzero_param3``); a slow link caps its IMU streams (``link_max_imu_hz``);
 - on ``udpin:`` it serves every peer that has sent it a datagram (pymavlink's multi-client UDP server,
   as ArduPilot and MAVProxy do), so a ground station and the service can share it;
 - records every ATTITUDE_QUATERNION, STATUSTEXT and COMMAND_LONG it receives, and scores the attitude
@@ -74,6 +74,9 @@ class VehicleConfig:
     # ArduPilot's HIGHRES_IMU magnetometer is 10⁶ too large (a known bug): reproduce it when asked.
     highres_mag_bug: bool = False
     seed: int = 0
+    # A slow link (ArduPilot SITL at 57600 baud carries ~139 RAW_IMU a second): IMU streams are sent at most
+    # this fast, whatever rate was asked for (the request is still ACCEPTED, as ArduPilot does). None: no limit.
+    link_max_imu_hz: float | None = None
     signing_key: bytes | None = None  # sign outgoing packets with this key
     home_lat_deg: float = 47.3977
     home_lon_deg: float = 8.5456
@@ -479,8 +482,11 @@ class FakeVehicle:
         if rate_hz is None:
             self._streams.pop(msg_id, None)
             return
-        if msg_id != _MSG_GLOBAL_POSITION_INT and self._script_t0_mono is None:
-            self._take_off()
+        if msg_id != _MSG_GLOBAL_POSITION_INT:
+            if self._script_t0_mono is None:
+                self._take_off()
+            if self.config.link_max_imu_hz is not None:
+                rate_hz = min(rate_hz, self.config.link_max_imu_hz)
         stream = self._streams.get(msg_id)
         if stream is None:
             self._streams[msg_id] = _Stream(rate_hz, self.script_time())

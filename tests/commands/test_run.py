@@ -28,3 +28,15 @@ def test_an_explicit_flag_beats_the_config(warning_config: Path, flag: str) -> N
     # INFO is also the default when nothing says otherwise: given explicitly, it must still win.
     assert main(["--log-level", flag, "run", "--config", str(warning_config)]) == EXIT_USER_ERROR
     assert logging.getLogger().level == getattr(logging, flag)
+
+
+def test_a_udp_port_another_instance_holds_is_a_one_line_error(capsys) -> None:
+    from mavattitude.link import MavlinkLink
+
+    with MavlinkLink("udpin:127.0.0.1:0", source_system=1) as first:  # e.g. the systemd instance
+        port = first.local_address[1]
+        assert main(["run", "--connect", f"udpin:127.0.0.1:{port}"]) == EXIT_USER_ERROR
+    err = capsys.readouterr().err
+    errors = [line for line in err.splitlines() if "error" in line]
+    assert len(errors) == 1 and f"cannot open udpin:127.0.0.1:{port}: Address already in use" in errors[0]
+    assert "Traceback" not in err

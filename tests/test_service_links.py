@@ -1,0 +1,122 @@
+"""The service's link behaviour: ACKs matched to their requests, streams asked for again when the link
+reopens, and a slow link's input rate said once."""
+
+from __future__ import annotations
+
+import logging
+import time
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from mavattitude import service as service_module
+from mavattitude.config import from_dict
+from mavattitude.link.memory import MemoryLink
+from mavattitude.pipeline import AttitudePipeline
+from mavattitude.service import AttitudeService
+from mavattitude.sim import scenarios
+from mavattitude.sim.daemon import config_for
+from mavattitude.sim.vehicle import FakeVehicle, VehicleConfig
+from mavattitude.systemd_notify import SystemdNotifier
+from tests.test_dispatch import Peer, sent
+from tests.test_service import Running, make_config
+
+STEP_S = 0.06  # longer than the service's TICK_S: every step runs its periodic work
+EVENT_TIMEOUT_S = 10.0
+
+
+def _service(**overrides: object) -> tuple[AttitudeService, MemoryLink]:
+    config = make_config(**{"link.request_repeat_s": 60.0, **overrides})  # no repeats within a test
+    link = MemoryLink()
+    return AttitudeService(config, link, AttitudePipeline(config), SystemdNotifier(environ={})), link
+
+
+def _step_until(service: AttitudeService, done, timeout_s: float = EVENT_TIMEOUT_S) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not done():
+        assert time.monotonic() < deadline, "condition not met in time"
+        service.step(STEP_S)
+
+
+def _ack(peer: Peer, target: tuple[int, int] = (1, 191)) -> bytes:
+    return peer.pack(
+        mavlink2.MAVLink_command_ack_message(
+            mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink2.MAV_RESULT_ACCEPTED, 0, 0, *target
+        )
+    )
+
+
+def test_each_ack_is_matched_to_the_request_it_answers(caplog):
+    caplog.set_level(logging.INFO, logger="mavattitude.service")
+    service, link = _service(**{"reference.magnetic": "auto"})  # asks for RAW_IMU and GLOBAL_POSITION_INT
+    vehicle = Peer()
+    link.deliver(vehicle.heartbeat())
+    _step_until(service, lambda: len(sent(link, "COMMAND_LONG")) == 2)
+    imu, position = sent(link, "COMMAND_LONG")
+    assert (imu.param1, position.param1) == (
+        mavlink2.MAVLINK_MSG_ID_RAW_IMU,
+        mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+    )
+    # A ground station's ACK (forwarded by a router) is not ours; the two for us answer our two requests;
+    # a fourth has no request of ours waiting.
+    link.deliver(_ack(vehicle, (255, 190)), _ack(vehicle), _ack(vehicle), _ack(vehicle))
+    service.step(0.0)
+    c = service.counters
+    assert c.interval_requests == 2 and c.acks == {"ACCEPTED": 2} and c.acks_unmatched == 1
+    said = [r.getMessage() for r in caplog.records if "accepted" in r.getMessage()]
+    assert said == ["autopilot accepted RAW_IMU at 200 Hz", "autopilot accepted GLOBAL_POSITION_INT at 1 Hz"]
+
+
+def test_streams_are_asked_for_again_as_soon_as_the_link_reopens(monkeypatch):
+    service, link = _service()
+    vehicle = Peer()
+    link.deliver(vehicle.heartbeat())
+    _step_until(service, lambda: len(sent(link, "COMMAND_LONG")) == 1)
+    connection = link._conn
+
+    def reset(*args: object) -> None:
+        raise ConnectionResetError("peer gone")
+
+    monkeypatch.setattr(connection, "recv_msg", reset)  # the next read fails: the link drops and reopens
+    link.deliver(vehicle.heartbeat())
+    _step_until(service, lambda: link.counters.reconnects == 1)
+    reopened = time.monotonic()
+    _step_until(service, lambda: len(sent(link, "COMMAND_LONG")) == 2)
+    # within a loop tick or two, not at the next request_repeat_s (60 s here)
+    assert time.monotonic() - reopened < 5 * STEP_S
+
+
+def test_a_slow_link_is_said_once_with_the_measured_rate(monkeypatch, caplog):
+    caplog.set_level(logging.INFO, logger="mavattitude.service")
+    monkeypatch.setattr(service_module, "RATE_WINDOW_S", 0.5)  # judged over 0.5 s windows, not 5 s
+    vehicle_config = VehicleConfig("udpin:127.0.0.1:0", fly_when_asked=True, link_max_imu_hz=100.0)
+    with FakeVehicle(scenarios.static(600.0), scenarios.paper_sensors(200.0), vehicle_config) as v:
+        config = from_dict(config_for(v, output={"stats_interval_s": 60.0}))
+        assert config.link.request_rate_hz == 200.0
+        running = Running(config)
+        try:
+            counters = running.service.counters
+            assert v.wait_until(lambda: counters.rate_warnings == 1, EVENT_TIMEOUT_S)
+            # six more low windows (three times what it took to say it): said once all the same
+            assert not v.wait_until(lambda: counters.rate_warnings > 1, 6 * 0.5)
+        finally:
+            running.finish()
+    warnings = [r.getMessage() for r in caplog.records if "below the 200 Hz asked for" in r.getMessage()]
+    assert len(warnings) == 1 and "lower link.request_rate_hz" in warnings[0]
+    measured_hz = float(warnings[0].split(" arrives at ")[1].split(" Hz")[0])
+    assert 90.0 <= measured_hz <= 105.0  # the link's 100 Hz (the window counts intervals, ±1 sample)
+    assert any("RAW_IMU" in t and "< 200 asked" in t for t in v.statustexts)
+
+
+def test_a_fast_enough_link_is_not_warned_about(monkeypatch):
+    rate_hz = 200.0
+    monkeypatch.setattr(service_module, "RATE_WINDOW_S", 0.5)
+    vehicle_config = VehicleConfig("udpin:127.0.0.1:0", fly_when_asked=True)
+    with FakeVehicle(scenarios.static(600.0), scenarios.paper_sensors(rate_hz), vehicle_config) as v:
+        running = Running(from_dict(config_for(v, output={"stats_interval_s": 60.0})))
+        try:
+            counters = running.service.counters
+            assert v.wait_until(lambda: counters.input_rate_hz == counters.input_rate_hz, EVENT_TIMEOUT_S)
+            assert not v.wait_until(lambda: counters.rate_warnings > 0, 6 * 0.5)
+        finally:
+            running.finish()
+    assert counters.rate_warnings == 0 and counters.input_rate_hz > 0.9 * rate_hz
