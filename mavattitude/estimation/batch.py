@@ -7,6 +7,7 @@ Work is done in chunks that fit the CPU cache.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,10 +35,11 @@ CHUNK = 4096
 class BatchResult:
     """Per-sample outcome of :func:`solve_batch` with ``full_output=True``."""
 
-    q: NDArray[np.float64]  # (N, 4) [w, x, y, z], body → NED, w ≥ 0
+    q: NDArray[np.float64]  # (N, 4) [w, x, y, z], body → NED, w ≥ 0; NaN where not usable
     iterations: NDArray[np.int64]  # (N,)
     converged: NDArray[np.bool_]  # (N,)
     loss: NDArray[np.float64]  # (N,)
+    usable: NDArray[np.bool_]  # (N,) passed the per-sample checks (all, unless skip_unusable)
 
 
 def solve_batch(
@@ -52,13 +54,16 @@ def solve_batch(
     tolerance: float = TOLERANCE_RAD,
     min_angle_deg: float = MIN_ANGLE_DEG,
     full_output: bool = False,
+    skip_unusable: bool = False,
 ) -> NDArray[np.float64] | BatchResult:
     """Attitudes ``(N, 4)`` of N samples ``acc, mag (N, 3)``; ``mag_ref``/``acc_ref`` are ``(3,)`` or ``(N, 3)``.
 
-    Arguments as for :func:`.solve.solve`. Bad samples raise (naming the first one) rather than being
-    skipped, those found singular while iterating too (:class:`DegenerateGeometryError`, as in ``solve``).
-    If a sample does not converge, ``full_output=False`` raises :class:`ConvergenceError`;
-    ``full_output=True`` returns a :class:`BatchResult` with per-sample flags instead.
+    Arguments as for :func:`.solve.solve`. A sample that fails the per-sample checks of ``solve`` raises
+    (naming the first one), or with ``skip_unusable`` is left out: not solved, ``q`` NaN, marked in
+    :attr:`BatchResult.usable`. A sample found singular while iterating raises
+    (:class:`DegenerateGeometryError`, as in ``solve``). If a sample does not converge,
+    ``full_output=False`` raises :class:`ConvergenceError`; ``full_output=True`` returns a
+    :class:`BatchResult` with per-sample flags instead.
     """
     check_method(method)
     sin_min = check_settings(max_iterations, tolerance, min_angle_deg)
@@ -68,8 +73,30 @@ def solve_batch(
     refs = {name: _samples(name, v, n) for name, v in (("acc_ref", acc_ref), ("mag_ref", mag_ref))}
     arrays = (acc_a, mag_a, refs["acc_ref"], refs["mag_ref"])
     with np.errstate(all="ignore"):  # the checks themselves catch what overflows or is NaN
-        _check(*(np.broadcast_to(a, (n, 3)) for a in arrays), noise, sin_min, min_angle_deg)
-    out = BatchResult(np.empty((n, 4)), np.empty(n, dtype=np.int64), np.empty(n, dtype=bool), np.empty(n))
+        refusals = _refusals(*(np.broadcast_to(a, (n, 3)) for a in arrays), noise, sin_min, min_angle_deg)
+        usable = _usable(refusals) if skip_unusable else _raise_first(refusals, n)
+    if not usable.all():
+        arrays = tuple(a[usable] if a.shape[0] == n else a for a in arrays)
+    out = _solve_checked(arrays, noise, method, max_iterations, tolerance)
+    if not usable.all():
+        out = _scatter(out, usable)
+    if full_output:
+        return out
+    if not out.converged[usable].all():
+        bad = np.flatnonzero(usable & ~out.converged)
+        raise ConvergenceError(
+            f"{bad.size} of {n} samples did not converge in {max_iterations} iterations (first: sample {bad[0]}); "
+            "pass full_output=True for per-sample flags"
+        )
+    return out.q
+
+
+def _solve_checked(arrays: tuple, noise: NoiseModel, method: str, max_iterations: int, tolerance: float) -> BatchResult:
+    """Solve samples that passed the checks, chunk by chunk."""
+    n = arrays[0].shape[0]
+    out = BatchResult(
+        np.empty((n, 4)), np.empty(n, dtype=np.int64), np.empty(n, dtype=bool), np.empty(n), np.ones(n, dtype=bool)
+    )
     singular = np.zeros(n, dtype=bool)
     for start in range(0, n, CHUNK):
         sl = slice(start, min(start + CHUNK, n))
@@ -78,15 +105,22 @@ def solve_batch(
         )
         out.q[sl], out.iterations[sl], out.converged[sl], out.loss[sl] = q, iterations, converged, loss
     _fail(DegenerateGeometryError, singular, SINGULAR_MESSAGE)
-    if full_output:
-        return out
-    if not out.converged.all():
-        bad = np.flatnonzero(~out.converged)
-        raise ConvergenceError(
-            f"{bad.size} of {n} samples did not converge in {max_iterations} iterations (first: sample {bad[0]}); "
-            "pass full_output=True for per-sample flags"
-        )
-    return out.q
+    return out
+
+
+def _scatter(solved: BatchResult, usable: NDArray[np.bool_]) -> BatchResult:
+    """The usable samples' results in their places among all samples; the others NaN, 0, not converged."""
+    n = usable.size
+    out = BatchResult(
+        np.full((n, 4), np.nan), np.zeros(n, dtype=np.int64), np.zeros(n, dtype=bool), np.full(n, np.nan), usable
+    )
+    out.q[usable], out.iterations[usable], out.converged[usable], out.loss[usable] = (
+        solved.q,
+        solved.iterations,
+        solved.converged,
+        solved.loss,
+    )
+    return out
 
 
 def _samples(name: str, v: ArrayLike, n: int | None) -> NDArray[np.float64]:
@@ -108,24 +142,40 @@ def _columns(a: NDArray[np.float64], sl: slice) -> tuple:
     return tuple(np.ascontiguousarray(a[sl].T))
 
 
-def _check(acc, mag, acc_ref, mag_ref, noise: NoiseModel, sin_min: float, min_angle_deg: float) -> None:
-    """The per-sample path's input checks over all samples at once, naming the first offender."""
+Refusal = tuple[type[InputError], NDArray[np.bool_], Callable[[int], str]]
+
+
+def _refusals(acc, mag, acc_ref, mag_ref, noise: NoiseModel, sin_min: float, min_angle_deg: float) -> Iterator[Refusal]:
+    """The per-sample path's input checks over all samples at once, in its order: for each, the error it
+    raises, the samples it refuses and the message naming a refused sample."""
     units, norms = {}, {}
     for name, a in (("acc", acc), ("mag", mag), ("acc_ref", acc_ref), ("mag_ref", mag_ref)):
         n = np.linalg.norm(a, axis=1)
-        _fail(InputError, ~((n > 0.0) & (n < np.inf)), f"{name} must be finite and non-zero")  # NaN too
+        yield InputError, ~((n > 0.0) & (n < np.inf)), lambda _, name=name: f"{name} must be finite and non-zero"
         units[name], norms[name] = a / n[:, None], n
     a_acc = kernel.paper_weight(tuple(units["acc"].T), norms["acc"], noise.accel_var)
     a_mag = kernel.paper_weight(tuple(units["mag"].T), norms["mag"], noise.mag_var)
-    bad = ~kernel.weights_usable(a_mag, a_acc)
-    if bad.any():
-        first = int(np.flatnonzero(bad)[0])
-        _fail(InputError, bad, weights_message(float(a_mag[first]), float(a_acc[first])))
+    yield InputError, ~kernel.weights_usable(a_mag, a_acc), lambda i: weights_message(float(a_mag[i]), float(a_acc[i]))
     for what, (a, b) in (("acc and mag", ("acc", "mag")), ("acc_ref and mag_ref", ("acc_ref", "mag_ref"))):
         s = np.linalg.norm(np.cross(units[a], units[b]), axis=1)
-        bad = ~(s >= sin_min)
+        yield (
+            DegenerateGeometryError,
+            ~(s >= sin_min),
+            lambda i, s=s, what=what: geometry_message(what, float(s[i]), min_angle_deg),
+        )
+
+
+def _raise_first(refusals: Iterator[Refusal], n: int) -> NDArray[np.bool_]:
+    """Raise for the first check that refuses a sample, naming its first; all usable otherwise."""
+    for error, bad, message in refusals:
         if bad.any():
-            _fail(DegenerateGeometryError, bad, geometry_message(what, float(s[bad][0]), min_angle_deg))
+            _fail(error, bad, message(int(np.flatnonzero(bad)[0])))
+    return np.ones(n, dtype=bool)
+
+
+def _usable(refusals: Iterator[Refusal]) -> NDArray[np.bool_]:
+    """The samples no check refuses."""
+    return ~np.logical_or.reduce([bad for _, bad, _ in refusals])
 
 
 def _fail(error: type[InputError], bad: NDArray[np.bool_], message: str) -> None:

@@ -146,13 +146,11 @@ def estimate_batch(recording: Recording, config: Config) -> Estimate:
     if field_ned_uT is None:
         raise ConfigError("the batch path needs a fixed magnetic reference, not auto (no position in a recording)")
     start = time.monotonic()
-    usable = observable(recording.acc_mps2, recording.mag_uT, config.estimator.min_angle_deg)
-    # A vector shorter than its noise σ (|a| ≈ 0 in a throw) is refused by solve_batch for the whole batch.
-    usable &= np.linalg.norm(recording.acc_mps2, axis=1) > max(noise.accel_std)
-    usable &= np.linalg.norm(recording.mag_uT, axis=1) > max(noise.mag_std)
+    # The samples the per-sample path would refuse one by one (near-collinear acc and mag, a vector buried
+    # in its noise) are left out, and show as lost coverage.
     result = solve_batch(
-        recording.acc_mps2[usable],
-        recording.mag_uT[usable],
+        recording.acc_mps2,
+        recording.mag_uT,
         field_ned_uT,
         noise,
         method=config.estimator.method,
@@ -161,27 +159,18 @@ def estimate_batch(recording: Recording, config: Config) -> Estimate:
         tolerance=config.estimator.tolerance,
         min_angle_deg=config.estimator.min_angle_deg,
         full_output=True,  # a sample that hits max_iterations is counted, not fatal
+        skip_unusable=True,
     )
+    usable = result.usable
     return Estimate(
         path="batch",
         method=config.estimator.method,
         time_s=recording.time_s[usable],
-        q=result.q,
+        q=result.q[usable],
         expected=len(recording),
         elapsed_s=time.monotonic() - start,
-        counters={"unusable": int((~usable).sum()), "not converged": int((~result.converged).sum())},
+        counters={"unusable": int((~usable).sum()), "not converged": int((usable & ~result.converged).sum())},
     )
-
-
-def observable(acc: Array, mag: Array, min_angle_deg: float) -> Array:
-    """Samples whose two directions are further than ``min_angle_deg`` from collinear.
-
-    ``solve_batch`` refuses a batch holding any other (the rotation about their common direction is
-    unobservable); the per-sample path would refuse those samples one by one, so they are left out and
-    show as lost coverage.
-    """
-    sin_angle = np.linalg.norm(np.cross(acc, mag), axis=1) / (np.linalg.norm(acc, axis=1) * np.linalg.norm(mag, axis=1))
-    return sin_angle > np.sin(np.radians(min_angle_deg))
 
 
 def evaluate(recording: Recording, estimate: Estimate) -> Evaluation:

@@ -31,6 +31,27 @@ def test_bad_sample_is_named(samples):
         solve_batch(samples[0], mag, MAG_REF_UT, PAPER_NOISE)
 
 
+def test_skip_unusable_leaves_out_exactly_what_the_per_sample_solver_refuses(samples):
+    acc, mag = (a[:200].copy() for a in samples)
+    acc[3], acc[50] = np.nan, 0.0
+    mag[7] = acc[7] * 5.0  # collinear with the accelerometer
+    mag[9] = mag[9] * 1e-9  # buried in its noise
+    refused = np.zeros(len(acc), dtype=bool)
+    for i in range(len(acc)):
+        try:
+            solve(acc[i], mag[i], MAG_REF_UT, PAPER_NOISE)
+        except InputError:  # DegenerateGeometryError is one
+            refused[i] = True
+    assert np.flatnonzero(refused).tolist() == [3, 7, 9, 50]
+    result = solve_batch(acc, mag, MAG_REF_UT, PAPER_NOISE, full_output=True, skip_unusable=True)
+    assert np.array_equal(result.usable, ~refused)
+    assert np.isnan(result.q[refused]).all() and not result.converged[refused].any()
+    # The usable samples' answers are those of a batch of them alone, bit for bit.
+    alone = solve_batch(acc[~refused], mag[~refused], MAG_REF_UT, PAPER_NOISE)
+    assert np.array_equal(result.q[~refused], alone)
+    assert np.array_equal(solve_batch(acc, mag, MAG_REF_UT, PAPER_NOISE, skip_unusable=True), result.q, equal_nan=True)
+
+
 def test_shapes_are_checked(samples):
     acc, mag = samples
     with pytest.raises(InputError, match=r"mag must have shape \(10000, 3\) or \(3,\), got \(9999, 3\)"):
