@@ -46,13 +46,21 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
+from numpy.typing import NDArray
 
 from mavattitude.config import Config
 from mavattitude.errors import ConfigError, InputError, MavAttitudeError
 from mavattitude.estimation import SNAPSHOT_METHODS, NoiseModel, solve
 from mavattitude.estimation.compass import CompassEvent, CompassMonitor, CompassSettings, heading_uncertain
 from mavattitude.estimation.conventions import Array, is_unit_quaternion_parts
-from mavattitude.sensors.frontend import FrontEnd, FrontEndCounters, FrontEndSettings, ProcessedSample, SampleFlag
+from mavattitude.sensors.frontend import (
+    FrontEnd,
+    FrontEndCounters,
+    FrontEndSettings,
+    ProcessedSample,
+    SampleFlag,
+    process_batch,
+)
 from mavattitude.sensors.magref import ReferenceTracker
 from mavattitude.sensors.units import ImuSample
 
@@ -366,6 +374,45 @@ class AttitudePipeline:
         for tick in self.frontend.push(sample):
             self.counters.ticks += 1
             out += self._estimate(tick)
+        return out
+
+    def push_batch(
+        self,
+        time_s: Array,
+        acc_mps2: Array,
+        gyr_radps: Array,
+        mag_uT: Array,
+        mag_new: NDArray[np.bool_],
+        time_wrap_s: float | None = None,
+        reference_after_s: float = -math.inf,
+    ) -> list[AttitudeOutput]:
+        """:meth:`push` for a whole run of samples at once: the outputs ``push`` gives fed them one by one.
+
+        The front end runs vectorised (:func:`~mavattitude.sensors.frontend.process_batch`, ~20× faster per
+        sample, ticks equal to rounding), then every tick takes the same estimator step as in :meth:`push`.
+        For offline replay, where the per-sample front end is the cost. The magnetic reference is the one
+        set now, for every tick after ``reference_after_s`` (the ticks up to it wait, as before a position);
+        ``mag_new`` marks rows with a new magnetometer reading.
+        """
+        fe = self.frontend
+        batch = process_batch(
+            fe.settings,
+            time_s,
+            acc_mps2,
+            gyr_radps,
+            mag_uT,
+            mag_new=mag_new,
+            wrap_period_s=time_wrap_s,
+            expected_field_uT=fe.expected_field_uT,
+        )
+        fe.counters.add(batch.counters)
+        out: list[AttitudeOutput] = []
+        reference = self.mag_ref_ned_uT
+        for tick in batch.samples():
+            self.counters.ticks += 1
+            self.mag_ref_ned_uT = reference if tick.time_s > reference_after_s else None
+            out += self._estimate(tick)
+        self.mag_ref_ned_uT = reference
         return out
 
     def _estimate(self, tick: ProcessedSample) -> list[AttitudeOutput]:

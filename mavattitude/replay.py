@@ -3,11 +3,19 @@
 :func:`replay` reads a log source (:mod:`mavattitude.link.logs`) to its end through the same
 :class:`~mavattitude.dispatch.Dispatcher` as the live service (lock-on, routing, the pipeline), keeping every
 attitude output and the autopilot's own attitudes; no I/O of its own beyond the source.
+
+A DataFlash or ULog log already holds its streams as arrays, from one vehicle: there is nothing to lock
+onto or route, and the pipeline takes the IMU samples at once (:meth:`AttitudePipeline.push_batch`: the
+vectorised front end, then the same estimator step per tick), which is what makes replay fast. That
+needs one magnetic reference for the whole log (fixed, or the WMM's at the log's first position when the
+vehicle stays within the distance after which the service would look it up again); otherwise the items
+go through the dispatcher one by one, as from a telemetry log.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -16,8 +24,10 @@ import numpy as np
 
 from mavattitude.config import Config
 from mavattitude.dispatch import DispatchCounters, Dispatcher
+from mavattitude.link.logs import LogStreams, mag_for_imu
 from mavattitude.link.source import AutopilotAttitude, MessageSource, Sender
 from mavattitude.pipeline import AttitudeOutput, AttitudePipeline
+from mavattitude.sensors.magref import distance_km
 from mavattitude.sensors.units import ImuSample
 
 log = logging.getLogger(__name__)
@@ -81,10 +91,13 @@ class _Collector:
 
 
 def replay(source: MessageSource, config: Config, progress: Callable[[MessageSource], None] | None = None) -> Replayed:
-    """Run ``source`` to its end through the service's dispatcher and pipeline."""
+    """Run ``source`` to its end through the service's dispatcher and pipeline (see the module docstring)."""
     pipeline = AttitudePipeline(config)
     counters = DispatchCounters()
     result = Replayed([], [], counters, pipeline, None)
+    streams = getattr(source, "streams", None)
+    if isinstance(streams, LogStreams) and source.vehicle is not None and _one_reference(streams, pipeline):
+        return _replay_arrays(streams, result, source.vehicle)
     dispatcher = Dispatcher(
         pipeline, _Collector(result), system_id=config.link.vehicle_system_id, vehicle=source.vehicle, counters=counters
     )
@@ -96,4 +109,43 @@ def replay(source: MessageSource, config: Config, progress: Callable[[MessageSou
             progress(source)
     if result.internal_errors:  # offline, a bug is reported, not served around
         raise result.internal_errors[0]
+    return result
+
+
+def _one_reference(streams: LogStreams, pipeline: AttitudePipeline) -> bool:
+    """Whether one magnetic reference serves the whole log: fixed, or ``auto`` within the re-lookup distance."""
+    if not pipeline.waiting_for_reference:
+        return True
+    if len(streams.position_t_s) == 0:
+        return True  # nothing to wait for: no output either way
+    lat0, lon0, _ = streams.position[0].tolist()
+    limit_km = pipeline.magref.recompute_distance_km
+    return all(distance_km(lat0, lon0, lat, lon) <= limit_km for lat, lon, _ in streams.position.tolist())
+
+
+def _replay_arrays(s: LogStreams, result: Replayed, vehicle: Sender) -> Replayed:
+    """The arrays of a log through :meth:`AttitudePipeline.push_batch`, as the items would go one by one."""
+    pipeline, counters = result.pipeline, result.counters
+    result.vehicle = vehicle
+    log.info("following the autopilot's own log (%d IMU samples at once)", len(s.imu_t_s))
+    reference_after_s = -math.inf
+    if pipeline.waiting_for_reference and len(s.position_t_s):
+        lat, lon, alt = s.position[0].tolist()
+        pipeline.set_position(lat, lon, alt, s.date)
+        counters.positions = len(s.position_t_s)
+        before = s.imu_t_s[s.imu_t_s < s.position_t_s[0]]  # a tick is computed when the sample after it arrives
+        reference_after_s = float(before[-1]) if len(before) else -math.inf
+    carried = mag_for_imu(s.imu_t_s, s.mag_t_s, s.mag_uT)
+    mag = np.full((len(carried), 3), np.nan)
+    mag[carried >= 0] = s.mag_uT[carried[carried >= 0]]
+    result.outputs = pipeline.push_batch(
+        s.imu_t_s, s.acc_mps2, s.gyr_radps, mag, carried >= 0, s.time_wrap_s, reference_after_s
+    )
+    counters.received = len(s.imu_t_s)
+    if len(s.imu_t_s):
+        result.first_sample_s, result.last_sample_s = float(s.imu_t_s[0]), float(s.imu_t_s[-1])
+    result.autopilot = [
+        AutopilotAttitude(t, tuple(q)) for t, q in zip(s.attitude_t_s.tolist(), s.attitude_q.tolist(), strict=True)
+    ]
+    counters.autopilot_attitudes = len(result.autopilot)
     return result

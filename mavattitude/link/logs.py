@@ -72,7 +72,7 @@ class LogStreams:
         return f" ({self.damage})" if self.damage else ""
 
 
-def _mag_for_imu(imu_t_s: Array, mag_t_s: Array, mag_uT: Array) -> NDArray[np.int64]:
+def mag_for_imu(imu_t_s: Array, mag_t_s: Array, mag_uT: Array) -> NDArray[np.int64]:
     """For each IMU sample, the index of the magnetometer reading it carries (-1: none new)."""
     newest = np.searchsorted(mag_t_s, imu_t_s, side="right") - 1  # at or before the sample: never ahead
     carried = newest.copy()
@@ -107,7 +107,7 @@ class StreamSource:
         )
         order = np.lexsort((kinds, times))
         self._times, self._kinds, self._index = times[order].tolist(), kinds[order].tolist(), index[order].tolist()
-        self._mag_index = _mag_for_imu(s.imu_t_s, s.mag_t_s, s.mag_uT).tolist()
+        self._mag_index = mag_for_imu(s.imu_t_s, s.mag_t_s, s.mag_uT).tolist()
         self._acc, self._gyr, self._mag = s.acc_mps2.tolist(), s.gyr_radps.tolist(), s.mag_uT.tolist()
         self._imu_t = s.imu_t_s.tolist()
         self._next = 0

@@ -47,6 +47,7 @@ samples, it gives the same ticks and flags, and values equal to rounding (~1e-12
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from collections import Counter, deque
@@ -133,6 +134,15 @@ class FrontEndCounters:
     reboots: int = 0
     wraps: int = 0
     redesigns: int = 0
+
+    def add(self, other: FrontEndCounters) -> None:
+        """Count what ``other`` counted too (a batch run's counters into the stream's)."""
+        for f in dataclasses.fields(self):
+            mine, theirs = getattr(self, f.name), getattr(other, f.name)
+            if isinstance(mine, Counter):
+                mine.update(theirs)
+            else:
+                setattr(self, f.name, mine + theirs)
 
     def summary(self) -> str:
         """One log-friendly line."""
@@ -479,21 +489,19 @@ class BatchOutput:
 
     def samples(self) -> list[ProcessedSample]:
         """The same ticks as :class:`ProcessedSample` objects (what :meth:`FrontEnd.push` returns)."""
-        out = []
-        for i in range(len(self.time_s)):
-            mag = None if np.isnan(self.mag_uT[i, 0]) else _vec(self.mag_uT[i].tolist())
-            out.append(
-                ProcessedSample(
-                    float(self.time_s[i]),
-                    _vec(self.acc_mps2[i].tolist()),
-                    mag,
-                    _vec(self.gyr_radps[i].tolist()),
-                    SampleFlag(int(self.flags[i])),
-                    float(self.acc_std_scale[i]),
-                    float(self.mag_std_scale[i]),
-                )
-            )
-        return out
+        columns = (
+            self.time_s,
+            self.acc_mps2,
+            self.mag_uT,
+            self.gyr_radps,
+            self.flags,
+            self.acc_std_scale,
+            self.mag_std_scale,
+        )
+        return [
+            ProcessedSample(t, tuple(a), None if m[0] != m[0] else tuple(m), tuple(g), _FLAGS[f], sa, sm)  # NaN: no mag
+            for t, a, m, g, f, sa, sm in zip(*(c.tolist() for c in columns), strict=True)
+        ]
 
 
 def batch_inputs(samples: Sequence[ImuSample]) -> dict[str, Any]:
