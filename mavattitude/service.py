@@ -82,6 +82,30 @@ LINK_HINTS = {  # the likely cause when no HEARTBEAT comes, by connection kind
 }
 
 
+class WaitReports:
+    """When to say that something is still awaited: ``WAIT_REPORT_FIRST_S`` after the state began (a wiring
+    mistake shows within seconds), then at doubling intervals up to ``WAIT_REPORT_MAX_S`` (a long, expected
+    wait — no GPS fix indoors — does not flood the log)."""
+
+    def __init__(self, state: object, now: float) -> None:
+        self.state, self.since, self._next = state, now, now + WAIT_REPORT_FIRST_S
+
+    def changed(self, state: object, now: float) -> bool:
+        """True, and the clock restarted, when ``state`` differs from the last one."""
+        if state == self.state:
+            return False
+        self.state, self.since, self._next = state, now, now + WAIT_REPORT_FIRST_S
+        return True
+
+    def due(self, now: float) -> float | None:
+        """The seconds waited in the current state when a report is due at ``now``, else None."""
+        if now < self._next:
+            return None
+        waited_s = now - self.since
+        self._next = now + min(max(waited_s, WAIT_REPORT_FIRST_S), WAIT_REPORT_MAX_S)
+        return waited_s
+
+
 class Waiting(enum.Enum):
     """What the service waits for, in the order it needs them; ``RUNNING`` once an attitude went out."""
 
@@ -201,8 +225,7 @@ class AttitudeService:
         watchdog_s = self.notifier.watchdog_interval_s
         self._watchdog_period = watchdog_s / 4 if watchdog_s else None
         self._next_watchdog = now
-        self._waiting_since = (Waiting.AUTOPILOT, now)
-        self._next_wait_report = now + WAIT_REPORT_FIRST_S
+        self._wait_reports = WaitReports(Waiting.AUTOPILOT, now)
         self._degenerate_before = 0
         self.dispatcher = Dispatcher(
             pipeline, self, system_id=config.link.vehicle_system_id, vehicle=self.source.vehicle, counters=self.counters
@@ -302,19 +325,14 @@ class AttitudeService:
         return "running"
 
     def _report_waiting(self, now: float) -> None:
-        """Say what it waits for after ``WAIT_REPORT_FIRST_S`` in one state, then at doubling intervals."""
+        """Say what it waits for (:class:`WaitReports`), and tell systemd on every change."""
         waiting = self.waiting
-        state, since = self._waiting_since
-        if waiting is not state:
-            self._waiting_since = (waiting, now)
-            self._next_wait_report = now + WAIT_REPORT_FIRST_S
+        if self._wait_reports.changed(waiting, now):
             self.notifier.status(self.waiting_text(waiting))
             return
-        if waiting is Waiting.RUNNING or now < self._next_wait_report:
-            return
-        waited_s = now - since
-        self._next_wait_report = now + min(max(waited_s, WAIT_REPORT_FIRST_S), WAIT_REPORT_MAX_S)
-        log.info("%s (%.0f s so far)", self.waiting_text(waiting), waited_s)
+        waited_s = self._wait_reports.due(now)
+        if waiting is not Waiting.RUNNING and waited_s is not None:
+            log.info("%s (%.0f s so far)", self.waiting_text(waiting), waited_s)
 
     # -- the autopilot --------------------------------------------------------------------------------
 

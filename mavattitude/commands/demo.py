@@ -13,6 +13,7 @@ import logging
 import signal
 import time
 
+from mavattitude.cli import EXIT_INTERRUPTED
 from mavattitude.commands.simulate import add_vehicle_arguments, vehicle_from_args
 from mavattitude.errors import MavAttitudeError
 from mavattitude.estimation import METHODS
@@ -58,15 +59,17 @@ def _demo(args: argparse.Namespace) -> int:
                 f"fake vehicle on udp 127.0.0.1:{vehicle.port}, service pid {service.pid}, script {args.script}",
                 flush=True,
             )
+            interrupted = False
             try:
                 _table(vehicle, service, args.duration, args.interval)
-            except KeyboardInterrupt:
+            except KeyboardInterrupt:  # both processes still stopped, and the summary still printed
                 print("interrupted")
+                interrupted = True
             code = service.stop()
     print(f"service exit code {code}; whole run:")
     print(Score.header())
     print(vehicle.score().row())
-    return 0
+    return EXIT_INTERRUPTED if interrupted else 0
 
 
 def _table(vehicle: FakeVehicle, service: ServiceProcess, duration_s: float, interval_s: float) -> None:

@@ -14,6 +14,7 @@ import signal
 import threading
 from typing import Any
 
+from mavattitude.cli import EXIT_INTERRUPTED
 from mavattitude.config import ENV_VAR, Config, load_config
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
 
@@ -116,7 +117,13 @@ def run(args: argparse.Namespace) -> int:
     if getattr(args, "log_level", None) is None:  # no --log-level flag: the config's level applies
         logging.getLogger().setLevel(config.logging.level)
     stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGTERM, signal.SIGINT)}
+    stopped_by: list[int] = []
+
+    def on_signal(signum: int, _frame: object) -> None:
+        stopped_by.append(signum)
+        stop.set()
+
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:
         pipeline = AttitudePipeline(config)
         log_banner(config)
@@ -130,4 +137,5 @@ def run(args: argparse.Namespace) -> int:
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-    return 0
+    # SIGTERM is how systemd and Docker stop a service: a clean stop. Ctrl-C is an interruption.
+    return EXIT_INTERRUPTED if signal.SIGINT in stopped_by[:1] else 0

@@ -11,8 +11,10 @@ import argparse
 import logging
 import time
 
+from mavattitude.cli import EXIT_INTERRUPTED
 from mavattitude.errors import MavAttitudeError
 from mavattitude.sensors.units import MESSAGES, PROFILES
+from mavattitude.service import WaitReports
 from mavattitude.sim import scenarios
 from mavattitude.sim.scoring import Score
 from mavattitude.sim.vehicle import FakeVehicle, VehicleConfig
@@ -96,14 +98,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     vehicle = vehicle_from_args(args, args.connect, args.stream_on_start)
     with vehicle:
-        log.info("fake vehicle on %s: %s for %.0f s once asked for IMU", args.connect, args.script, args.duration)
+        interrupted = False
         try:
-            while vehicle.script_time() < args.duration:
-                time.sleep(0.1)  # pacing the end of the run, not a synchronisation
-        except KeyboardInterrupt:
+            _fly(vehicle, args)
+        except KeyboardInterrupt:  # the summary is still printed
             log.info("interrupted")
+            interrupted = True
     print(f"IMU messages sent: {vehicle.imu_sent}, ATTITUDE_QUATERNION received: {len(vehicle.attitude_log)}")
     if vehicle.attitude_log:
         print(Score.header())
         print(vehicle.score().row())
-    return 0
+    return EXIT_INTERRUPTED if interrupted else 0
+
+
+def _fly(vehicle: FakeVehicle, args: argparse.Namespace) -> None:
+    """Until the script's end; while nobody asks for the IMU stream, say so now and then."""
+    where = args.connect.removesuffix(":0") + f":{vehicle.port}" if args.connect.endswith(":0") else args.connect
+    log.info("fake vehicle on %s: %s for %.0f s once asked for IMU", where, args.script, args.duration)
+    reports = WaitReports(False, time.monotonic())
+    while vehicle.script_time() < args.duration:
+        time.sleep(0.1)  # pacing the end of the run, not a synchronisation
+        now = time.monotonic()
+        if not reports.changed(vehicle.flying, now) and not vehicle.flying and (waited_s := reports.due(now)):
+            log.info(
+                "waiting for a service to ask for the IMU stream on %s (is its link.connect pointed here?) "
+                "(%.0f s so far)",
+                where,
+                waited_s,
+            )

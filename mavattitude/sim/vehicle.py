@@ -245,6 +245,11 @@ class FakeVehicle:
         mono_s = time.monotonic() if mono_s is None else mono_s
         return (mono_s - self._script_t0_mono) * self.config.speed
 
+    @property
+    def flying(self) -> bool:
+        """The script has started (a ``fly_when_asked`` vehicle: once asked for the IMU stream)."""
+        return self._script_t0_mono is not None
+
     def vehicle_time(self, script_s: float) -> float:
         return self._epoch.vehicle_time(script_s)
 
