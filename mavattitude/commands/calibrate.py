@@ -183,6 +183,30 @@ def _live_samples(connect: str, args: argparse.Namespace) -> Iterator[units.ImuS
                     yield sample
 
 
+class _Coverage:
+    """Cell counts of the readings around the midpoint of their range, fed a batch at a time.
+
+    While the range holds, only the new batch is counted; a new extreme moves the midpoint and all readings
+    are counted again (rare once the vehicle has turned: a long log costs linear time, not quadratic).
+    """
+
+    def __init__(self) -> None:
+        self._batches: list[np.ndarray] = []
+        self._lo, self._hi = np.full(3, np.inf), np.full(3, -np.inf)
+        self._counts = np.zeros(0, dtype=np.int64)
+
+    def add(self, batch: np.ndarray) -> np.ndarray:
+        self._batches.append(batch)
+        lo, hi = np.minimum(self._lo, batch.min(axis=0)), np.maximum(self._hi, batch.max(axis=0))
+        if np.array_equal(lo, self._lo) and np.array_equal(hi, self._hi):
+            self._counts = self._counts + magfit.cell_counts(batch - (hi + lo) / 2.0)
+        else:
+            self._lo, self._hi = lo, hi
+            self._batches = [np.concatenate(self._batches)]
+            self._counts = magfit.cell_counts(self._batches[0] - (hi + lo) / 2.0)
+        return self._counts
+
+
 def _collect(samples: Iterable[units.ImuSample], args: argparse.Namespace, out: TextIO, *, live: bool) -> np.ndarray:
     """Magnetometer readings from a sample stream, with a coverage progress line on ``out``; a ``live``
     collection ends once coverage is met with enough samples, a log is read to its end.
@@ -193,13 +217,14 @@ def _collect(samples: Iterable[units.ImuSample], args: argparse.Namespace, out: 
     rows: list[tuple[float, float, float]] = []
     frac, shown = 0.0, -1.0
     tty = out.isatty()  # redrawn in place on a terminal; a log or a pipe gets a line per change of coverage
+    seen = _Coverage()
     for sample in samples:
         if sample.mag_uT is None:
             continue
         rows.append(sample.mag_uT)
         if len(rows) % PROGRESS_EVERY == 0:
-            seen = np.array(rows)
-            frac, counts = magfit.coverage(seen - (seen.max(axis=0) + seen.min(axis=0)) / 2.0)
+            counts = seen.add(np.array(rows[-PROGRESS_EVERY:], dtype=float))
+            frac = magfit.covered(counts)
             bar = "".join("#" if c >= magfit.MIN_PER_CELL else "." for c in counts)
             line = f"coverage [{bar}] {frac:.0%} of orientations, {len(rows)} samples"
             if tty or frac != shown:

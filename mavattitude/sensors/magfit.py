@@ -62,12 +62,22 @@ def relative_spread(mag_uT: ArrayLike) -> float:
 
 def coverage(directions: ArrayLike, min_per_cell: int = MIN_PER_CELL) -> tuple[float, NDArray[np.int64]]:
     """Fraction of the 26 cells with at least ``min_per_cell`` directions, and the count per cell."""
+    counts = cell_counts(directions)
+    return covered(counts, min_per_cell), counts
+
+
+def cell_counts(directions: ArrayLike) -> NDArray[np.int64]:
+    """How many of the directions fall in each of the 26 cells (a sum over the directions: additive)."""
     d = np.asarray(directions, dtype=float)
     norm = np.linalg.norm(d, axis=1, keepdims=True)
     d = d[norm[:, 0] > 0.0] / norm[norm[:, 0] > 0.0]  # a zero vector has no direction
     cells = np.argmax(d @ CELL_DIRECTIONS.T, axis=1)
-    counts = np.bincount(cells, minlength=len(CELL_DIRECTIONS))
-    return float(np.mean(counts >= min_per_cell)), counts
+    return np.bincount(cells, minlength=len(CELL_DIRECTIONS))
+
+
+def covered(counts: NDArray[np.int64], min_per_cell: int = MIN_PER_CELL) -> float:
+    """Fraction of the cells with at least ``min_per_cell`` directions."""
+    return float(np.mean(counts >= min_per_cell))
 
 
 def _algebraic(m: Array) -> tuple[Array, Array]:

@@ -171,3 +171,15 @@ def test_progress_is_redrawn_on_a_terminal_and_plain_lines_elsewhere(stream: typ
         lines = text.splitlines()
         assert "\r" not in text and 1 <= len(lines) < 10  # a line when the coverage changes, not per 100 samples
         assert all(line.startswith("coverage [") for line in lines)
+
+
+def test_the_running_coverage_counts_as_a_count_over_all_readings_would() -> None:
+    from mavattitude.commands.calibrate import _Coverage
+    from mavattitude.sensors import magfit
+
+    readings = _distorted(3000, seed=4)
+    running = _Coverage()
+    for end in range(100, len(readings) + 1, 100):
+        seen = readings[:end]
+        expected = magfit.coverage(seen - (seen.max(axis=0) + seen.min(axis=0)) / 2.0)[1]
+        assert np.array_equal(running.add(readings[end - 100 : end]), expected)
