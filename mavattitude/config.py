@@ -535,8 +535,12 @@ def load_config(
     Each layer's keys and values are checked on their own first, so an error names the file (or the flags)
     it came from; rules spanning keys are checked on the merged result.
     """
+    return merge_layers(layers(path, overrides, env))
+
+
+def merge_layers(found: list[tuple[str, dict[str, Any]]]) -> Config:
+    """The effective config of raw :func:`layers` (lowest first), as :func:`load_config` describes."""
     merged: dict[str, Any] = {}
-    found = layers(path, overrides, env)
     for source, data in found:
         from_dict(data, source, cross_check=False)
         merged = _merge(merged, data)

@@ -12,7 +12,7 @@ import sys
 from collections.abc import Mapping
 from typing import Any
 
-from mavattitude.config import ENV_VAR, REPLACE_WHOLE, layers, load_config
+from mavattitude.config import ENV_VAR, REPLACE_WHOLE, layers, merge_layers
 
 NAME = "check-config"
 HELP = "validate a YAML config file and print the effective configuration"
@@ -41,10 +41,11 @@ def _leaves(data: Mapping[str, Any], prefix: str = "") -> list[str]:
 def run(args: argparse.Namespace) -> int:
     from mavattitude.pipeline import AttitudePipeline  # imports numpy and the front end: only when needed
 
-    config = load_config(args.file)
+    found = layers(args.file)  # each file read and parsed once
+    config = merge_layers(found)
     AttitudePipeline(config)
     origin: dict[str, str] = {}
-    for source, data in layers(args.file):
+    for source, data in found:
         origin.update(dict.fromkeys(_leaves(data), source))
     sys.stdout.write(f"# effective configuration: valid\n{config.to_yaml()}")
     sys.stdout.write(
