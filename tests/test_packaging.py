@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent  # ruff and hadolint come with the test extra, beside this python
 UNIT = ROOT / "configs" / "mavattitude.service"
 DOCKERFILE = ROOT / "Dockerfile"
-MAX_EXPOSURE = 2.0  # issue 6: systemd-analyze security rates the unit "OK" or better
+MAX_EXPOSURE = 2.0  # systemd-analyze security rates the unit "OK" or better
 TIMEOUT_S = 120  # bounds a hung tool; each of these takes well under 10 s
 
 

@@ -1,4 +1,4 @@
-"""The scripted fake vehicle and everything around it (issue 5).
+"""The scripted fake vehicle and everything around it.
 
 - :mod:`.trajectory` — truth scripts in SI (NED/FRD), composable in time;
 - :mod:`.scenarios` — named scripts (the paper's static case, rotation, maneuvering flight, flips) and

@@ -5,7 +5,7 @@ yaw spin, one turn per window, with consumer-grade sensor errors) at ``speed`` Ã
 at ``rate_hz`` on the vehicle's clock. Every ``window_s`` of vehicle time it records the service's
 resident memory, the error statistics and the output rate of that window. The report says whether
 memory grew (beyond the first window, which includes start-up allocations), whether the error
-statistics drifted, and whether the output rate held: the targets of the issue are checked by the
+statistics drifted, and whether the output rate held: the targets are checked by the
 caller (``tools/bench.py soak``, and a short version in the tests).
 """
 

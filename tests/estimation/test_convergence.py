@@ -1,6 +1,6 @@
 """Convergence to the weighted Wahba optimum everywhere, 180° included, and the warm start's safeguard.
 
-The issue's figures: 10 000 uniformly random attitudes and 2 000 at 170–180°, each checked against
+The project's figures: 10 000 uniformly random attitudes and 2 000 at 170–180°, each checked against
 scipy's closed form (about 1.5 s in all).
 """
 
@@ -36,8 +36,8 @@ def assert_reaches_optimum(q_true, rng):
     acc, mag = simulate(q_true, rng)
     res = solve_batch(acc, mag, MAG_REF_UT, PAPER_NOISE, full_output=True)
     assert res.converged.all()
-    assert res.iterations.max() <= 3  # the issue's bound from a TRIAD start
-    # 1e-9 rad: the issue's agreement bound with the closed form, on every sample.
+    assert res.iterations.max() <= 3  # the project's bound from a TRIAD start
+    # 1e-9 rad: the project's agreement bound with the closed form, on every sample.
     assert cv.angle_between(res.q, scipy_optimum(acc, mag)).max() < 1e-9
     return acc, mag, res
 

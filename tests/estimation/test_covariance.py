@@ -39,7 +39,7 @@ def test_ml_reaches_the_cramer_rao_bound_and_ign_cgn_do_not(monte_carlo):
     _, _, errors = monte_carlo
     crb = np.trace(cramer_rao_bound(PAPER_GRAVITY_BODY_MPS2, PAPER_MAG_BODY_UT, PAPER_NOISE))
     ratio = {m: np.trace(np.cov(errors[m].T)) / crb for m in SNAPSHOT_METHODS}
-    assert abs(ratio["ml"] - 1.0) < 0.03  # the bound (sampling error 1.4 %)
+    assert abs(ratio["ml"] - 1.0) < 0.03  # the project's bound (sampling error 1.4 %)
     # docs/paper-notes.md: IGN ≈ 1.12×, CGN ≈ 1.15× the bound; 0.05 is 3.5 sampling σ.
     assert ratio["ign"] == pytest.approx(1.12, abs=0.05)
     assert ratio["cgn"] == pytest.approx(1.15, abs=0.05)
@@ -55,7 +55,7 @@ def test_reported_covariance_matches_monte_carlo(monte_carlo, method):
                               acc_ref=GRAVITY_DOWN).covariance for i in range(0, N, 100)], axis=0)  # fmt: skip
     everywhere = predicted_covariance(acc, mag, PAPER_NOISE, method).mean(axis=0)
     for p in (reported, everywhere):
-        assert np.trace(p) / np.trace(mc) == pytest.approx(1.0, abs=0.05)  # the 5 %
+        assert np.trace(p) / np.trace(mc) == pytest.approx(1.0, abs=0.05)  # the project's 5 %
         # Shape too: the predicted covariance whitened by the MC one has eigenvalues near 1; 0.08 is
         # ≈ 5 sampling σ of a single-direction variance.
         whitened = np.linalg.eigvalsh(

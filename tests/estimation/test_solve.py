@@ -34,7 +34,7 @@ def test_ign_equals_weighted_wahba_optimum_and_cgn_the_unweighted(rng):
         ign = solve(acc[i], mag[i], MAG_REF_UT, PAPER_NOISE)
         cgn = solve(acc[i], mag[i], MAG_REF_UT, PAPER_NOISE, method="cgn")
         assert ign.converged and cgn.converged and ign.iterations <= 3
-        # 1e-9 rad: the bound; both are the same optimum computed two ways.
+        # 1e-9 rad: the project's agreement bound; both are the same optimum computed two ways.
         assert cv.angle_between(ign.q, scipy_optimum(acc[i], mag[i], weights)) < 1e-9
         assert cv.angle_between(cgn.q, scipy_optimum(acc[i], mag[i], [1.0, 1.0])) < 1e-9
         assert ign.q[0] >= 0.0
@@ -106,7 +106,7 @@ def test_batch_equals_per_sample(rng):
         res = solve_batch(acc, mag, MAG_REF_UT, PAPER_NOISE, method=method, full_output=True)
         for i in range(0, 500, 5):
             r = solve(acc[i], mag[i], MAG_REF_UT, PAPER_NOISE, method=method)
-            assert cv.angle_between(res.q[i], r.q) < 1e-9  # the bound
+            assert cv.angle_between(res.q[i], r.q) < 1e-9  # the project's agreement bound
             assert res.iterations[i] == r.iterations and res.converged[i] == r.converged
 
 

@@ -23,7 +23,7 @@ from mavattitude.sensors.lowpass import butter2, filter_batch
 from mavattitude.sensors.units import ImuSample
 
 G = 9.80665
-MATCH = 1e-9  # the bound for matching scipy; float64 rounding of a biquad is ~1e-13 here
+MATCH = 1e-9  # the project's bound for matching scipy; float64 rounding of a biquad is ~1e-13 here
 
 
 def _scipy_lowpass(x: np.ndarray, cutoff_hz: float, fs_hz: float) -> np.ndarray:
