@@ -1,7 +1,7 @@
 """`mavattitude check-config [FILE]`: validate a config and print the effective values as YAML.
 
 The effective config is the defaults, overlaid by FILE, overlaid by the file named in
-``$MAVATTITUDE_CONFIG``; each value set by a layer is listed with the layer it came from. The config is
+``$MAVATTITUDE_CONFIG``; each layer is listed with how many values it sets and which are not the defaults. The config is
 also handed to the pipeline, so settings that only the front end can check (a mounting name) are checked.
 """
 
@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import argparse
 import sys
+import textwrap
 from collections.abc import Mapping
 from typing import Any
 
-from mavattitude.config import ENV_VAR, REPLACE_WHOLE, layers, merge_layers
+from mavattitude.config import ENV_VAR, REPLACE_WHOLE, describe, layers, merge_layers
 
 NAME = "check-config"
 HELP = "validate a YAML config file and print the effective configuration"
@@ -48,9 +49,32 @@ def run(args: argparse.Namespace) -> int:
     for source, data in found:
         origin.update(dict.fromkeys(_leaves(data), source))
     sys.stdout.write(f"# effective configuration: valid\n{config.to_yaml()}")
-    sys.stdout.write(
-        "# values set by a layer (all others are defaults):\n" if origin else "# every value is a default\n"
-    )
-    for key, source in origin.items():
-        sys.stdout.write(f"#   {key}: {source}\n")
+    if not origin:
+        sys.stdout.write("# every value is a default\n")
+        return 0
+    sys.stdout.write("# values set by a layer (all others are defaults):\n")
+    defaults = {key: default for key, default, _ in describe()}
+    effective = config.to_dict()
+    for source, _ in found:
+        keys = [key for key, where in origin.items() if where == source]
+        if not keys:  # every value it set, a later layer set again
+            continue
+        changed = [key for key in keys if _value(effective, key) != defaults.get(key)]
+        sys.stdout.write(_source_line(source, len(keys), changed))
     return 0
+
+
+def _value(data: Mapping[str, Any], dotted: str) -> Any:
+    for part in dotted.split("."):
+        data = data[part]
+    return data
+
+
+def _source_line(source: str, count: int, changed: list[str]) -> str:
+    """One entry per layer: how many values it sets and which of them are not the defaults."""
+    text = f"{source}: {count} value{'s' if count != 1 else ''}"
+    if len(changed) < count:
+        text += f", {count - len(changed)} of them the defaults"
+    if changed:
+        text += f"; not the defaults: {', '.join(changed)}"
+    return "\n".join(textwrap.wrap(text, 116, initial_indent="#   ", subsequent_indent="#     ")) + "\n"
