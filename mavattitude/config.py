@@ -321,6 +321,10 @@ class OutputConfig:
     statustext_interval_s: float = field(
         default=5.0, metadata=_meta(_number(0.0, 3600.0), "minimum time between repeated STATUSTEXT, s")
     )
+    covariance: bool = field(
+        default=True,
+        metadata=_meta(_boolean, "send ATTITUDE_QUATERNION_COV (rad², body frame) with every attitude"),
+    )
 
 
 @dataclass(frozen=True)

@@ -92,6 +92,14 @@ class AttitudeOutput:
             raise InputError("this output carries no covariance")
         return self.covariance_source()
 
+    def covariance_or_nan(self) -> Array:
+        """The covariance, or all NaN where there is none (a singular information matrix): for outputs
+        that always carry the figure (ATTITUDE_QUATERNION_COV, the CSV columns)."""
+        try:
+            return self.covariance
+        except MavAttitudeError:
+            return np.full((3, 3), np.nan)
+
 
 @dataclass
 class PipelineCounters:

@@ -19,7 +19,8 @@ service is the dispatcher's listener. What it does on the link:
   (:mod:`mavattitude.link.requests`), and each stream's answer (or its absence) is said once;
 - measures the input rate it receives, and says once (log + STATUSTEXT) when it stays below the requested
   rate (a slow serial link, a busy autopilot), with the measured rate and what to do, and when it recovers;
-- emits ATTITUDE_QUATERNION per pipeline output, stamped with the vehicle time of the sample;
+- emits ATTITUDE_QUATERNION per pipeline output, stamped with the vehicle time of the sample, and (unless
+  ``output.covariance`` is off) ATTITUDE_QUATERNION_COV with its 3×3 error covariance (rad², body frame);
 - input silent for longer than ``input_timeout_s``: says so once (log + STATUSTEXT); the output
   stops by itself, since outputs only come from input, and resumes with the next good sample;
 - STATUSTEXT on start (once locked on) and, rate-limited, on degenerate geometry;
@@ -455,6 +456,9 @@ class AttitudeService:
         sent = self.link.send_attitude_quaternion(units.time_boot_ms(out.time_s), out.q, out.rates_radps)
         if not sent:
             return
+        if self.config.output.covariance:
+            covariance = out.covariance_or_nan().ravel().tolist()  # NaN first: "unknown", as MAVLink says
+            self.link.send_attitude_quaternion_cov(units.time_usec(out.time_s), out.q, out.rates_radps, covariance)
         latency_s = self.link.last_send_s - t_rx
         self.counters.emitted += 1
         if len(self._latencies_s) < MAX_LATENCY_SAMPLES:

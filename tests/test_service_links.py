@@ -6,6 +6,8 @@ from __future__ import annotations
 import logging
 import time
 
+import numpy as np
+import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavattitude import service as service_module
@@ -120,3 +122,26 @@ def test_a_fast_enough_link_is_not_warned_about(monkeypatch):
         finally:
             running.finish()
     assert counters.rate_warnings == 0 and counters.input_rate_hz > 0.9 * rate_hz
+
+
+def test_every_attitude_goes_out_with_its_covariance():
+    service, link = _service()
+    vehicle = Peer()
+    link.deliver(vehicle.heartbeat(), *vehicle.stream(200))
+    _step_until(service, lambda: not link.inbox)
+    plain, with_cov = sent(link, "ATTITUDE_QUATERNION"), sent(link, "ATTITUDE_QUATERNION_COV")
+    assert len(plain) == len(with_cov) > 40
+    for a, b in zip(plain, with_cov, strict=True):
+        assert b.time_usec == a.time_boot_ms * 1000 and b.q == pytest.approx([a.q1, a.q2, a.q3, a.q4], abs=1e-7)
+        cov = np.array(b.covariance).reshape(3, 3)
+        assert np.allclose(cov, cov.T, rtol=1e-6) and np.all(np.linalg.eigvalsh(cov) > 0.0)
+        # σ_mag/(|B| cos I) = 0.5/25 rad = 1.15° about the vertical, σ_acc/g = 0.3° for the tilt
+        assert np.radians(0.2) < np.sqrt(np.diag(cov)).max() < np.radians(1.5)
+
+
+def test_the_covariance_message_is_off_when_configured():
+    service, link = _service(**{"output.covariance": False})
+    vehicle = Peer()
+    link.deliver(vehicle.heartbeat(), *vehicle.stream(200))
+    _step_until(service, lambda: not link.inbox)
+    assert sent(link, "ATTITUDE_QUATERNION") and not sent(link, "ATTITUDE_QUATERNION_COV")

@@ -19,9 +19,23 @@ from mavattitude.estimation import METHODS
 from mavattitude.files import open_text
 
 if TYPE_CHECKING:
-    from mavattitude.pipeline import AttitudePipeline
+    from mavattitude.pipeline import AttitudeOutput, AttitudePipeline
 
-OUTPUT_COLUMNS = ("t_s", "qw", "qx", "qy", "qz", "roll_deg", "pitch_deg", "yaw_deg", "iterations", "converged")
+COVARIANCE_COLUMNS = ("cov_xx_rad2", "cov_xy_rad2", "cov_xz_rad2", "cov_yy_rad2", "cov_yz_rad2", "cov_zz_rad2")
+OUTPUT_COLUMNS = (
+    "t_s",
+    "qw",
+    "qx",
+    "qy",
+    "qz",
+    "roll_deg",
+    "pitch_deg",
+    "yaw_deg",
+    "iterations",
+    "converged",
+    *COVARIANCE_COLUMNS,
+)
+_UPPER = np.triu_indices(3)  # xx, xy, xz, yy, yz, zz: the order of COVARIANCE_COLUMNS
 # Inputs at least this long show progress on stderr unless --no-progress.
 PROGRESS_MIN_SAMPLES = 50_000
 
@@ -103,16 +117,18 @@ def write_outputs(path: str | Path, rows: Iterable[Sequence[Any]]) -> int:
     return n
 
 
-def output_row(time_s: float, q: np.ndarray, iterations: int, converged: bool) -> list[str]:
+def output_row(out: AttitudeOutput) -> list[str]:
+    """One CSV row (``OUTPUT_COLUMNS``): the covariance is of the body-frame error angles, rad² (NaN: none)."""
     from mavattitude.estimation.conventions import euler_from_quat
 
-    rpy_deg = np.degrees(euler_from_quat(q))
+    rpy_deg = np.degrees(euler_from_quat(out.q))
     return [
-        f"{time_s:.6f}",
-        *(f"{v:.9f}" for v in q),
+        f"{out.time_s:.6f}",
+        *(f"{v:.9f}" for v in out.q),
         *(f"{v:.4f}" for v in rpy_deg),
-        str(iterations),
-        str(int(converged)),
+        str(out.iterations),
+        str(int(out.converged)),
+        *(f"{v:.6e}" for v in out.covariance_or_nan()[_UPPER]),
     ]
 
 

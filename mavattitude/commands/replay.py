@@ -232,7 +232,7 @@ def replay_log(job: Job) -> LogResult:
     except MavAttitudeError as exc:
         return dataclasses.replace(result, status="failed", note=str(exc))
     _fill(result, replayed)
-    write_outputs(job.csv, (output_row(o.time_s, o.q, o.iterations, o.converged) for o in replayed.outputs))
+    write_outputs(job.csv, (output_row(o) for o in replayed.outputs))
     log.info("%s: wrote %d attitudes to %s", job.log, result.outputs, job.csv)
     damage = getattr(source, "damage", None)
     if damage:

@@ -4,7 +4,9 @@ Input columns (any order, others ignored; .csv.gz is read as gzip):
   t_s (s); acc_x_mps2, acc_y_mps2, acc_z_mps2 (specific force, body FRD: -9.81 on z when level);
   mag_x_uT, mag_y_uT, mag_z_uT; optionally gyr_x_radps, gyr_y_radps, gyr_z_radps.
 Output columns:
-  t_s, qw, qx, qy, qz (body -> NED), roll_deg, pitch_deg, yaw_deg (ZYX), iterations, converged (1/0).
+  t_s, qw, qx, qy, qz (body -> NED), roll_deg, pitch_deg, yaw_deg (ZYX), iterations, converged (1/0),
+  cov_xx_rad2, cov_xy_rad2, cov_xz_rad2, cov_yy_rad2, cov_yz_rad2, cov_zz_rad2 (the predicted covariance of
+  the body-frame error angles, rad², upper triangle; nan where the geometry gives none).
 The samples go through the same pipeline as the service: with the filter (default) one row per output
 tick (50 Hz), with --no-filter one row per input row that could be solved. Rows that could not be solved
 are counted in the summary on stderr, never written. The magnetic reference must be given (a CSV has no
@@ -108,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
     rows = []
     for i in range(n):
         for o in pipeline.push(ImuSample(t[i], tuple(acc[i]), tuple(gyr[i]), tuple(mag[i]))):
-            rows.append(output_row(o.time_s, o.q, o.iterations, o.converged))
+            rows.append(output_row(o))
         if i % 1000 == 0 or i == n - 1:
             progress.update(i + 1)
     summarise(pipeline, n, args.input)

@@ -24,7 +24,7 @@ sliding window of vehicle time (mean and spread) and over the first minute, and 
 
 with ``σ̄`` the noise model's RMS per-axis σ (Eq. 2), ``k = NOISE_SIGMAS``: the per-sample direction noise
 of each unit vector (Eq. 9, ``tr R_unit = 2σ²/|W|²`` for isotropic noise, ``σ²/|W|²`` per perpendicular
-axis) widened by the allowance for what calibration and the field model leave (docs/compass.md). It is
+axis) widened by the allowance for what calibration and the field model leave (docs/vehicle.md). It is
 consistent again when both are back within ``CLEAR_FRACTION`` of their thresholds (hysteresis: no
 flip-flop at the edge).
 

@@ -528,6 +528,22 @@ class MavlinkLink:
             )
         )
 
+    def send_attitude_quaternion_cov(
+        self, time_usec: int, q: Sequence[float], rates_radps: Sequence[float], covariance: Sequence[float]
+    ) -> bool:
+        """ATTITUDE_QUATERNION_COV: as ATTITUDE_QUATERNION, with the 3×3 attitude error covariance (rad², body
+        frame error angles, row-major; a NaN first element means unknown, as MAVLink says)."""
+        return self._send(
+            mavlink2.MAVLink_attitude_quaternion_cov_message(
+                int(time_usec),
+                [float(v) for v in q],
+                float(rates_radps[0]),
+                float(rates_radps[1]),
+                float(rates_radps[2]),
+                [float(v) for v in covariance],
+            )
+        )
+
     def send_statustext(self, text: str, severity: str = "info") -> bool:
         """One STATUSTEXT (ASCII, cut to the message's 50 characters; the log keeps the full text)."""
         payload = text.encode("ascii", "replace")[:STATUSTEXT_LEN]

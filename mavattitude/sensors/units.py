@@ -275,6 +275,11 @@ def time_boot_ms(time_s: float) -> int:
     return round(time_s * 1e3) % (1 << 32)
 
 
+def time_usec(time_s: float) -> int:
+    """A vehicle-clock time as MAVLink's ``time_usec`` (uint64 µs since boot)."""
+    return max(round(time_s * 1e6), 0)
+
+
 @dataclass(frozen=True)
 class Position:
     """A geodetic position: latitude and longitude in degrees, altitude above mean sea level in metres."""

@@ -75,6 +75,8 @@ def test_solve_writes_the_documented_columns(tmp_path):
     assert np.allclose(rows[:, 5:8], np.degrees(euler_from_quat(q)), atol=1e-3)  # 4 decimals written
     assert set(rows[:, 9]) == {1.0}
     assert np.all(rows[:, 8] == np.round(rows[:, 8]))
+    variances = rows[:, [10, 13, 15]]  # cov_xx, cov_yy, cov_zz: rad², body frame
+    assert np.all(variances > 0.0) and np.sqrt(variances).max() < np.radians(5.0)
 
 
 def test_gzip_in_and_out_and_no_gyro_columns(tmp_path):
