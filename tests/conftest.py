@@ -1,11 +1,41 @@
-"""Suite-wide fixtures."""
+"""Suite-wide fixtures, and ``--shuffle SEED``: the test files in a seeded random order, each file's tests too.
+
+Shuffling within files keeps a file's module-scoped fixtures (the e2e daemons) set up once; a failure
+names its seed, so the order is reproduced with the same ``--shuffle``. (Ten lines here rather than a
+plugin dependency: pytest-random-order's default bucket does the same.)
+"""
 
 from __future__ import annotations
 
 import logging
+import random
 from collections.abc import Iterator
 
 import pytest
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption("--shuffle", type=int, metavar="SEED", help="run files and tests in a random order (seeded)")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    seed = config.getoption("shuffle")
+    if seed is None:
+        return
+    rng = random.Random(seed)
+    files: dict[str, list[pytest.Item]] = {}
+    for item in items:
+        files.setdefault(str(item.path), []).append(item)
+    order = list(files.values())
+    rng.shuffle(order)
+    for tests in order:
+        rng.shuffle(tests)
+    items[:] = [item for tests in order for item in tests]
+
+
+def pytest_report_header(config: pytest.Config) -> str | None:
+    seed = config.getoption("shuffle")
+    return None if seed is None else f"shuffled: --shuffle {seed}"
 
 
 @pytest.fixture(autouse=True)
