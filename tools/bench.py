@@ -509,6 +509,82 @@ def bench_soak(settings: Settings) -> list[Row]:
     ]
 
 
+EXPECTED_ROWS["replay"] = [
+    "read a 400 Hz .bin into arrays (DFReader's index + numpy), IMU samples/s",
+    "pymavlink alone: DFReader recv_match over the same .bin's IMU records, records/s",
+    "pymavlink alone: recv_match over the same flight's .tlog RAW_IMU, messages/s",
+    "pyulog alone: read sample.ulg's topics, sensor_combined rows/s",
+    "replay .bin, ign, one core: IMU samples/s",
+    "replay .bin, fused, one core: IMU samples/s",
+    "replay .tlog, ign, one core: IMU samples/s",
+    "replay .tlog, fused, one core: IMU samples/s",
+    "replay -j 2 of two .bin logs (ign) against -j 1, wall clock: speed-up",
+]
+
+
+@section("replay")
+def bench_replay(settings: Settings) -> list[Row]:
+    """A generated flight (30 min of 400 Hz IMU, 10 Hz MAG, ATT, POS; --quick: 20 s) as .bin and .tlog."""
+    import tempfile
+
+    from pymavlink import DFReader, mavutil
+    from pyulog import ULog
+
+    from mavattitude.commands import replay as replay_command
+    from mavattitude.config import load_config
+    from mavattitude.link import dataflash, logs, ulog
+    from mavattitude.replay import replay
+    from mavattitude.sim import logwriter
+
+    seconds = 20.0 if settings.quick else 1800.0
+    sec, names = "replay", EXPECTED_ROWS["replay"]
+    flight = logwriter.static_log(seconds, yaw_rate_dps=10.0)
+    n = len(flight.imu_t_s)
+    reference = {"reference.magnetic": {"declination_deg": 0.0, "inclination_deg": 63.5}}
+    with tempfile.TemporaryDirectory(prefix="bench-replay-") as tmp:
+        bin_path = logwriter.write_dataflash(Path(tmp) / "a.bin", flight)
+        tlog_path = logwriter.write_tlog(Path(tmp) / "a.tlog", flight)
+        rows = [_row(sec, names[0], n / best_time_s(lambda: dataflash.read_dataflash(bin_path), 1), "samples/s")]
+
+        def dfreader_alone() -> None:
+            reader = DFReader.DFReader_binary(str(bin_path))
+            while reader.recv_match(type="IMU") is not None:
+                pass
+
+        def pymavlink_alone() -> None:
+            conn = mavutil.mavlink_connection(str(tlog_path))
+            while conn.recv_match(type=["RAW_IMU"]) is not None:
+                pass
+
+        rows.append(_row(sec, names[1], n / best_time_s(dfreader_alone, 1), "records/s"))
+        rows.append(_row(sec, names[2], n / best_time_s(pymavlink_alone, 1), "messages/s"))
+        ulg = ROOT.parent / "shared" / "data" / "px4" / "sample.ulg"
+        combined = ulog.read_ulog(ulg).imu_t_s.size
+        rows.append(_row(sec, names[3], combined / best_time_s(lambda: ULog(str(ulg), ulog.TOPICS), 1), "rows/s"))
+        for name, path, method, target in (
+            (names[4], bin_path, "ign", 150_000),
+            (names[5], bin_path, "fused", 40_000),
+            (names[6], tlog_path, "ign", 150_000),
+            (names[7], tlog_path, "fused", 40_000),
+        ):
+            config = load_config(None, {**reference, "estimator.method": method}, env={})
+            seconds_cpu = best_time_s(lambda p=path, c=config: replay(logs.open_log(p, c), c), 1)
+            rows.append(_row(sec, name, n / seconds_cpu, "samples/s", target, higher_is_better=True))
+        config = load_config(None, reference, env={})
+        second = Path(tmp) / "b.bin"
+        second.write_bytes(bin_path.read_bytes())
+        jobs = [
+            replay_command.Job(p, Path(tmp) / f"{p.stem}.csv", None, config, 0, 0, False) for p in (bin_path, second)
+        ]
+        walls = []
+        for workers in (1, 2):
+            start = time.monotonic()
+            replay_command.replay_all(jobs, workers)
+            walls.append(time.monotonic() - start)
+        rows.append(_row(sec, names[8], walls[0] / walls[1], "×", 1.7, higher_is_better=True))
+    return rows
+
+
 # --- the table and the machine ----------------------------------------------------------------------------
 
 

@@ -147,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
         if result.status != "ok":
             raise DataFileError(result.note)
         return 0
-    results = _replay_all(jobs, args.jobs)
+    results = replay_all(jobs, args.jobs)
     summary = Path(args.output) / "summary.csv"
     _write_summary(summary, results)
     sys.stdout.write(summary_table(results, config.estimator.method) + "\n")
@@ -189,7 +189,7 @@ def _jobs(args: argparse.Namespace, config: Config) -> list[Job]:
     ]
 
 
-def _replay_all(jobs: list[Job], workers: int) -> list[LogResult]:
+def replay_all(jobs: list[Job], workers: int) -> list[LogResult]:
     progress = _LogProgress(len(jobs))
     if workers == 1 or len(jobs) == 1:
         results = []

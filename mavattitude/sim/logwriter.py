@@ -170,3 +170,37 @@ def static_log(
     pos_t = np.arange(round(seconds * 5)) / 5.0 + 1.0
     pos = np.tile([47.4, 8.5, 450.0], (len(pos_t), 1))
     return SensorLog(t, acc, gyr, mag_t, mag, att_t, att_rpy, pos_t, pos)
+
+
+def write_tlog(path: str | Path, log: SensorLog, system: int = 1) -> Path:
+    """Write ``log`` as a ground station's telemetry log: a HEARTBEAT a second, RAW_IMU per IMU row with
+    the newest magnetometer reading (ArduPilot units), ATTITUDE and GLOBAL_POSITION_INT; each packet after
+    its 8-byte big-endian receive time (µs since 1970, the log's clock starting on 2026-03-01)."""
+    from mavattitude.link.mavlink2 import mavlink2
+    from mavattitude.sensors.units import PROFILES, ImuSample, encode
+
+    mav = mavlink2.MAVLink(None, srcSystem=system, srcComponent=1)
+    profile = PROFILES["ardupilot"]
+    newest = np.searchsorted(log.mag_t_s, log.imu_t_s, side="right") - 1
+    records: list[tuple[float, bytes]] = []
+    for t in np.arange(0.0, log.imu_t_s[-1] + 1.0, 1.0):
+        hb = mavlink2.MAVLink_heartbeat_message(2, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4, 3)
+        records.append((float(t), hb.pack(mav)))
+    acc, gyr, mag = log.acc_mps2.tolist(), log.gyr_radps.tolist(), log.mag_uT.tolist()
+    for i, t in enumerate(log.imu_t_s.tolist()):
+        sample = ImuSample(t, tuple(acc[i]), tuple(gyr[i]), tuple(mag[newest[i]]) if newest[i] >= 0 else None)
+        records.append((t, mavlink2.MAVLink_raw_imu_message(**encode(sample, profile, "RAW_IMU")).pack(mav)))
+    if log.attitude_t_s is not None and log.attitude_rpy_rad is not None:
+        for t, (r, p, y) in zip(log.attitude_t_s.tolist(), log.attitude_rpy_rad.tolist(), strict=True):
+            records.append((t, mavlink2.MAVLink_attitude_message(round(t * 1e3), r, p, y, 0.0, 0.0, 0.0).pack(mav)))
+    if log.position_t_s is not None and log.position is not None:
+        for t, (lat, lon, alt) in zip(log.position_t_s.tolist(), log.position.tolist(), strict=True):
+            fields = (round(t * 1e3), round(lat * 1e7), round(lon * 1e7), round(alt * 1e3), 0, 0, 0, 0, 0)
+            records.append((t, mavlink2.MAVLink_global_position_int_message(*fields).pack(mav)))
+    records.sort(key=lambda r: r[0])
+    start_us = 1_772_323_200_000_000  # 2026-03-01 00:00 UTC
+    path = Path(path)
+    with path.open("wb") as f:
+        for t, buf in records:
+            f.write(round(start_us + t * 1e6).to_bytes(8, "big") + buf)
+    return path
