@@ -19,6 +19,13 @@ import numpy as np
 
 from mavattitude.errors import DataFileError
 
+#: The columns of the project's CSV of SI samples (``solve``'s input, the validation recordings,
+#: ``calibrate``'s magnetometer input): the vehicle time and each sensor's three body axes.
+TIME_COLUMN = "t_s"
+ACC_COLUMNS = ("acc_x_mps2", "acc_y_mps2", "acc_z_mps2")
+GYR_COLUMNS = ("gyr_x_radps", "gyr_y_radps", "gyr_z_radps")
+MAG_COLUMNS = ("mag_x_uT", "mag_y_uT", "mag_z_uT")
+
 
 def open_text(path: str | Path, mode: str) -> IO[str]:
     """A text file, gzip-compressed when its name ends in .gz."""

@@ -24,7 +24,7 @@ import numpy as np
 import yaml
 
 from mavattitude.errors import CalibrationError, DataFileError, SensorError
-from mavattitude.files import open_text, reading
+from mavattitude.files import MAG_COLUMNS, open_text, reading
 from mavattitude.sensors import magfit, units
 from mavattitude.sensors.calibration import mag_block
 
@@ -33,7 +33,6 @@ HELP = "fit the magnetometer's hard- and soft-iron calibration (ellipsoid fit) a
 
 log = logging.getLogger(__name__)
 
-MAG_COLUMNS = ("mag_x_uT", "mag_y_uT", "mag_z_uT")
 LIVE_MIN_SAMPLES = 500  # live collection stops once coverage is met with at least this many samples
 PROGRESS_EVERY = 100
 

@@ -42,6 +42,7 @@ import numpy as np
 from mavattitude.commands._offline import add_config_arguments, config_from_args, output_row, summarise, write_outputs
 from mavattitude.config import Config
 from mavattitude.errors import DataFileError, MavAttitudeError
+from mavattitude.link.logs import LOG_SUFFIXES
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
 
 NAME = "replay"
@@ -51,7 +52,6 @@ log = logging.getLogger(__name__)
 
 # Autopilot attitudes further apart than this are not interpolated between.
 MAX_ATTITUDE_GAP_S = 0.5
-LOG_SUFFIXES = (".tlog", ".bin", ".ulg")
 SNAPSHOT_NOTE = (
     "{method} uses the accelerometer and magnetometer only: in accelerations it reads specific force as gravity, "
     "so its roll/pitch differ from the gyro-aided autopilot's there (--method fused follows it)"

@@ -33,18 +33,13 @@ from mavattitude.commands._offline import (
 )
 from mavattitude.config import Config
 from mavattitude.errors import ConfigError, DataFileError
-from mavattitude.files import load_numbers, open_text, reading
+from mavattitude.files import ACC_COLUMNS, GYR_COLUMNS, MAG_COLUMNS, TIME_COLUMN, load_numbers, open_text, reading
+from mavattitude.link.logs import LOG_SUFFIXES
 
 NAME = "solve"
 HELP = "attitude for every sample of a CSV file (offline, same pipeline as the service)"
 
 log = logging.getLogger(__name__)
-
-TIME = "t_s"
-ACC = ("acc_x_mps2", "acc_y_mps2", "acc_z_mps2")
-MAG = ("mag_x_uT", "mag_y_uT", "mag_z_uT")
-GYR = ("gyr_x_radps", "gyr_y_radps", "gyr_z_radps")
-LOG_SUFFIXES = (".tlog", ".bin", ".ulg")  # what replay reads
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -68,12 +63,14 @@ def read_samples(path: str | Path) -> dict[str, np.ndarray]:
     with reading(path), open_text(path, "r") as f:
         header = next(csv.reader([f.readline()]), [])
         columns = [name.strip() for name in header]
-        missing = [c for c in (TIME, *ACC, *MAG) if c not in columns]
+        missing = [c for c in (TIME_COLUMN, *ACC_COLUMNS, *MAG_COLUMNS) if c not in columns]
         if missing:
             shown = ", ".join(columns)[:200]
             raise DataFileError(f"{path}: missing column(s) {', '.join(missing)} (header: {shown})")
-        has_gyr = all(c in columns for c in GYR)
-        usecols = [columns.index(c) for c in (TIME, *ACC, *MAG, *(GYR if has_gyr else ()))]
+        has_gyr = all(c in columns for c in GYR_COLUMNS)
+        usecols = [
+            columns.index(c) for c in (TIME_COLUMN, *ACC_COLUMNS, *MAG_COLUMNS, *(GYR_COLUMNS if has_gyr else ()))
+        ]
         data = load_numbers(f, path, usecols)
     if len(data) == 0:
         raise DataFileError(f"{path}: no data rows")

@@ -15,13 +15,12 @@ import numpy as np
 
 from mavattitude.errors import DataFileError
 from mavattitude.estimation.conventions import Array, quat_normalize
-from mavattitude.files import load_numbers, open_text, reading
+from mavattitude.files import ACC_COLUMNS, GYR_COLUMNS, MAG_COLUMNS, TIME_COLUMN, load_numbers, open_text, reading
 from mavattitude.validation.frames import RestReference, ned_from_enu, rest_reference
 
-XYZ = ("x", "y", "z")
-_SENSORS = [f"acc_{a}_mps2" for a in XYZ] + [f"gyr_{a}_radps" for a in XYZ] + [f"mag_{a}_uT" for a in XYZ]
-BROAD_COLUMNS = ("t_s", *_SENSORS, "gt_qw", "gt_qx", "gt_qy", "gt_qz", "movement")
-PX4_COLUMNS = ("t_s", *_SENSORS, "mag_new", "att_qw", "att_qx", "att_qy", "att_qz")
+_SENSORS = (*ACC_COLUMNS, *GYR_COLUMNS, *MAG_COLUMNS)
+BROAD_COLUMNS = (TIME_COLUMN, *_SENSORS, "gt_qw", "gt_qx", "gt_qy", "gt_qz", "movement")
+PX4_COLUMNS = (TIME_COLUMN, *_SENSORS, "mag_new", "att_qw", "att_qx", "att_qy", "att_qz")
 
 # BROAD scores rest samples at least this far from any movement sample (Laidig et al. 2021).
 REST_DISTANCE_S = 1.0
