@@ -23,11 +23,11 @@ from __future__ import annotations
 import datetime as dt
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from mavattitude.config import Config
 from mavattitude.errors import DataFileError
 from mavattitude.link.source import AutopilotAttitude, MessageSource, PositionFix, Received, Sender
 from mavattitude.sensors.units import ImuSample, Position
@@ -163,7 +163,7 @@ def detect_format(path: Path) -> str:
     )
 
 
-def open_log(path: str | Path, config: Any, imu_instance: int = 0, mag_instance: int = 0) -> MessageSource:
+def open_log(path: str | Path, config: Config, imu_instance: int = 0, mag_instance: int = 0) -> MessageSource:
     """The message source of one log file, its format recognised from its content (see the module docstring)."""
     from mavattitude.link.source import MavlinkDecoder
 

@@ -25,6 +25,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+from mavattitude.config import Config
 from mavattitude.errors import SensorError
 from mavattitude.link.connection import MavlinkLink, Message
 from mavattitude.sensors import units
@@ -120,7 +121,8 @@ class MavlinkDecoder:
         }
 
     @classmethod
-    def from_config(cls, config: Any, date_of: Callable[[Message], dt.date | None] | None = None) -> MavlinkDecoder:
+    def from_config(cls, config: Config, date_of: Callable[[Message], dt.date | None] | None = None) -> MavlinkDecoder:
+        """The config's input message through its unit profile (``input.custom`` scales for ``custom``)."""
         return cls(config.input.message, units.get_profile(config.input.profile, config.input.custom), date_of)
 
     @property
