@@ -13,7 +13,7 @@ service is the dispatcher's listener. What it does on the link:
 - sends its own HEARTBEAT at 1 Hz as the vehicle's system id (an onboard controller, component
   ``link.component_id``). Until it has locked on in automatic mode it has no id to use and sends as
   system 1 (never 255), so that a ``udpout`` peer learns where we are and starts talking;
-- asks for the input (and the position, with ``reference.magnetic: auto``) with
+- asks for the input (and the position and SYSTEM_TIME's GPS date, with ``reference.magnetic: auto``) with
   MAV_CMD_SET_MESSAGE_INTERVAL on locking, every ``request_repeat_s``, and as soon as the link (re)opens
   (unless ``request_messages`` is off); each COMMAND_ACK is matched to the request it answers
   (:mod:`mavattitude.link.requests`), and each stream's answer (or its absence) is said once;
@@ -71,6 +71,8 @@ RATE_WINDOW_S = 5.0  # the input rate is measured over windows this long
 DEGENERATE = "DegenerateGeometryError"  # the pipeline's reject reason for collinear acc and mag
 POSITION_MESSAGE = "GLOBAL_POSITION_INT"
 POSITION_RATE_HZ = 1.0
+TIME_MESSAGE = "SYSTEM_TIME"
+TIME_RATE_HZ = 0.2
 MAX_LATENCY_SAMPLES = 100_000  # per counters window: bounds memory if stats_interval_s is long
 WAIT_REPORT_FIRST_S = 3.0  # a normal start (autopilot up, link wired) passes every wait well within this
 WAIT_REPORT_MAX_S = 300.0  # the interval between "waiting for" lines doubles up to this
@@ -353,6 +355,8 @@ class AttitudeService:
         streams = [StreamRequest(config.input.message, message_id(config.input.message), config.link.request_rate_hz)]
         if config.reference.magnetic.mode == "auto":
             streams.append(StreamRequest(POSITION_MESSAGE, message_id(POSITION_MESSAGE), POSITION_RATE_HZ))
+            # the GPS date for the magnetic model (the companion's clock may be wrong until NTP)
+            streams.append(StreamRequest(TIME_MESSAGE, message_id(TIME_MESSAGE), TIME_RATE_HZ, optional=True))
         return streams
 
     def _request_streams(self, now: float) -> None:
@@ -388,6 +392,8 @@ class AttitudeService:
         self._answers_said.add((request.name, result))
         if result == "ACCEPTED":
             log.info("autopilot accepted %s", request.describe())
+        elif request.optional:
+            log.info("autopilot answered SET_MESSAGE_INTERVAL(%s) with %s: going without", request.describe(), result)
         elif result == "TIMEOUT":
             log.warning("no COMMAND_ACK for SET_MESSAGE_INTERVAL(%s) within %.0f s", request.describe(), ACK_TIMEOUT_S)
         else:

@@ -39,33 +39,35 @@ def _step_until(service: AttitudeService, done, timeout_s: float = EVENT_TIMEOUT
         service.step(STEP_S)
 
 
-def _ack(peer: Peer, target: tuple[int, int] = (1, 191)) -> bytes:
-    return peer.pack(
-        mavlink2.MAVLink_command_ack_message(
-            mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink2.MAV_RESULT_ACCEPTED, 0, 0, *target
-        )
-    )
+def _ack(peer: Peer, target: tuple[int, int] = (1, 191), result: int = mavlink2.MAV_RESULT_ACCEPTED) -> bytes:
+    return peer.pack(mavlink2.MAVLink_command_ack_message(mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, result, 0, 0, *target))
 
 
 def test_each_ack_is_matched_to_the_request_it_answers(caplog):
     caplog.set_level(logging.INFO, logger="mavattitude.service")
-    service, link = _service(**{"reference.magnetic": "auto"})  # asks for RAW_IMU and GLOBAL_POSITION_INT
+    service, link = _service(**{"reference.magnetic": "auto"})  # asks for RAW_IMU, the position and the time
     vehicle = Peer()
     link.deliver(vehicle.heartbeat())
-    _step_until(service, lambda: len(sent(link, "COMMAND_LONG")) == 2)
-    imu, position = sent(link, "COMMAND_LONG")
-    assert (imu.param1, position.param1) == (
+    _step_until(service, lambda: len(sent(link, "COMMAND_LONG")) == 3)
+    assert [c.param1 for c in sent(link, "COMMAND_LONG")] == [
         mavlink2.MAVLINK_MSG_ID_RAW_IMU,
         mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
-    )
-    # A ground station's ACK (forwarded by a router) is not ours; the two for us answer our two requests;
-    # a fourth has no request of ours waiting.
-    link.deliver(_ack(vehicle, (255, 190)), _ack(vehicle), _ack(vehicle), _ack(vehicle))
+        mavlink2.MAVLINK_MSG_ID_SYSTEM_TIME,
+    ]
+    # A ground station's ACK (forwarded by a router) is not ours; the three for us answer our three
+    # requests in order; a fifth has no request of ours waiting.
+    denied = _ack(vehicle, result=mavlink2.MAV_RESULT_DENIED)
+    link.deliver(_ack(vehicle, (255, 190)), _ack(vehicle), _ack(vehicle), denied, _ack(vehicle))
     service.step(0.0)
     c = service.counters
-    assert c.interval_requests == 2 and c.acks == {"ACCEPTED": 2} and c.acks_unmatched == 1
-    said = [r.getMessage() for r in caplog.records if "accepted" in r.getMessage()]
-    assert said == ["autopilot accepted RAW_IMU at 200 Hz", "autopilot accepted GLOBAL_POSITION_INT at 1 Hz"]
+    assert c.interval_requests == 3 and c.acks == {"ACCEPTED": 2, "DENIED": 1} and c.acks_unmatched == 1
+    said = [r for r in caplog.records if r.getMessage().startswith("autopilot ")]
+    assert [r.getMessage() for r in said] == [
+        "autopilot accepted RAW_IMU at 200 Hz",
+        "autopilot accepted GLOBAL_POSITION_INT at 1 Hz",
+        "autopilot answered SET_MESSAGE_INTERVAL(SYSTEM_TIME at 0.2 Hz) with DENIED: going without",
+    ]
+    assert all(r.levelno == logging.INFO for r in said)  # SYSTEM_TIME is optional: no warning
 
 
 def test_streams_are_asked_for_again_as_soon_as_the_link_reopens(monkeypatch):

@@ -31,6 +31,7 @@ class StreamRequest:
     name: str
     message_id: int
     rate_hz: float
+    optional: bool = False  # useful, not needed: an autopilot that refuses it is no reason for a warning
 
     def describe(self) -> str:
         return f"{self.name} at {self.rate_hz:g} Hz"

@@ -46,7 +46,8 @@ class Heartbeat:
 
 @dataclass(frozen=True, slots=True)
 class PositionFix:
-    """A vehicle position; ``date`` is the day it was recorded (a log's), ``None`` for today (live)."""
+    """A vehicle position; ``date`` is the vehicle's GPS date or the day a log was recorded; ``None``: unknown
+    (the companion's clock is the fallback)."""
 
     position: units.Position
     date: dt.date | None = None
@@ -103,13 +104,16 @@ class MavlinkDecoder:
     """MAVLink message → item: the input message through its unit profile, positions, the autopilot's
     attitude and heartbeats decoded; anything else handed on as it is.
 
-    ``date_of`` gives the recording date of a message in a log (``None``: live, today).
+    A position's date (for the World Magnetic Model) is the vehicle's GPS date when it has sent one
+    (SYSTEM_TIME, or a GPS_RAW_INT stamped in Unix time), else ``date_of(msg)``, the recording date of a
+    message in a log, else ``None`` (live: the companion's clock, the last resort).
     """
 
     message: str
     profile: units.UnitProfile
     date_of: Callable[[Message], dt.date | None] | None = None
     _routes: dict[str, Callable[[Message], Any]] = field(init=False, repr=False)
+    vehicle_date: dt.date | None = field(default=None, init=False)
 
     def __post_init__(self) -> None:
         self._routes = {
@@ -118,6 +122,7 @@ class MavlinkDecoder:
             "ATTITUDE": _attitude,
             "ATTITUDE_QUATERNION": _attitude_quaternion,
             **dict.fromkeys(POSITION_MESSAGES, self._position),
+            "SYSTEM_TIME": self._system_time,
         }
 
     @classmethod
@@ -140,10 +145,16 @@ class MavlinkDecoder:
         except SensorError as exc:
             return Undecodable(exc)
 
+    def _system_time(self, msg: Message) -> None:
+        self.vehicle_date = units.decode_utc_date(msg) or self.vehicle_date
+
     def _position(self, msg: Message) -> PositionFix | None:
+        self.vehicle_date = units.decode_utc_date(msg) or self.vehicle_date
         position = units.decode_position(msg)
         if position is None:
             return None
+        if self.vehicle_date is not None:
+            return PositionFix(position, self.vehicle_date)
         return PositionFix(position, self.date_of(msg) if self.date_of is not None else None)
 
 

@@ -8,7 +8,9 @@ current. From the config: two angles (declination ``D``, inclination ``I``, opti
 position, through ``pygeomag`` (pure Python, WMM2025 coefficients valid 2025–2030, kept current with each
 WMM release by its maintainer; no compiled dependency on a companion computer). It is recomputed when the
 vehicle moves more than ``recompute_distance_km``; until a position arrives the reference is *waiting*
-and nothing is guessed.
+and nothing is guessed. The model's date is the vehicle's GPS date (or a log's), the companion's clock
+only as a fallback (a board without a real-time clock is wrong until NTP); a date outside the model's
+span is clamped to its edge, with one warning, never an error.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ log = logging.getLogger(__name__)
 Vec3 = tuple[float, float, float]
 EARTH_RADIUS_KM = 6371.0088
 WMM_COEFFICIENTS = "wmm/WMM_2025.COF"
+WMM_FIRST_DAY, WMM_LAST_DAY = dt.date(2025, 1, 1), dt.date(2029, 12, 31)  # WMM2025's span
 
 
 @dataclass(frozen=True)
@@ -138,6 +141,7 @@ class ReferenceTracker:
         self.mode = setting.mode
         self.recompute_distance_km = recompute_distance_km
         self._at: tuple[float, float] | None = None
+        self._clamp_said = False
         self.reference = setting.fixed_field()
 
     @property
@@ -150,14 +154,39 @@ class ReferenceTracker:
             return False
         if self._at is not None and distance_km(*self._at, lat_deg, lon_deg) <= self.recompute_distance_km:
             return False
-        vec = wmm_field_ned_uT(lat_deg, lon_deg, alt_m, when or dt.datetime.now(dt.timezone.utc).date())
+        day = self._model_day(when)
+        vec = wmm_field_ned_uT(lat_deg, lon_deg, alt_m, day)
         self._at = (lat_deg, lon_deg)
         self.reference = ReferenceField(vec, math.hypot(*vec), "wmm")
         log.info(
-            "magnetic reference from WMM2025 at %.4f°, %.4f°, %.0f m: N %.2f E %.2f D %.2f µT",
+            "magnetic reference from WMM2025 at %.4f°, %.4f°, %.0f m on %s (%s): N %.2f E %.2f D %.2f µT",
             lat_deg,
             lon_deg,
             alt_m,
+            day,
+            "the vehicle's GPS date" if when is not None else "the companion's clock",
             *vec,
         )
         return True
+
+    def _model_day(self, when: dt.date | None) -> dt.date:
+        """``when`` (default: the companion's clock, the last resort) within the model's span, said once if not."""
+        day = when or dt.datetime.now(dt.timezone.utc).date()
+        clamped = clamp_to_model(day)
+        if clamped != day and not self._clamp_said:
+            self._clamp_said = True
+            log.warning(
+                "the date %s is outside WMM2025's span (%s to %s): the field is taken on %s. If the clock is "
+                "right and that is too far off, give the field instead: --declination DEG --inclination DEG "
+                "(reference.magnetic: {declination_deg, inclination_deg} in the config)",
+                day,
+                WMM_FIRST_DAY,
+                WMM_LAST_DAY,
+                clamped,
+            )
+        return clamped
+
+
+def clamp_to_model(day: dt.date) -> dt.date:
+    """The nearest day within WMM2025's span."""
+    return min(max(day, WMM_FIRST_DAY), WMM_LAST_DAY)

@@ -21,6 +21,7 @@ Units, checked against the senders:
 
 from __future__ import annotations
 
+import datetime as dt
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -304,3 +305,23 @@ def decode_position(msg: Any) -> Position | None:
     if kind not in ("GPS_RAW_INT", "GLOBAL_POSITION_INT") or (msg.lat == 0 and msg.lon == 0):
         return None
     return Position(lat_deg=msg.lat * 1e-7, lon_deg=msg.lon * 1e-7, alt_m=msg.alt * 1e-3)
+
+
+# A Unix time before this is not a GPS date: ArduPilot's GPS_RAW_INT.time_usec counts from boot, and
+# SYSTEM_TIME.time_unix_usec is 0 until the autopilot knows the time.
+EARLIEST_UNIX_S = 1_420_070_400  # 2015-01-01
+
+
+def decode_utc_date(msg: Any) -> dt.date | None:
+    """The UTC date the vehicle's GPS gives: SYSTEM_TIME.time_unix_usec, or GPS_RAW_INT.time_usec when it is
+    a Unix time (µs) rather than a time since boot; ``None`` when the message carries no such date."""
+    kind = msg.get_type()
+    if kind == "SYSTEM_TIME":
+        usec = msg.time_unix_usec
+    elif kind == "GPS_RAW_INT":
+        usec = msg.time_usec
+    else:
+        return None
+    if usec < EARLIEST_UNIX_S * 1_000_000:
+        return None
+    return dt.datetime.fromtimestamp(usec * 1e-6, dt.timezone.utc).date()

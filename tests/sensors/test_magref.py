@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import datetime as dt
+import logging
 import math
 
 import pytest
@@ -74,3 +75,17 @@ def test_altitude_is_metres_and_weakens_the_field() -> None:
 
 def test_haversine_distance() -> None:
     assert distance_km(0.0, 0.0, 0.0, 1.0) == pytest.approx(111.19, abs=0.01)
+
+
+def test_a_date_outside_the_model_is_clamped_to_its_edge_with_one_warning(caplog):
+    from mavattitude.sensors.magref import WMM_FIRST_DAY, WMM_LAST_DAY, wmm_field_ned_uT
+
+    caplog.set_level(logging.WARNING, logger="mavattitude.sensors.magref")
+    ref = ReferenceTracker(MagneticReference("auto"))
+    assert ref.update_position(47.0, 8.0, 500.0, dt.date(2023, 5, 1))  # a 2023 log: no exit, the 2025 field
+    assert ref.reference.field_ned_uT == pytest.approx(wmm_field_ned_uT(47.0, 8.0, 500.0, WMM_FIRST_DAY))
+    assert ref.update_position(48.0, 8.0, 500.0, dt.date(2041, 1, 1))  # a board clock far ahead: the last day
+    assert ref.reference.field_ned_uT == pytest.approx(wmm_field_ned_uT(48.0, 8.0, 500.0, WMM_LAST_DAY))
+    warnings = [r.getMessage() for r in caplog.records]
+    assert len(warnings) == 1 and "2023-05-01 is outside WMM2025's span" in warnings[0]
+    assert "--declination DEG --inclination DEG" in warnings[0]
