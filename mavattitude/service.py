@@ -29,7 +29,8 @@ service is the dispatcher's listener. What it does on the link:
 - while it waits (for the autopilot's HEARTBEAT, the IMU stream, a GPS position, the first attitude:
   :class:`Waiting`, read as :attr:`AttitudeService.waiting`) it says what for and the likely cause, first
   after ``WAIT_REPORT_FIRST_S`` and then at a slowing rate, so a wrong wiring does not look like a hang;
-- every ``stats_interval_s`` one ``counters:`` log line of ``key=value`` numbers; a final one when it stops;
+- every ``stats_interval_s`` one ``counters:`` log line of the ``key=value`` numbers that changed since the
+  last one (all of them at DEBUG); the whole line when it stops;
 - systemd (sd_notify): READY as soon as the loop runs, STATUS = what it waits for (on every change of
   :class:`Waiting`), the counters line once attitudes flow; WATCHDOG from the loop.
 """
@@ -229,6 +230,7 @@ class AttitudeService:
         self._watchdog_period = watchdog_s / 4 if watchdog_s else None
         self._next_watchdog = now
         self._wait_reports = WaitReports(Waiting.AUTOPILOT, now)
+        self._last_counters: dict[str, str] = {}  # the last periodic line's key=value, to log what changed
         self._degenerate_before = 0
         self.dispatcher = Dispatcher(
             pipeline, self, system_id=config.link.vehicle_system_id, vehicle=self.source.vehicle, counters=self.counters
@@ -251,7 +253,7 @@ class AttitudeService:
                 self.step(min(max(self._next_tick - time.monotonic(), 0.0), TICK_S))
         finally:
             self.notifier.stopping()
-            self._log_counters("counters (final)")
+            self._log_counters(final=True)
         return self.counters
 
     def step(self, wait_s: float) -> None:
@@ -286,7 +288,7 @@ class AttitudeService:
         self._report_waiting(now)
         if now >= self._next_stats:
             self._next_stats = now + self.config.output.stats_interval_s
-            self._log_counters("counters")
+            self._log_counters()
         if self._watchdog_period is not None and now >= self._next_watchdog:
             self._next_watchdog = now + self._watchdog_period
             self.notifier.watchdog()
@@ -497,7 +499,9 @@ class AttitudeService:
 
     # -- counters -------------------------------------------------------------------------------------
 
-    def _log_counters(self, label: str) -> None:
+    def _log_counters(self, final: bool = False) -> None:
+        """The counters: a periodic INFO line with what changed since the last one (the whole line at
+        DEBUG; nothing at INFO when nothing changed), the whole line at the end and in systemd's STATUS."""
         if self._latencies_s:
             p50, p99 = np.percentile(np.asarray(self._latencies_s), [50.0, 99.0]) * 1e3
             self.counters.latency_p50_ms, self.counters.latency_p99_ms = float(p50), float(p99)
@@ -505,7 +509,15 @@ class AttitudeService:
         self.counters.mean_iterations = self.pipeline.counters.mean_iterations
         compass = self.pipeline.compass.figures() if self.config.compass.enabled else None
         line = counters_line(self.counters, self.link.counters, self.pipeline.counters, compass)
-        log.info("%s: %s", label, line)
+        if final:
+            log.info("counters (final): %s", line)
+        else:
+            pairs = dict(item.split("=", 1) for item in line.split())
+            changed = " ".join(f"{k}={v}" for k, v in pairs.items() if self._last_counters.get(k) != v)
+            self._last_counters = pairs
+            log.debug("counters (all): %s", line)
+            if changed:
+                log.info("counters: %s", changed)
         waiting = self.waiting
         self.notifier.status(line if waiting is Waiting.RUNNING else self.waiting_text(waiting))
 

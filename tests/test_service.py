@@ -292,6 +292,27 @@ def test_counters_line_logged_periodically_and_at_the_end(served, caplog):
     assert {"rejected.decode", "ignored", "mean_iterations", "bad_data", "signature_rejected"} <= pairs.keys()
 
 
+def test_periodic_counters_lines_say_what_changed_the_whole_line_at_debug(served, caplog):
+    running, vehicle = served
+    caplog.set_level(logging.DEBUG, logger="mavattitude.service")
+    lock_on(vehicle)
+    vehicle.stream(100)
+    vehicle.wait_for("ATTITUDE_QUATERNION")
+    wait_until(vehicle, lambda: any(r.getMessage().startswith("counters: received=100 ") for r in caplog.records))
+    mark = len(caplog.records)
+    # Three more periods (0.2 s each) with no more input: the DEBUG line is whole, the INFO line holds only
+    # what moved (our heartbeats' "sent", nothing at all in most periods), never "received=100" again.
+    wait_until(vehicle, lambda: sum(r.getMessage().startswith("counters (all): ") for r in caplog.records[mark:]) >= 3)
+    later = [r.getMessage() for r in caplog.records[mark:]]
+    whole = [m for m in later if m.startswith("counters (all): ")]
+    short = [m for m in later if m.startswith("counters: ")]
+    assert all("received=100 " in m and "rejected.decode=0" in m for m in whole)
+    assert len(short) < len(whole) and not any("received=" in m or "ignored=" in m for m in short)
+    running.finish()
+    final = [r.getMessage() for r in caplog.records if r.getMessage().startswith("counters (final): ")]
+    assert len(final) == 1 and "received=100 " in final[0]  # the end says everything
+
+
 def test_counters_line_is_numbers_only():
     pipeline_counters = AttitudePipeline(make_config()).counters
     pipeline_counters.rejected["DegenerateGeometryError"] = 4

@@ -98,8 +98,8 @@ class ServiceProcess:
             counters = parse_counters(line)
             with self._cond:
                 self.lines.append(line)
-                if counters is not None:
-                    self.counters.append(counters)
+                if counters is not None:  # a periodic line holds what changed: merged onto the last
+                    self.counters.append({**(self.counters[-1] if self.counters else {}), **counters})
                 self._cond.notify_all()
         with self._cond:
             self._cond.notify_all()
