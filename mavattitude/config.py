@@ -167,7 +167,7 @@ class SigningConfig:
 @dataclass(frozen=True)
 class LinkConfig:
     connect: str = field(
-        default="udpin:0.0.0.0:14550",
+        default="udpin:0.0.0.0:14551",
         metadata=_meta(_text, "pymavlink connection string (udpin:, udpout:, tcp:, serial)"),
     )
     vehicle_system_id: int = field(

@@ -2,7 +2,7 @@
 
 INPUT is a CSV (``.csv`` or ``.csv.gz`` with columns ``mag_x_uT, mag_y_uT, mag_z_uT``; rows with a
 ``mag_new`` column of 0 are repeats and skipped), a telemetry log (``.tlog``), or a pymavlink connection
-string (``udpin:0.0.0.0:14550``, ``tcp:HOST:PORT``, ``/dev/ttyACM0``) to collect live while the vehicle is
+string (``udpin:0.0.0.0:14551``, ``tcp:HOST:PORT``, ``/dev/ttyACM0``) to collect live while the vehicle is
 turned by hand. The result is the ``calibration: mag:`` block of the config.
 
 ArduPilot's RAW_IMU and SCALED_IMU magnetometer is already corrected by the autopilot's own compass
@@ -43,7 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "input",
         metavar="INPUT",
         help="a CSV (.csv/.csv.gz, columns mag_x_uT, mag_y_uT, mag_z_uT in µT, sensor frame), a .tlog, "
-        "or a connection string (udpin:0.0.0.0:14550, tcp:HOST:PORT, /dev/ttyACM0) to collect live",
+        "or a connection string (udpin:0.0.0.0:14551, tcp:HOST:PORT, /dev/ttyACM0) to collect live",
     )
     parser.add_argument("-o", "--output", required=True, metavar="OUT.yaml", help="YAML file to write")
     parser.add_argument(

@@ -83,9 +83,10 @@ def vehicle_from_args(args: argparse.Namespace, connect: str, stream_on_start: b
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--connect",
-        default="udpin:127.0.0.1:14551",
-        help="pymavlink connection string of the vehicle (default udpin:127.0.0.1:14551: the service "
-        "connects to it with udpout:127.0.0.1:14551)",
+        default="udpout:127.0.0.1:14551",
+        help="pymavlink connection string of the vehicle (default udpout:127.0.0.1:14551: it sends to the "
+        "service's port, as a router on the companion computer does, so `mavattitude run --config "
+        "configs/ardupilot.yaml` hears it)",
     )
     parser.add_argument(
         "--stream-on-start",

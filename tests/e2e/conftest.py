@@ -10,7 +10,7 @@ from __future__ import annotations
 import socket
 import subprocess
 import sys
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -131,7 +131,7 @@ def assert_healthy(v: FakeVehicle, max_error_deg: float, outputs: int = 25, sett
 
 
 def free_udp_port() -> int:
-    """An ephemeral UDP port for a process that must bind it itself (MAVProxy's --out)."""
+    """An ephemeral UDP port for a process that must bind it itself (MAVProxy's master, the service)."""
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
@@ -152,10 +152,10 @@ MAVPROXY_QUIET = [
 
 
 @contextmanager
-def mavproxy(master: str, out: str, workdir: Path) -> Iterator[subprocess.Popen[str]]:
+def mavproxy(master: str, outs: Sequence[str], workdir: Path) -> Iterator[subprocess.Popen[str]]:
     exe = Path(sys.executable).with_name("mavproxy.py")
     proc = subprocess.Popen(
-        [str(exe), f"--master={master}", f"--out={out}", *MAVPROXY_QUIET],
+        [str(exe), f"--master={master}", *(f"--out={out}" for out in outs), *MAVPROXY_QUIET],
         stdin=subprocess.DEVNULL,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
@@ -175,16 +175,26 @@ def mavproxy(master: str, out: str, workdir: Path) -> Iterator[subprocess.Popen[
 
 @contextmanager
 def routed_flight(
-    script: Script, sensors: SensorModel, workdir: Path, service: Mapping[str, Any] | None = None, **vehicle: Any
+    script: Script,
+    sensors: SensorModel,
+    workdir: Path,
+    service: Mapping[str, Any] | None = None,
+    other_outs: Sequence[str] = (),
+    **vehicle: Any,
 ) -> Iterator[Flight]:
-    """Vehicle ⇄ MAVProxy ⇄ service, the way a companion computer is wired."""
+    """Vehicle ⇄ MAVProxy ⇄ service, wired as the README's "Wiring through MAVProxy" says: MAVProxy sends
+    to the service's port (``--out=udpout:…``), the service listens (``udpin:``). ``other_outs`` are more
+    MAVProxy outputs (a ground station's)."""
     vehicle.setdefault("fly_when_asked", True)
-    with FakeVehicle(script, sensors, VehicleConfig("udpin:127.0.0.1:0", **vehicle)) as v:
-        out_port = free_udp_port()
-        with mavproxy(f"udpout:127.0.0.1:{v.port}", f"udpin:127.0.0.1:{out_port}", workdir):
-            config = config_for(v, **merged(FAST_SERVICE, service or {}))
-            config["link"]["connect"] = f"udpout:127.0.0.1:{out_port}"
-            with ServiceProcess(config) as svc:
-                if not v.wait_for_outputs(1, START_TIMEOUT_S):
-                    pytest.fail("no ATTITUDE_QUATERNION through MAVProxy; service log:\n" + svc.log_tail())
-                yield v, svc
+    # The autopilot talks first, as on a serial port: the vehicle sends to MAVProxy's master port.
+    master_port, service_port = free_udp_port(), free_udp_port()
+    with FakeVehicle(script, sensors, VehicleConfig(f"udpout:127.0.0.1:{master_port}", **vehicle)) as v:
+        config = config_for(v, **merged(FAST_SERVICE, service or {}))
+        config["link"]["connect"] = f"udpin:127.0.0.1:{service_port}"
+        with (
+            ServiceProcess(config) as svc,
+            mavproxy(f"udpin:127.0.0.1:{master_port}", [f"udpout:127.0.0.1:{service_port}", *other_outs], workdir),
+        ):
+            if not v.wait_for_outputs(1, START_TIMEOUT_S):
+                pytest.fail("no ATTITUDE_QUATERNION through MAVProxy; service log:\n" + svc.log_tail())
+            yield v, svc

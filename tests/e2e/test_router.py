@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+import time
+from collections import Counter
 from pathlib import Path
 
 import pytest
+from pymavlink import mavutil
 
 from mavattitude.sim import scenarios
 
-from .conftest import assert_all_outputs_valid, routed_flight, wait_outputs
+from .conftest import EVENT_TIMEOUT_S, assert_all_outputs_valid, routed_flight, wait_outputs
+
+GCS_IMU_SAMPLES = 200  # one second of the vehicle's 200 Hz RAW_IMU, seen by the ground station
 
 pytestmark = pytest.mark.e2e
 
@@ -39,3 +44,28 @@ def test_through_mavproxy_the_service_works_and_the_router_injects_nothing(
     # The service's ACK came back through the router too, and it counted every output that arrived.
     assert final["acks.accepted"] >= 1
     assert final["emitted"] == len(v.attitude_log)
+
+
+def test_mavproxy_does_not_route_between_its_outputs_so_a_second_ground_station_never_sees_the_attitude(
+    tmp_path: Path,
+) -> None:
+    """What the README warns about: a ground station on another --out sees the autopilot, not the service."""
+    gcs = mavutil.mavlink_connection("udpin:127.0.0.1:0", source_system=255)
+    gcs_port = gcs.port.getsockname()[1]
+    seen: Counter[str] = Counter()
+    script = scenarios.static(60.0)
+    with routed_flight(
+        script, scenarios.paper_sensors(200.0), tmp_path, other_outs=[f"udpout:127.0.0.1:{gcs_port}"]
+    ) as (v, _):
+        start = len(v.attitude_log)
+        deadline = time.monotonic() + EVENT_TIMEOUT_S
+        while seen["RAW_IMU"] < GCS_IMU_SAMPLES and time.monotonic() < deadline:
+            msg = gcs.recv_match(blocking=True, timeout=0.1)
+            if msg is not None:
+                seen[msg.get_type()] += 1
+        routed_to_vehicle = len(v.attitude_log) - start
+    gcs.close()
+    assert seen["RAW_IMU"] >= GCS_IMU_SAMPLES, seen  # the autopilot's messages do reach the second output
+    # ~1 s of the vehicle's 200 Hz stream: the service sent ~50 ATTITUDE_QUATERNION through MAVProxy meanwhile.
+    assert routed_to_vehicle > 0
+    assert seen["ATTITUDE_QUATERNION"] == 0, seen
