@@ -32,7 +32,8 @@ service is the dispatcher's listener. What it does on the link:
 - every ``stats_interval_s`` one ``counters:`` log line of the ``key=value`` numbers that changed since the
   last one (all of them at DEBUG); the whole line when it stops;
 - systemd (sd_notify): READY as soon as the loop runs, STATUS = what it waits for (on every change of
-  :class:`Waiting`), the counters line once attitudes flow; WATCHDOG from the loop.
+  :class:`Waiting`), the counters line once attitudes flow; WATCHDOG from the loop. In a container the
+  loop refreshes an alive file instead (:mod:`mavattitude.alive`), which the image's HEALTHCHECK reads.
 """
 
 from __future__ import annotations
@@ -49,7 +50,7 @@ from typing import Any
 
 import numpy as np
 
-from mavattitude import __version__
+from mavattitude import __version__, alive
 from mavattitude.config import Config
 from mavattitude.dispatch import DISPATCH_REJECTS, DispatchCounters, Dispatcher
 from mavattitude.estimation.compass import CompassEvent, CompassFigures
@@ -203,12 +204,14 @@ class AttitudeService:
         pipeline: AttitudePipeline,
         notifier: SystemdNotifier | None = None,
         source: MessageSource | None = None,
+        alive_file: alive.AliveFile | None = None,
     ) -> None:
         self.config = config
         self.link = link
         self.source = source if source is not None else MavlinkSource(link, MavlinkDecoder.from_config(config))
         self.pipeline = pipeline
         self.notifier = notifier if notifier is not None else default_notifier()
+        self.alive_file = alive_file if alive_file is not None else alive.AliveFile()
         self.counters = ServiceCounters()
         self._input_name = config.input.message
         self._limiter = _RateLimiter(config.output.statustext_interval_s, time.monotonic)
@@ -231,6 +234,7 @@ class AttitudeService:
         self._next_watchdog = now
         self._wait_reports = WaitReports(Waiting.AUTOPILOT, now)
         self._last_counters: dict[str, str] = {}  # the last periodic line's key=value, to log what changed
+        self._next_alive = now
         self._degenerate_before = 0
         self.dispatcher = Dispatcher(
             pipeline, self, system_id=config.link.vehicle_system_id, vehicle=self.source.vehicle, counters=self.counters
@@ -292,6 +296,9 @@ class AttitudeService:
         if self._watchdog_period is not None and now >= self._next_watchdog:
             self._next_watchdog = now + self._watchdog_period
             self.notifier.watchdog()
+        if now >= self._next_alive:
+            self._next_alive = now + alive.PERIOD_S
+            self.alive_file.touch()
 
     # -- what it waits for -----------------------------------------------------------------------------
 

@@ -1,12 +1,13 @@
 """Packaging, CI, the systemd unit and the Docker image, checked the way a newcomer's machine would see them.
 
 These are the checks `.ci/run` needs beyond the unit tests (ruff, hadolint, systemd-analyze), written as
-tests so that the README's one test command is the whole of CI. No Docker engine runs on these
-machines, so the image's build and run steps are replayed in a plain environment.
+tests so that the README's one test command is the whole of CI. The image's build and run steps are also
+replayed here in a plain environment, without Docker (tests/deploy/ builds and runs the image itself).
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import re
@@ -20,6 +21,8 @@ from pathlib import Path
 import pytest
 
 from mavattitude.cli import build_parser
+from mavattitude.commands import simulate
+from mavattitude.config import LinkConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent  # ruff and hadolint come with the test extra, beside this python
@@ -168,6 +171,24 @@ def _instructions() -> list[tuple[str, str]]:
     return [(line.split(None, 1)[0].upper(), line.split(None, 1)[1]) for line in lines]
 
 
+SERVICE_PORT = 14551  # mavattitude's own MAVLink port; 14550 is the ground station's
+
+
+def test_one_port_plan_in_the_configs_the_image_the_readme_and_the_fake_vehicle():
+    listen = f"udpin:0.0.0.0:{SERVICE_PORT}"
+    assert LinkConfig().connect == listen
+    for config in sorted((ROOT / "configs").glob("*.yaml")):
+        assert re.search(rf'^  connect: "{listen}"', config.read_text(), re.M), config.name
+    assert dict(_instructions())["EXPOSE"] == f"{SERVICE_PORT}/udp"
+    readme = (ROOT / "README.md").read_text()
+    assert f"-p {SERVICE_PORT}:{SERVICE_PORT}/udp" in readme
+    assert f"Port = {SERVICE_PORT}" in readme and f"--out=udpout:127.0.0.1:{SERVICE_PORT}" in readme
+    assert not re.search(r"udpin:[0-9.]+:14550|-p 14550|EXPOSE 14550", readme + DOCKERFILE.read_text())
+    parser = argparse.ArgumentParser()
+    simulate.add_arguments(parser)
+    assert parser.parse_args([]).connect == f"udpout:127.0.0.1:{SERVICE_PORT}"  # sends to the service's port
+
+
 def test_hadolint_reports_nothing():
     result = _run([BIN / "hadolint", "--no-color", DOCKERFILE])
     assert result.returncode == 0 and result.stdout.strip() == "", result.stdout + result.stderr
@@ -185,6 +206,34 @@ def test_dockerfile_is_multistage_pinned_non_root_and_runs_the_service():
     assert args["ENTRYPOINT"] == '["mavattitude"]'
     assert args["CMD"] == '["run", "--config", "/etc/mavattitude/config.yaml"]'
     assert args["VOLUME"] == '["/etc/mavattitude"]'
+
+
+def _locked() -> dict[str, list[str]]:
+    """docker/requirements.lock: package name -> the lines of its entry (``name==version \\`` and hashes)."""
+    entries: dict[str, list[str]] = {}
+    name = ""
+    for line in (ROOT / "docker" / "requirements.lock").read_text().splitlines():
+        if line and not line.startswith((" ", "#")):
+            name = re.split(r"[=<>!~ ]", line)[0].lower()
+            entries[name] = [line]
+        elif name and line.strip().startswith("--hash"):
+            entries[name].append(line.strip())
+    return entries
+
+
+def test_image_dependencies_are_locked_to_exact_versions_with_hashes():
+    locked = _locked()
+    for name, lines in locked.items():
+        assert re.fullmatch(r"[a-z0-9_.\-]+==[0-9][\w.]* \\", lines[0]), lines[0]
+        assert len(lines) > 1 and all(re.fullmatch(r"--hash=sha256:[0-9a-f]{64}( \\)?", h) for h in lines[1:]), name
+    # Every run-time dependency pyproject.toml declares, and nothing of the test or plot extras.
+    declared = re.search(r"^dependencies = \[(.*?)^\]", (ROOT / "pyproject.toml").read_text(), re.S | re.M)
+    assert declared is not None
+    names = {re.split(r"[<>=!~ ;\[]", dep)[0].lower() for dep in re.findall(r'^\s*"([^"]+)"', declared[1], re.M)}
+    assert names and names <= set(locked), names - set(locked)
+    assert not {"pytest", "scipy", "mavproxy", "matplotlib"} & set(locked)
+    dockerfile = DOCKERFILE.read_text()
+    assert "--require-hashes -r /tmp/requirements.lock" in dockerfile and "--no-deps /wheels/" in dockerfile
 
 
 def test_image_build_and_run_steps_in_a_plain_environment(tmp_path):

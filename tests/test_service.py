@@ -23,6 +23,8 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from mavattitude import alive
+from mavattitude.alive import AliveFile
 from mavattitude.config import Config, load_config
 from mavattitude.estimation.conventions import angle_between, quat_from_euler, rotate_ned_to_body
 from mavattitude.link import LinkCounters
@@ -494,3 +496,27 @@ def test_started_before_the_autopilot_it_says_its_banner_then_what_it_waits_for(
         f"waiting for a HEARTBEAT on {connect} (is the autopilot listening on that port?) (3 s so far)"
     )
     assert not any("reopen" in line or "again" in line for line in lines)
+
+
+def test_the_loop_refreshes_the_alive_file_once_a_period(tmp_path):
+    running = Running(make_config())
+    running.finish()  # drive the periodic work with a clock of our own
+    service = running.service
+    path = tmp_path / "alive"
+    service.alive_file = AliveFile({alive.ENV: str(path)})
+    start = time.monotonic() + 10.0
+    service._periodic(start)
+    assert path.exists()
+    path.unlink()
+    service._periodic(start + alive.PERIOD_S / 2)
+    assert not path.exists()  # not yet due
+    service._periodic(start + alive.PERIOD_S)
+    assert path.exists()
+
+
+def test_alive_file_unset_writes_nothing_and_a_failed_touch_is_counted(tmp_path, caplog):
+    assert AliveFile({}).touch() is False
+    blocked = AliveFile({alive.ENV: str(tmp_path / "missing-dir" / "alive")})
+    assert blocked.touch() is False and blocked.touch() is False
+    assert blocked.errors == 2
+    assert "cannot refresh the alive file" in caplog.text
