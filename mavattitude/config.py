@@ -311,6 +311,25 @@ class CompassConfig:
 
 
 @dataclass(frozen=True)
+class CrossCheckConfig:
+    enabled: bool = field(
+        default=True, metadata=_meta(_boolean, "compare with the autopilot's ATTITUDE and publish the difference")
+    )
+    attitude_rate_hz: float = field(
+        default=10.0, metadata=_meta(_number(0.0, 100.0, lo_open=True), "ATTITUDE rate asked of the autopilot, Hz")
+    )
+    publish_rate_hz: float = field(
+        default=2.0, metadata=_meta(_number(0.0, 50.0, lo_open=True), "NAMED_VALUE_FLOAT rate of the difference, Hz")
+    )
+    threshold_deg: float = field(
+        default=5.0, metadata=_meta(_number(0.0, 180.0, lo_open=True), "warn when the total difference stays above")
+    )
+    hold_s: float = field(
+        default=3.0, metadata=_meta(_number(0.0, 600.0), "... for this long (and clear after as long below), s")
+    )
+
+
+@dataclass(frozen=True)
 class OutputConfig:
     stats_interval_s: float = field(
         default=10.0, metadata=_meta(_number(0.0, 86400.0, lo_open=True), "counters log line period, s")
@@ -343,6 +362,7 @@ class Config:
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
     estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
     compass: CompassConfig = field(default_factory=CompassConfig)
+    crosscheck: CrossCheckConfig = field(default_factory=CrossCheckConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
     logging: LoggingConfig = field(default_factory=LoggingConfig)
 

@@ -17,6 +17,10 @@ service is the dispatcher's listener. What it does on the link:
   MAV_CMD_SET_MESSAGE_INTERVAL on locking, every ``request_repeat_s``, and as soon as the link (re)opens
   (unless ``request_messages`` is off); each COMMAND_ACK is matched to the request it answers
   (:mod:`mavattitude.link.requests`), and each stream's answer (or its absence) is said once;
+- cross-checks the autopilot (``crosscheck:``): asks for its ATTITUDE, pairs it with our output by vehicle
+  time (:mod:`mavattitude.estimation.crosscheck`), publishes the difference as NAMED_VALUE_FLOAT
+  (``xc_roll``, ``xc_pitch``, ``xc_yaw``, ``xc_total``, degrees) at ``publish_rate_hz``, and says once (log +
+  STATUSTEXT) when the total stays above ``threshold_deg`` for ``hold_s``, and when it clears;
 - measures the input rate it receives, and says once (log + STATUSTEXT) when it stays below the requested
   rate (a slow serial link, a busy autopilot), with the measured rate and what to do, and when it recovers;
 - emits ATTITUDE_QUATERNION per pipeline output, stamped with the vehicle time of the sample, and (unless
@@ -54,6 +58,7 @@ from mavattitude import __version__, alive
 from mavattitude.config import Config
 from mavattitude.dispatch import DISPATCH_REJECTS, DispatchCounters, Dispatcher
 from mavattitude.estimation.compass import CompassEvent, CompassFigures
+from mavattitude.estimation.crosscheck import CrossCheck, CrossCheckSettings
 from mavattitude.link import MavlinkLink, load_signing_key, message_id
 from mavattitude.link.requests import LOW_FRACTION, PendingRequests, RateMonitor, StreamRequest
 from mavattitude.link.source import AutopilotAttitude, MavlinkDecoder, MavlinkSource, MessageSource, Sender
@@ -75,6 +80,8 @@ POSITION_MESSAGE = "GLOBAL_POSITION_INT"
 POSITION_RATE_HZ = 1.0
 TIME_MESSAGE = "SYSTEM_TIME"
 TIME_RATE_HZ = 0.2
+ATTITUDE_MESSAGE = "ATTITUDE"
+CROSSCHECK_NAMES = ("xc_roll", "xc_pitch", "xc_yaw", "xc_total")  # NAMED_VALUE_FLOAT: ≤ 10 characters
 MAX_LATENCY_SAMPLES = 100_000  # per counters window: bounds memory if stats_interval_s is long
 WAIT_REPORT_FIRST_S = 3.0  # a normal start (autopilot up, link wired) passes every wait well within this
 WAIT_REPORT_MAX_S = 300.0  # the interval between "waiting for" lines doubles up to this
@@ -224,10 +231,14 @@ class AttitudeService:
         self._answers_said: set[tuple[str, str]] = set()  # (stream, result) logged once each
         self._rate = RateMonitor(config.link.request_rate_hz, RATE_WINDOW_S) if config.link.request_messages else None
         self._reconnects_seen = 0
+        xc = config.crosscheck
+        self._xcheck = CrossCheck(CrossCheckSettings(xc.threshold_deg, xc.hold_s)) if xc.enabled else None
+        self._published_s: float | None = None  # vehicle time of the last difference published
         now = time.monotonic()
         self._next_tick = now
         self._next_heartbeat = now
         self._next_request = float("inf")
+        self._next_publish = now
         self._next_stats = now + config.output.stats_interval_s
         watchdog_s = self.notifier.watchdog_interval_s
         self._watchdog_period = watchdog_s / 4 if watchdog_s else None
@@ -285,6 +296,9 @@ class AttitudeService:
             self._say_answer(request, "TIMEOUT")
         if self._rate is not None:
             self._check_rate(self._rate, now)
+        if self._xcheck is not None and now >= self._next_publish:
+            self._next_publish = now + 1.0 / self.config.crosscheck.publish_rate_hz
+            self._publish_difference(self._xcheck)
         if not self._input_lost and self._last_input is not None:
             silent_s = now - self._last_input
             if silent_s > self.config.input.input_timeout_s:
@@ -366,6 +380,9 @@ class AttitudeService:
             streams.append(StreamRequest(POSITION_MESSAGE, message_id(POSITION_MESSAGE), POSITION_RATE_HZ))
             # the GPS date for the magnetic model (the companion's clock may be wrong until NTP)
             streams.append(StreamRequest(TIME_MESSAGE, message_id(TIME_MESSAGE), TIME_RATE_HZ, optional=True))
+        if config.crosscheck.enabled:
+            rate_hz = config.crosscheck.attitude_rate_hz
+            streams.append(StreamRequest(ATTITUDE_MESSAGE, message_id(ATTITUDE_MESSAGE), rate_hz, optional=True))
         return streams
 
     def _request_streams(self, now: float) -> None:
@@ -381,7 +398,40 @@ class AttitudeService:
             self._on_ack(msg)
 
     def on_autopilot_attitude(self, attitude: AutopilotAttitude, t_rx: float) -> None:
-        """Not used by the live service (yet): only replay compares with the autopilot."""
+        if self._xcheck is not None:
+            self._xcheck.add_autopilot(attitude.time_s, np.asarray(attitude.q))
+            self._cross_check(self._xcheck)
+
+    def _cross_check(self, xcheck: CrossCheck) -> None:
+        for event in xcheck.update()[1]:
+            t = self.config.crosscheck
+            if event.disagree:
+                d = xcheck.last
+                assert d is not None
+                log.warning(
+                    "our attitude and the autopilot's differ by %.1f° (roll %+.1f°, pitch %+.1f°, yaw %+.1f°) for "
+                    "%g s: one of them is wrong; see docs/vehicle.md (the autopilot cross-check) for what to check",
+                    event.total_deg,
+                    d.roll_deg,
+                    d.pitch_deg,
+                    d.yaw_deg,
+                    t.hold_s,
+                )
+                text = f"mavattitude: {event.total_deg:.0f} deg off the autopilot's attitude"
+                self._statustext("crosscheck", text, "warning", log_it=False)
+            else:
+                log.info("our attitude agrees with the autopilot's again (%.1f°)", event.total_deg)
+                self._statustext("crosscheck_clear", "mavattitude: agrees with the autopilot again", "info")
+
+    def _publish_difference(self, xcheck: CrossCheck) -> None:
+        """The latest difference as NAMED_VALUE_FLOAT, stamped with its vehicle time; nothing new, nothing sent."""
+        d = xcheck.last
+        if d is None or d.time_s == self._published_s:
+            return
+        self._published_s = d.time_s
+        stamp = units.time_boot_ms(d.time_s)
+        for name, value in zip(CROSSCHECK_NAMES, (d.roll_deg, d.pitch_deg, d.yaw_deg, d.total_deg), strict=True):
+            self.link.send_named_value_float(stamp, name, value)
 
     def _on_ack(self, msg: Any) -> None:
         result = self.link.interval_ack_result(msg)
@@ -452,6 +502,10 @@ class AttitudeService:
                 self._on_compass(event)
         for out in outputs:
             self._emit(out, t_rx)
+        if self._xcheck is not None and outputs:
+            for out in outputs:
+                self._xcheck.add_ours(out.time_s, out.q)
+            self._cross_check(self._xcheck)
 
     def _on_compass(self, event: CompassEvent) -> None:
         """The compass verdict changed: said once each way (the monitor's hysteresis keeps it from flapping)."""
@@ -515,7 +569,7 @@ class AttitudeService:
             self._latencies_s.clear()
         self.counters.mean_iterations = self.pipeline.counters.mean_iterations
         compass = self.pipeline.compass.figures() if self.config.compass.enabled else None
-        line = counters_line(self.counters, self.link.counters, self.pipeline.counters, compass)
+        line = counters_line(self.counters, self.link.counters, self.pipeline.counters, compass, self._xcheck)
         if final:
             log.info("counters (final): %s", line)
         else:
@@ -553,8 +607,23 @@ def compass_pairs(figures: CompassFigures) -> list[tuple[str, float]]:
     ]
 
 
+def crosscheck_pairs(xcheck: CrossCheck) -> list[tuple[str, float]]:
+    """The cross-check figures of the counters line: pairs compared, the last and RMS total difference (deg)."""
+    last = xcheck.last.total_deg if xcheck.last is not None else math.nan
+    return [
+        ("xc_pairs", xcheck.pairs),
+        ("xc_total_deg", last),
+        ("xc_rms_deg", xcheck.rms_total_deg),
+        ("xc_warnings", xcheck.warnings),
+    ]
+
+
 def counters_line(
-    counters: ServiceCounters, link_counters: Any, pipeline_counters: Any, compass: CompassFigures | None = None
+    counters: ServiceCounters,
+    link_counters: Any,
+    pipeline_counters: Any,
+    compass: CompassFigures | None = None,
+    xcheck: CrossCheck | None = None,
 ) -> str:
     """``key=value`` numbers, one line: what the e2e tests and an operator read.
 
@@ -591,6 +660,7 @@ def counters_line(
         ("send_failed", link_counters.send_failed),
         ("reconnects", link_counters.reconnects),
         *(compass_pairs(compass) if compass is not None else ()),
+        *(crosscheck_pairs(xcheck) if xcheck is not None else ()),
         *((f"fused.{k}", v) for k, v in pipeline_counters.estimator().items()),
     ]
     return " ".join(f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}" for k, v in pairs)

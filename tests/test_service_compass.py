@@ -27,9 +27,9 @@ def test_a_compass_upside_down_is_said_once_in_the_log_and_as_a_statustext(memor
     figures = service.pipeline.compass.figures()
     assert texts == [compass_statustext(figures)] and len(texts[0]) <= 50
     assert texts[0].startswith(f"compass dip {figures.dip_deg:+.0f} (expected +60)")
-    service._log_counters("counters")
-    line = [r.getMessage() for r in caplog.records if r.getMessage().startswith("counters:")][-1]
-    pairs = dict(item.split("=") for item in line.removeprefix("counters: ").split())
+    service._log_counters(final=True)
+    line = [r.getMessage() for r in caplog.records if r.getMessage().startswith("counters (final):")][-1]
+    pairs = dict(item.split("=") for item in line.removeprefix("counters (final): ").split())
     assert pairs["compass_warnings"] == "1" and pairs["compass_dip_expected_deg"] == "60.000"
     # the tilt is kept from the accelerometer: every output after the first tick took heading only
     assert service.counters.emitted > 0

@@ -27,7 +27,8 @@ EVENT_TIMEOUT_S = 10.0
 
 
 def _service(**overrides: object) -> tuple[AttitudeService, MemoryLink]:
-    config = make_config(**{"link.request_repeat_s": 60.0, **overrides})  # no repeats within a test
+    # no repeats within a test; the cross-check (its ATTITUDE request) has its own tests
+    config = make_config(**{"link.request_repeat_s": 60.0, "crosscheck.enabled": False, **overrides})
     link = MemoryLink()
     return AttitudeService(config, link, AttitudePipeline(config), SystemdNotifier(environ={})), link
 
@@ -147,3 +148,36 @@ def test_the_covariance_message_is_off_when_configured():
     link.deliver(vehicle.heartbeat(), *vehicle.stream(200))
     _step_until(service, lambda: not link.inbox)
     assert sent(link, "ATTITUDE_QUATERNION") and not sent(link, "ATTITUDE_QUATERNION_COV")
+
+
+def test_the_cross_check_publishes_the_difference_and_warns_once(caplog):
+    caplog.set_level(logging.WARNING, logger="mavattitude.service")
+    service, link = _service(**{"crosscheck.enabled": True})
+    vehicle = Peer()
+    roll_deg, pitch_deg, yaw_deg = 10.0 + 8.0, -20.0, 135.0  # the autopilot's roll 8° off Q_TRUE's
+    datagrams = [vehicle.heartbeat()]
+    for _ in range(60):  # 6 s: 0.1 s of RAW_IMU at 200 Hz, then the autopilot's ATTITUDE for its middle
+        datagrams += vehicle.stream(20)
+        stamp_ms = round((vehicle.time_s - 0.05) * 1000)
+        attitude = mavlink2.MAVLink_attitude_message(
+            stamp_ms, np.radians(roll_deg), np.radians(pitch_deg), np.radians(yaw_deg), 0.0, 0.0, 0.0
+        )
+        datagrams.append(vehicle.pack(attitude))
+    link.deliver(*datagrams)
+    _step_until(service, lambda: not link.inbox)
+    _step_until(service, lambda: len(sent(link, "NAMED_VALUE_FLOAT")) >= 4)  # published at 2 Hz
+    request = [c for c in sent(link, "COMMAND_LONG") if c.param1 == mavlink2.MAVLINK_MSG_ID_ATTITUDE]
+    assert len(request) == 1 and request[0].param2 == 1e6 / 10.0  # 10 Hz
+    values = {m.name: m.value for m in sent(link, "NAMED_VALUE_FLOAT")[-4:]}
+    assert set(values) == {"xc_roll", "xc_pitch", "xc_yaw", "xc_total"}
+    # RAW_IMU quantisation moves ours by < 0.2° (test_service's tolerance is 0.5°)
+    assert values["xc_roll"] == pytest.approx(-8.0, abs=0.5) and values["xc_total"] == pytest.approx(8.0, abs=0.5)
+    texts = [m.text for m in sent(link, "STATUSTEXT") if "autopilot" in m.text]
+    assert texts == ["mavattitude: 8 deg off the autopilot's attitude"]
+    assert sum("differ by" in r.getMessage() for r in caplog.records) == 1
+    caplog.set_level(logging.INFO, logger="mavattitude.service")
+    service._log_counters(final=True)
+    line = [r.getMessage() for r in caplog.records if r.getMessage().startswith("counters (final):")][-1]
+    pairs = dict(item.split("=") for item in line.removeprefix("counters (final): ").split())
+    assert pairs["xc_warnings"] == "1" and int(pairs["xc_pairs"]) >= 55  # 60 less the first, before ours
+    assert float(pairs["xc_total_deg"]) == pytest.approx(8.0, abs=0.5)

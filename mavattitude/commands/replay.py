@@ -238,8 +238,12 @@ def replay_log(job: Job) -> LogResult:
     if damage:
         result.status = "damaged"
         result.note = f"{job.log}: {damage}: the {result.samples} samples before it replayed, written to {job.csv}"
+    if job.config.compass.enabled:
+        _compass_columns(replayed.pipeline.compass.figures(), result)
     if replayed.autopilot:
         _compare(replayed.output_array(), replayed.autopilot_array(), job, result)
+        if job.config.crosscheck.enabled:
+            _cross_check(replayed.output_array(), replayed.autopilot_array(), job, result)
     else:
         log.info("%s holds no attitude from the autopilot: no comparison", job.log)
     return result
@@ -275,6 +279,39 @@ def _fill(result: LogResult, replayed: Any) -> None:
         + sum(pipeline.frontend.rejected.values())
         + sum(pipeline.rejected.values())
     )
+
+
+def _compass_columns(figures: Any, result: LogResult) -> None:
+    """The compass monitor's figures in the summary (docs/vehicle.md)."""
+    result.columns |= {
+        "compass_dip_deg": round(figures.first_dip_deg, 1),  # the first minute's mean
+        "compass_dip_expected_deg": round(figures.expected_dip_deg, 1),
+        "compass_field_ratio": round(figures.first_field_ratio, 3),
+        "compass_warnings": figures.warnings,
+    }
+
+
+def _cross_check(ours: np.ndarray, autopilot: np.ndarray, job: Job, result: LogResult) -> None:
+    """The service's cross-check over the log: its warnings (vehicle time) and figures, as live."""
+    from mavattitude.estimation.crosscheck import CrossCheckSettings, cross_check_log
+
+    c = job.config.crosscheck
+    check, _, events = cross_check_log(
+        ours[:, 0], ours[:, 1:5], autopilot[:, 0], autopilot[:, 1:5], CrossCheckSettings(c.threshold_deg, c.hold_s)
+    )
+    for event in events:
+        if event.disagree:
+            log.warning(
+                "%s: t=%.1f s: our attitude and the autopilot's differ by %.1f° for %g s",
+                job.log,
+                event.time_s,
+                event.total_deg,
+                c.hold_s,
+            )
+        else:
+            log.info("%s: t=%.1f s: our attitude agrees with the autopilot's again", job.log, event.time_s)
+    rms_deg = round(check.rms_total_deg, 2)
+    result.columns |= {"xc_pairs": check.pairs, "xc_rms_deg": rms_deg, "xc_warnings": check.warnings}
 
 
 def _check_found(path: str, message: str, result: Any) -> None:

@@ -28,7 +28,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from mavattitude.errors import LinkError, SigningError
+from mavattitude.errors import InputError, LinkError, SigningError
 from mavattitude.link.mavlink2 import force_mavlink2, mavlink2, mavutil
 from mavattitude.link.signing import signing_timestamp_now, verify_signature
 
@@ -42,6 +42,7 @@ UDP_PEER_TIMEOUT_S = 5.0  # a udpin peer silent this long is no longer sent to (
 CONNECT_TIMEOUT_S = 0.5  # a TCP connect attempt; short, so a stop request is never held up for long
 SIGNING_CLOCK_UPDATE_S = 1.0
 STATUSTEXT_LEN = 50
+NAMED_VALUE_LEN = 10
 NOT_AUTOPILOT_TYPES = frozenset(
     {
         mavlink2.MAV_TYPE_GCS,
@@ -542,6 +543,14 @@ class MavlinkLink:
                 float(rates_radps[2]),
                 [float(v) for v in covariance],
             )
+        )
+
+    def send_named_value_float(self, time_boot_ms: int, name: str, value: float) -> bool:
+        """NAMED_VALUE_FLOAT: one named number (``name`` at most 10 ASCII characters, the message's field)."""
+        if len(name) > NAMED_VALUE_LEN or not name.isascii():
+            raise InputError(f"NAMED_VALUE_FLOAT name {name!r} is not at most {NAMED_VALUE_LEN} ASCII characters")
+        return self._send(
+            mavlink2.MAVLink_named_value_float_message(int(time_boot_ms) & 0xFFFFFFFF, name.encode(), float(value))
         )
 
     def send_statustext(self, text: str, severity: str = "info") -> bool:

@@ -1,0 +1,169 @@
+"""The autopilot cross-check: our attitude against the autopilot's, paired by vehicle time. No I/O.
+
+The autopilot's attitude (ATTITUDE, ~10 Hz) is sparser than ours (50 Hz), so each of its attitudes is
+paired with ours *interpolated to its time* (normalised linear interpolation between the two outputs
+around it, at most ``max_gap_s`` apart): no extrapolation, and an autopilot attitude that arrives before
+our output for its time waits until that output is there. The difference is ours minus the autopilot's:
+roll, pitch and yaw (ZYX Euler angles, yaw wrapped to ±180°) and the total rotation angle between the
+two, degrees.
+
+The verdict: *disagreeing* once the total stays above ``threshold_deg`` for ``hold_s`` of vehicle time,
+*agreeing* again once it stays below ``CLEAR_FRACTION · threshold_deg`` for ``hold_s`` (hysteresis, so a
+difference hovering at the threshold is said once, not at every crossing).
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from .conventions import angle_between, euler_from_quat
+
+CLEAR_FRACTION = 0.8
+KEEP_S = 5.0  # our outputs kept for pairing, s of vehicle time
+MAX_WAITING = 100  # autopilot attitudes waiting for our output (10 s at 10 Hz)
+
+
+@dataclass(frozen=True)
+class CrossCheckSettings:
+    threshold_deg: float = 5.0
+    hold_s: float = 3.0
+    max_gap_s: float = 0.5  # our outputs further apart are not interpolated between
+
+
+@dataclass(frozen=True)
+class Difference:
+    """Ours minus the autopilot's at the autopilot's ``time_s`` (vehicle clock), degrees."""
+
+    time_s: float
+    roll_deg: float
+    pitch_deg: float
+    yaw_deg: float
+    total_deg: float
+
+
+@dataclass(frozen=True)
+class CrossCheckEvent:
+    """The verdict changed at ``time_s``: ``disagree`` (the total stayed above the threshold) or agree again."""
+
+    time_s: float
+    disagree: bool
+    total_deg: float
+
+
+def difference(time_s: float, ours: np.ndarray, theirs: np.ndarray) -> Difference:
+    """Ours minus theirs (quaternions ``[w, x, y, z]`` body → NED) in degrees."""
+    roll, pitch, yaw = np.degrees(euler_from_quat(ours) - euler_from_quat(theirs)).tolist()
+    yaw = (yaw + 180.0) % 360.0 - 180.0
+    return Difference(time_s, roll, pitch, yaw, math.degrees(float(angle_between(ours, theirs))))
+
+
+def interpolate(t0: float, q0: np.ndarray, t1: float, q1: np.ndarray, t: float) -> np.ndarray:
+    """Normalised linear interpolation between two attitudes, the shorter way round."""
+    if float(np.dot(q0, q1)) < 0.0:
+        q1 = -q1
+    q = q0 + (q1 - q0) * ((t - t0) / (t1 - t0))
+    return q / np.linalg.norm(q)
+
+
+class CrossCheck:
+    """Pairs the autopilot's attitudes with ours and judges the difference (see the module docstring)."""
+
+    def __init__(self, settings: CrossCheckSettings) -> None:
+        self.settings = settings
+        self._times: deque[float] = deque()
+        self._quats: deque[np.ndarray] = deque()
+        # autopilot attitudes ahead of our outputs (bounded: while we output nothing, the oldest go)
+        self._waiting: deque[tuple[float, np.ndarray]] = deque(maxlen=MAX_WAITING)
+        self.last: Difference | None = None
+        self.pairs = 0
+        self.disagree = False
+        self.warnings = 0
+        self._sum_total2 = 0.0
+        self._since: float | None = None  # when the total crossed to the other side of the verdict
+
+    @property
+    def rms_total_deg(self) -> float:
+        return math.sqrt(self._sum_total2 / self.pairs) if self.pairs else math.nan
+
+    def add_ours(self, time_s: float, q: np.ndarray) -> None:
+        if self._times and time_s <= self._times[-1]:  # a reboot or a gap reset: start over
+            self._times.clear()
+            self._quats.clear()
+        self._times.append(time_s)
+        self._quats.append(np.asarray(q, dtype=float))
+        while self._times[0] < time_s - KEEP_S:
+            self._times.popleft()
+            self._quats.popleft()
+
+    def add_autopilot(self, time_s: float, q: np.ndarray) -> None:
+        self._waiting.append((time_s, np.asarray(q, dtype=float)))
+
+    def update(self) -> tuple[list[Difference], list[CrossCheckEvent]]:
+        """Pair every waiting autopilot attitude that our outputs now reach; the differences and verdicts."""
+        diffs: list[Difference] = []
+        events: list[CrossCheckEvent] = []
+        while self._waiting and self._times and self._waiting[0][0] <= self._times[-1]:
+            t, theirs = self._waiting.popleft()
+            ours = self._ours_at(t)
+            if ours is None:
+                continue
+            d = difference(t, ours, theirs)
+            diffs.append(d)
+            self.last = d
+            self.pairs += 1
+            self._sum_total2 += d.total_deg * d.total_deg
+            event = self._judge(d)
+            if event is not None:
+                events.append(event)
+        return diffs, events
+
+    def _ours_at(self, t: float) -> np.ndarray | None:
+        times = self._times
+        i = bisect.bisect_left(times, t)
+        if i < len(times) and times[i] == t:
+            return self._quats[i]
+        if i == 0 or i == len(times) or times[i] - times[i - 1] > self.settings.max_gap_s:
+            return None
+        return interpolate(times[i - 1], self._quats[i - 1], times[i], self._quats[i], t)
+
+    def _judge(self, d: Difference) -> CrossCheckEvent | None:
+        s = self.settings
+        beyond = d.total_deg > s.threshold_deg if not self.disagree else d.total_deg >= CLEAR_FRACTION * s.threshold_deg
+        if beyond == self.disagree:  # on the side of the current verdict
+            self._since = None
+            return None
+        if self._since is None:
+            self._since = d.time_s
+        if d.time_s - self._since < s.hold_s:
+            return None
+        self.disagree = not self.disagree
+        self.warnings += self.disagree
+        self._since = None
+        return CrossCheckEvent(d.time_s, self.disagree, d.total_deg)
+
+
+def cross_check_log(
+    ours_t_s: np.ndarray, ours_q: np.ndarray, theirs_t_s: np.ndarray, theirs_q: np.ndarray, settings: CrossCheckSettings
+) -> tuple[CrossCheck, list[Difference], list[CrossCheckEvent]]:
+    """The live cross-check over a whole log: both attitude series fed in vehicle-time order, as they arrive."""
+    check = CrossCheck(settings)
+    diffs: list[Difference] = []
+    events: list[CrossCheckEvent] = []
+    j = 0
+    for t, q in zip(theirs_t_s.tolist(), theirs_q, strict=True):
+        while j < len(ours_t_s) and ours_t_s[j] <= t:
+            check.add_ours(float(ours_t_s[j]), ours_q[j])
+            j += 1
+        if j < len(ours_t_s):  # the output just after it, as live: ours reach past its time
+            check.add_ours(float(ours_t_s[j]), ours_q[j])
+            j += 1
+        check.add_autopilot(t, q)
+        d, e = check.update()
+        diffs += d
+        events += e
+    return check, diffs, events

@@ -1,0 +1,76 @@
+"""The autopilot cross-check: pairing by vehicle time, the difference, and the verdict's hysteresis."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mavattitude.estimation.conventions import quat_from_euler
+from mavattitude.estimation.crosscheck import CLEAR_FRACTION, CrossCheck, CrossCheckSettings, cross_check_log
+
+YAW_RATE_RADPS = np.radians(30.0)
+
+
+def truth(t_s: np.ndarray, roll_offset_deg: float = 0.0) -> np.ndarray:
+    """A vehicle turning at 30°/s with 5° of pitch; ``roll_offset_deg`` added to the roll."""
+    n = len(t_s)
+    return quat_from_euler(np.full(n, np.radians(roll_offset_deg)), np.full(n, np.radians(5.0)), YAW_RATE_RADPS * t_s)
+
+
+def test_each_autopilot_attitude_is_paired_with_ours_at_its_time():
+    ours_t = np.arange(0.0, 10.0, 0.02)  # 50 Hz
+    theirs_t = np.arange(0.005, 10.0, 0.1)  # 10 Hz, between our ticks
+    check, diffs, events = cross_check_log(ours_t, truth(ours_t), theirs_t, truth(theirs_t, -2.0), CrossCheckSettings())
+    assert check.pairs == len(diffs) == len(theirs_t)  # 9.905 s: before our last output, 9.98 s
+    # interpolating a 30°/s turn over 20 ms: the chord's error is (0.6°)²/8 ~ 1e-4°
+    assert all(abs(d.roll_deg - 2.0) < 1e-3 and abs(d.pitch_deg) < 1e-3 and abs(d.yaw_deg) < 1e-3 for d in diffs)
+    assert all(abs(d.total_deg - 2.0) < 1e-3 for d in diffs) and events == []
+
+
+def test_an_autopilot_attitude_ahead_of_our_outputs_waits_for_them():
+    check = CrossCheck(CrossCheckSettings())
+    q = truth(np.array([0.0, 0.02, 0.04]))
+    check.add_ours(0.0, q[0])
+    check.add_autopilot(0.03, q[1])
+    assert check.update() == ([], [])  # ours do not reach 0.03 s yet
+    check.add_ours(0.04, q[2])
+    (d,), _ = check.update()
+    assert d.time_s == 0.03
+
+
+def test_ours_too_far_apart_are_not_interpolated():
+    check = CrossCheck(CrossCheckSettings(max_gap_s=0.5))
+    q = truth(np.array([0.0, 1.0]))
+    check.add_ours(0.0, q[0])
+    check.add_ours(1.0, q[1])
+    check.add_autopilot(0.5, q[0])
+    assert check.update() == ([], []) and check.pairs == 0
+
+
+def _run(offsets_deg: list[tuple[float, float]], settings: CrossCheckSettings) -> list:
+    """Ours at 50 Hz, the autopilot's at 10 Hz with a roll offset per (until_s, offset) span."""
+    ours_t = np.arange(0.0, offsets_deg[-1][0], 0.02)
+    theirs_t = np.arange(0.0, offsets_deg[-1][0], 0.1)
+    offset = np.zeros(len(theirs_t))
+    start = 0.0
+    for until_s, deg in offsets_deg:
+        offset[(theirs_t >= start) & (theirs_t < until_s)] = deg
+        start = until_s
+    theirs = np.array([truth(np.array([t]), -o)[0] for t, o in zip(theirs_t, offset, strict=True)])
+    return cross_check_log(ours_t, truth(ours_t), theirs_t, theirs, settings)[2]
+
+
+def test_the_warning_needs_hold_s_above_the_threshold_and_clears_after_hold_s_below():
+    s = CrossCheckSettings(threshold_deg=5.0, hold_s=3.0)
+    assert _run([(10.0, 0.0), (12.8, 6.0), (20.0, 0.0)], s) == []  # 2.8 s above: not said
+    events = _run([(10.0, 0.0), (15.0, 6.0), (25.0, 0.0)], s)
+    assert [(e.disagree, round(e.time_s, 1)) for e in events] == [(True, 13.0), (False, 18.0)]
+    assert events[0].total_deg == pytest.approx(6.0, abs=1e-3)
+
+
+def test_no_flip_flop_around_the_threshold():
+    s = CrossCheckSettings(threshold_deg=5.0, hold_s=3.0)
+    between = (CLEAR_FRACTION * 5.0 + 5.0) / 2  # below the threshold, above where it clears
+    spans = [(5.0, 6.0)] + [(5.0 + 2 * k, between if k % 2 else 6.0) for k in range(1, 10)]
+    events = _run(spans, s)
+    assert [e.disagree for e in events] == [True]
