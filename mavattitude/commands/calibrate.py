@@ -3,7 +3,9 @@
 INPUT is a CSV (``.csv`` or ``.csv.gz`` with columns ``mag_x_uT, mag_y_uT, mag_z_uT``; rows with a
 ``mag_new`` column of 0 are repeats and skipped), a telemetry log (``.tlog``), or a pymavlink connection
 string (``udpin:0.0.0.0:14551``, ``tcp:HOST:PORT``, ``/dev/ttyACM0``) to collect live while the vehicle is
-turned by hand. The result is the ``calibration: mag:`` block of the config.
+turned by hand: the autopilot is asked for the IMU message as the service asks for it, and while the
+vehicle rests the progress line says to turn it. Coverage counts the orientations the readings show, none
+before the vehicle has turned. The result is the ``calibration: mag:`` block of the config.
 
 ArduPilot's RAW_IMU and SCALED_IMU magnetometer is already corrected by the autopilot's own compass
 calibration: a fit on it finds what that calibration left.
@@ -34,6 +36,9 @@ HELP = "fit the magnetometer's hard- and soft-iron calibration (ellipsoid fit) a
 log = logging.getLogger(__name__)
 
 LIVE_MIN_SAMPLES = 500  # live collection stops once coverage is met with at least this many samples
+LIVE_RATE_HZ = 50.0  # the IMU rate asked of the autopilot while collecting
+REQUEST_REPEAT_S = 5.0  # asked again this often (a ground station may change rates; a reboot forgets)
+REST_RATE_RADPS = 0.05  # a batch turning slower than 3°/s throughout is a vehicle at rest
 PROGRESS_EVERY = 100
 
 
@@ -167,43 +172,74 @@ def _tlog_samples(path: Path, args: argparse.Namespace) -> Iterator[units.ImuSam
 
 
 def _live_samples(connect: str, args: argparse.Namespace) -> Iterator[units.ImuSample]:
+    """The IMU samples of the autopilot on a live link, which is asked for them as the service asks: lock onto
+    its HEARTBEAT (``--system-id``, or the first autopilot's), send ours at 1 Hz as an onboard computer,
+    request the message with SET_MESSAGE_INTERVAL at once and every ``REQUEST_REPEAT_S``."""
     from mavattitude.link.connection import MavlinkLink
+    from mavattitude.link.mavlink2 import message_id
 
     profile = units.get_profile(args.profile)
     message = args.message or "RAW_IMU"
-    deadline = time.monotonic() + args.duration
+    now = time.monotonic()
+    deadline, next_heartbeat, next_request = now + args.duration, now, float("inf")
+    vehicle: tuple[int, int] | None = None
     with MavlinkLink(connect, source_system=args.system_id or 1) as link:
-        while time.monotonic() < deadline:
-            for _, msg in link.recv(timeout_s=0.2):
-                if msg.get_type() != message or (args.system_id and msg.get_srcSystem() != args.system_id):
-                    continue
-                sample = _imu_sample(msg, profile)
-                if sample is not None:
-                    yield sample
+        while now < deadline:
+            if now >= next_heartbeat:
+                next_heartbeat = now + 1.0
+                link.send_heartbeat()
+            if vehicle is not None and now >= next_request:
+                next_request = now + REQUEST_REPEAT_S
+                link.request_message_interval(vehicle, message_id(message), LIVE_RATE_HZ)
+            for _, msg in link.recv(timeout_s=0.1):
+                source = (msg.get_srcSystem(), msg.get_srcComponent())
+                if vehicle is None and link.is_autopilot_heartbeat(msg) and args.system_id in (None, source[0]):
+                    vehicle, next_request = source, now
+                    link.set_source_system(source[0])
+                    log.info("locked onto the autopilot at system %d, component %d; asking for %s", *source, message)
+                elif msg.get_type() == message and source == vehicle:
+                    sample = _imu_sample(msg, profile)
+                    if sample is not None:
+                        yield sample
+            now = time.monotonic()
 
 
 class _Coverage:
-    """Cell counts of the readings around the midpoint of their range, fed a batch at a time.
+    """Cell counts of the orientations the readings show, fed a batch at a time.
 
-    While the range holds, only the new batch is counted; a new extreme moves the midpoint and all readings
-    are counted again (rare once the vehicle has turned: a long log costs linear time, not quadratic).
+    A reading shows an orientation by its direction from the midpoint of the readings' range (a cheap
+    hard-iron estimate), and only once the vehicle has been turned: the range must span
+    ``magfit.MIN_TURN_SPAN`` of |B| (a vehicle at rest has visited one orientation, and its noise around
+    the midpoint points everywhere), and the reading must lie at least half the range's radius from the
+    midpoint. While the range holds, only the new batch is counted; a new extreme moves the midpoint and
+    all readings are counted again (rare once the vehicle has turned: a long log costs linear time).
     """
 
     def __init__(self) -> None:
         self._batches: list[np.ndarray] = []
         self._lo, self._hi = np.full(3, np.inf), np.full(3, -np.inf)
-        self._counts = np.zeros(0, dtype=np.int64)
+        self._counts = np.zeros(len(magfit.CELL_DIRECTIONS), dtype=np.int64)
+        self._field_uT = 0.0
 
     def add(self, batch: np.ndarray) -> np.ndarray:
         self._batches.append(batch)
         lo, hi = np.minimum(self._lo, batch.min(axis=0)), np.maximum(self._hi, batch.max(axis=0))
         if np.array_equal(lo, self._lo) and np.array_equal(hi, self._hi):
-            self._counts = self._counts + magfit.cell_counts(batch - (hi + lo) / 2.0)
+            self._counts = self._counts + self._visited(batch)
         else:
             self._lo, self._hi = lo, hi
             self._batches = [np.concatenate(self._batches)]
-            self._counts = magfit.cell_counts(self._batches[0] - (hi + lo) / 2.0)
+            self._field_uT = float(np.median(np.linalg.norm(self._batches[0], axis=1)))
+            self._counts = self._visited(self._batches[0])
         return self._counts
+
+    def _visited(self, readings: np.ndarray) -> np.ndarray:
+        span = self._hi - self._lo
+        if float(span.max()) < magfit.MIN_TURN_SPAN * self._field_uT:
+            return np.zeros(len(magfit.CELL_DIRECTIONS), dtype=np.int64)  # not turned yet
+        offsets = readings - (self._hi + self._lo) / 2.0
+        far = np.linalg.norm(offsets, axis=1) >= 0.25 * float(span.max())  # half the radius
+        return magfit.cell_counts(offsets[far])
 
 
 def _collect(samples: Iterable[units.ImuSample], args: argparse.Namespace, out: TextIO, *, live: bool) -> np.ndarray:
@@ -214,22 +250,28 @@ def _collect(samples: Iterable[units.ImuSample], args: argparse.Namespace, out: 
     estimate: the offset is not fitted yet); the fit judges it again around the fitted centre.
     """
     rows: list[tuple[float, float, float]] = []
-    frac, shown = 0.0, -1.0
+    frac, shown = 0.0, (-1.0, False)
     tty = out.isatty()  # redrawn in place on a terminal; a log or a pipe gets a line per change of coverage
     seen = _Coverage()
+    fastest_radps = 0.0  # the fastest rotation in the current batch: a batch without turning is at rest
     for sample in samples:
         if sample.mag_uT is None:
             continue
         rows.append(sample.mag_uT)
+        fastest_radps = max(fastest_radps, float(np.linalg.norm(sample.gyr_radps)))
         if len(rows) % PROGRESS_EVERY == 0:
             counts = seen.add(np.array(rows[-PROGRESS_EVERY:], dtype=float))
             frac = magfit.covered(counts)
+            at_rest = live and fastest_radps < REST_RATE_RADPS
+            fastest_radps = 0.0
             bar = "".join("#" if c >= magfit.MIN_PER_CELL else "." for c in counts)
             line = f"coverage [{bar}] {frac:.0%} of orientations, {len(rows)} samples"
-            if tty or frac != shown:
+            if at_rest:
+                line += ": the vehicle is at rest, turn it through every orientation"
+            if tty or (frac, at_rest) != shown:
                 out.write(f"\r{line} " if tty else f"{line}\n")
                 out.flush()
-                shown = frac
+                shown = (frac, at_rest)
             if live and frac >= args.min_coverage and len(rows) >= LIVE_MIN_SAMPLES:
                 break
     if tty:

@@ -18,6 +18,7 @@ from pymavlink import mavutil
 from mavattitude.cli import main
 from mavattitude.commands.calibrate import _collect
 from mavattitude.config import from_dict
+from mavattitude.link.mavlink2 import mavlink2
 from mavattitude.sensors.calibration import Calibration
 from mavattitude.sensors.units import ImuSample, encode, get_profile
 from tests.link.test_tlog import write_tlog
@@ -88,21 +89,31 @@ def test_missing_columns_are_a_user_error(tmp_path: Path, capsys: pytest.Capture
     assert "missing column(s) mag_x_uT" in capsys.readouterr().err
 
 
-def test_live_over_udp_with_coverage_progress(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_live_over_udp_asks_for_the_stream_and_shows_coverage(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     stop = threading.Event()
+    requests: list[object] = []
     profile = get_profile("ardupilot")
 
     def vehicle() -> None:
+        """An autopilot that, as ArduPilot Copter, streams RAW_IMU only once asked."""
         conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1, dialect="common")
         conn.mav.WIRE_PROTOCOL_VERSION = "2.0"
         mags = _distorted(4000, seed=3)
         i = 0
         while not stop.is_set():
-            sample = ImuSample(i * 0.005, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), tuple(mags[i % 4000]))
-            conn.mav.raw_imu_send(**encode(sample, profile, "RAW_IMU"))
+            if i % 400 == 0:
+                conn.mav.heartbeat_send(mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 0)
+            msg = conn.recv_msg()
+            if msg is not None and msg.get_type() == "COMMAND_LONG":
+                requests.append(msg)
+            if requests:  # turning at 1 rad/s: not at rest
+                sample = ImuSample(i * 0.005, (0.0, 0.0, -9.8), (0.0, 0.0, 1.0), tuple(mags[i % 4000]))
+                conn.mav.raw_imu_send(**encode(sample, profile, "RAW_IMU"))
             i += 1
             stop.wait(0.0005)  # pacing the sender, about 2 kHz
         conn.close()
@@ -117,7 +128,22 @@ def test_live_over_udp_with_coverage_progress(tmp_path: Path, capsys: pytest.Cap
         sender.join(5.0)
     assert code == 0
     _check_yaml(out)
-    assert "coverage [" in capsys.readouterr().err
+    assert requests and requests[0].command == mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL
+    assert requests[0].param1 == mavlink2.MAVLINK_MSG_ID_RAW_IMU and requests[0].param2 == 1e6 / 50.0
+    err = capsys.readouterr().err
+    assert "coverage [" in err and "at rest" not in err
+
+
+def test_a_vehicle_at_rest_covers_nothing_and_is_told_to_turn() -> None:
+    rest = np.array([20.0, 5.0, 40.0]) + np.random.default_rng(2).normal(0.0, 0.3, (1000, 3))
+    samples = [ImuSample(i * 0.01, (0.0, 0.0, -9.8), (0.001, 0.0, 0.0), tuple(m)) for i, m in enumerate(rest)]
+    out = io.StringIO()
+    args = argparse.Namespace(input="live", min_coverage=0.6)
+    _collect(samples, args, out, live=True)
+    lines = out.getvalue().splitlines()
+    # noise around the midpoint points every way: before, that read as 100 % of orientations
+    assert lines and all(" 0% of orientations" in line for line in lines)
+    assert all(line.endswith("the vehicle is at rest, turn it through every orientation") for line in lines)
 
 
 def test_the_written_block_is_a_config_the_front_end_applies(tmp_path: Path) -> None:
