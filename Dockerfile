@@ -45,6 +45,7 @@ VOLUME ["/etc/mavattitude"]
 USER 10001
 WORKDIR /tmp
 # The main loop refreshes $MAVATTITUDE_ALIVE_FILE every second; older than 5 s means the loop is stuck.
+# (After 10 s stuck the process exits by itself, with its tracebacks in the log, and --restart restarts it.)
 HEALTHCHECK --interval=2s --timeout=2s --start-period=10s --retries=2 \
     CMD ["python", "-c", "import os, sys, time; sys.exit(time.time() - os.stat(os.environ['MAVATTITUDE_ALIVE_FILE']).st_mtime > 5)"]
 # mavattitude's own MAVLink port (the ground station keeps 14550): the config's `link.connect` is

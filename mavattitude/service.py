@@ -37,7 +37,8 @@ service is the dispatcher's listener. What it does on the link:
   last one (all of them at DEBUG); the whole line when it stops;
 - systemd (sd_notify): READY as soon as the loop runs, STATUS = what it waits for (on every change of
   :class:`Waiting`), the counters line once attitudes flow; WATCHDOG from the loop. In a container the
-  loop refreshes an alive file instead (:mod:`mavattitude.alive`), which the image's HEALTHCHECK reads.
+  loop refreshes an alive file instead, which the image's HEALTHCHECK reads, and exits when it hangs
+  (:mod:`mavattitude.alive`).
 """
 
 from __future__ import annotations
@@ -268,6 +269,7 @@ class AttitudeService:
                 self.step(min(max(self._next_tick - time.monotonic(), 0.0), TICK_S))
         finally:
             self.notifier.stopping()
+            self.alive_file.close()
             self._log_counters(final=True)
         return self.counters
 

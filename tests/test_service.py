@@ -505,18 +505,48 @@ def test_the_loop_refreshes_the_alive_file_once_a_period(tmp_path):
     path = tmp_path / "alive"
     service.alive_file = AliveFile({alive.ENV: str(path)})
     start = time.monotonic() + 10.0
-    service._periodic(start)
-    assert path.exists()
-    path.unlink()
-    service._periodic(start + alive.PERIOD_S / 2)
-    assert not path.exists()  # not yet due
-    service._periodic(start + alive.PERIOD_S)
-    assert path.exists()
+    try:
+        service._periodic(start)
+        assert path.exists()
+        path.unlink()
+        service._periodic(start + alive.PERIOD_S / 2)
+        assert not path.exists()  # not yet due
+        service._periodic(start + alive.PERIOD_S)
+        assert path.exists()
+    finally:
+        service.alive_file.close()  # disarm the hang exit: it would end this test process
 
 
 def test_alive_file_unset_writes_nothing_and_a_failed_touch_is_counted(tmp_path, caplog):
     assert AliveFile({}).touch() is False
     blocked = AliveFile({alive.ENV: str(tmp_path / "missing-dir" / "alive")})
-    assert blocked.touch() is False and blocked.touch() is False
+    try:
+        assert blocked.touch() is False and blocked.touch() is False
+    finally:
+        blocked.close()
     assert blocked.errors == 2
     assert "cannot refresh the alive file" in caplog.text
+
+
+HANG_EXIT_S = 1.0  # ten times the touch interval below: a loaded machine's late wake-up does not trip it
+
+
+def test_a_loop_that_stops_touching_the_alive_file_exits_with_every_threads_traceback(tmp_path):
+    """The container's restart: a hung loop (here: one that sleeps, holding nothing) ends the process
+    with exit code 1 after ``hang_exit_s``, its tracebacks in stderr; a touch in time re-arms it."""
+    code = (
+        "import sys, time\n"
+        "from mavattitude.alive import AliveFile\n"
+        f"alive = AliveFile({{'{alive.ENV}': sys.argv[1]}}, hang_exit_s={HANG_EXIT_S})\n"
+        f"for _ in range(3):\n    alive.touch()\n    time.sleep({HANG_EXIT_S / 10})\n"
+        "print('touched', flush=True)\n"
+        "time.sleep(60)  # the hang\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code, str(tmp_path / "alive")], capture_output=True, text=True, timeout=30
+    )
+    assert result.returncode == 1
+    assert result.stdout == "touched\n"  # it survived the touched period
+    hang_line = code.splitlines().index("time.sleep(60)  # the hang") + 1
+    assert "Timeout (0:00:01)!" in result.stderr, result.stderr
+    assert f'File "<string>", line {hang_line} in <module>' in result.stderr, result.stderr  # where it hung
