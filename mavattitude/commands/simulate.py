@@ -59,6 +59,14 @@ def add_vehicle_arguments(parser: argparse.ArgumentParser, default_duration_s: f
     )
     parser.add_argument("--rate", type=float, default=200.0, metavar="HZ", help="IMU rate, Hz (default 200)")
     parser.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    parser.add_argument(
+        "--autopilot-error",
+        type=float,
+        nargs=3,
+        default=(0.0, 0.0, 0.0),
+        metavar=("ROLL", "PITCH", "YAW"),
+        help="the error of the autopilot's own ATTITUDE (10 Hz, the truth otherwise), degrees (default 0 0 0)",
+    )
 
 
 def vehicle_from_args(args: argparse.Namespace, connect: str, stream_on_start: bool) -> FakeVehicle:
@@ -76,6 +84,7 @@ def vehicle_from_args(args: argparse.Namespace, connect: str, stream_on_start: b
         stream_on_start=stream_on_start,
         fly_when_asked=True,  # the script (and --duration) starts when the IMU is first asked for
         seed=args.seed,
+        attitude_error_deg=tuple(args.autopilot_error),
     )
     return FakeVehicle(script, scenarios.sensors_named(args.sensors, args.rate), config)
 

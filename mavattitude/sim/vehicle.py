@@ -5,6 +5,9 @@ It behaves like an autopilot on a companion-computer link:
 - HEARTBEAT at 1 Hz (wall-clock), as an ArduPilot (or PX4) autopilot, component 1;
 - GLOBAL_POSITION_INT (2 Hz by default) and the IMU messages of its profile, encoded by
   :func:`mavattitude.sensors.units.encode` (the project's only MAVLink unit conversion);
+- ATTITUDE (10 Hz by default, ``attitude_rate_hz``), as an autopilot's own estimate: the truth, turned
+  by ``attitude_error_deg`` (roll, pitch, yaw) to play an autopilot that is off, so a log recorded from
+  it gives ``replay`` and the service's cross-check something to compare with;
 - honours MAV_CMD_SET_MESSAGE_INTERVAL (interval µs; −1 stops, 0 restores the default) and answers every
   COMMAND_LONG with COMMAND_ACK. Like ArduPilot Copter it starts with the IMU stream off until asked
   (``stream_on_start`` turns it on), and like ArduPilot it denies the command when param3 is not 0
@@ -36,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from mavattitude.errors import InputError, LinkError
-from mavattitude.estimation.conventions import Array
+from mavattitude.estimation.conventions import Array, euler_from_quat
 from mavattitude.link.mavlink2 import force_mavlink2, mavlink2, mavutil, message_id
 from mavattitude.sensors.units import MESSAGES, ImuSample, encode, get_profile, time_boot_ms
 from mavattitude.sim.scoring import Comparison, Score, compare, score
@@ -47,6 +50,7 @@ log = logging.getLogger(__name__)
 
 _IMU_MESSAGE_IDS = frozenset(message_id(name) for name in MESSAGES)
 _MSG_GLOBAL_POSITION_INT = mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT
+_MSG_ATTITUDE = mavlink2.MAVLINK_MSG_ID_ATTITUDE
 _AUTOPILOT = {"px4": mavlink2.MAV_AUTOPILOT_PX4}
 _POSITION_RATE_HZ = 2.0
 _HEARTBEAT_PERIOD_S = 1.0
@@ -81,6 +85,8 @@ class VehicleConfig:
     home_lat_deg: float = 47.3977
     home_lon_deg: float = 8.5456
     home_alt_m: float = 488.0
+    attitude_rate_hz: float = 10.0  # ATTITUDE streamed from boot (0: only when asked for)
+    attitude_error_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # the autopilot's error: roll, pitch, yaw
 
 
 @dataclass(frozen=True)
@@ -97,7 +103,7 @@ class ImuRow:
 @dataclass
 class _Stream:
     rate_hz: float
-    next_t_s: float  # script time of the next sample
+    next_t_s: float  # when the next is due: script time (IMU), time.monotonic() (telemetry)
 
 
 @dataclass
@@ -200,8 +206,10 @@ class FakeVehicle:
                 self.conn.fd = self.conn.listen.fileno()
 
     def _default_streams(self) -> None:
-        now = self.script_time()
+        now = time.monotonic()  # telemetry streams run on the monotonic clock (IMU streams on the script's)
         self._streams = {_MSG_GLOBAL_POSITION_INT: _Stream(_POSITION_RATE_HZ, now)}
+        if self.config.attitude_rate_hz > 0:
+            self._streams[_MSG_ATTITUDE] = _Stream(self.config.attitude_rate_hz, now)
         if self.config.stream_on_start:
             self._set_stream(message_id(self.config.message), self.sensors.rate_hz)
 
@@ -276,7 +284,7 @@ class FakeVehicle:
         if not paused:  # resume from now, not with a backlog of the silent time
             now = self.script_time()
             for msg_id, stream in list(self._streams.items()):
-                if msg_id != _MSG_GLOBAL_POSITION_INT:
+                if msg_id in _IMU_MESSAGE_IDS:
                     stream.next_t_s = now
 
     def set_rate(self, message: str, rate_hz: float | None) -> None:
@@ -329,11 +337,12 @@ class FakeVehicle:
             now = self.script_time(mono)
             wake = now + _MAX_SLEEP_S * self.config.speed
             for msg_id, stream in list(self._streams.items()):
-                if msg_id == _MSG_GLOBAL_POSITION_INT:
-                    if now >= stream.next_t_s:
-                        self._send_position(now)
-                        stream.next_t_s = now + 1.0 / stream.rate_hz
-                elif not self._imu_paused:
+                if msg_id not in _IMU_MESSAGE_IDS:  # telemetry: paced by the clock, flying or not
+                    if mono >= stream.next_t_s:
+                        (self._send_position if msg_id == _MSG_GLOBAL_POSITION_INT else self._send_attitude)(now)
+                        stream.next_t_s = mono + 1.0 / (stream.rate_hz * self.config.speed)
+                    continue
+                if not self._imu_paused:
                     self._send_imu_until(msg_id, stream, now)
                 wake = min(wake, stream.next_t_s)
             delay = (wake - self.script_time()) / self.config.speed
@@ -421,6 +430,16 @@ class FakeVehicle:
             )
         )
 
+    def _send_attitude(self, now_s: float) -> None:
+        truth = self.script.sample([now_s])
+        roll, pitch, yaw = euler_from_quat(truth.q[0]) + np.radians(self.config.attitude_error_deg)
+        yaw = (yaw + np.pi) % (2 * np.pi) - np.pi  # the error may carry yaw past ±180°
+        self.send(
+            mavlink2.MAVLink_attitude_message(
+                time_boot_ms(max(0.0, self.vehicle_time(now_s))), roll, pitch, yaw, *map(float, truth.gyr_radps[0])
+            )
+        )
+
     # --- receiving --------------------------------------------------------------------------------------
 
     def _receive_loop(self) -> None:
@@ -467,18 +486,17 @@ class FakeVehicle:
         )
 
     def _set_interval(self, msg_id: int, interval_us: float, param3: float) -> int:
-        if msg_id not in _IMU_MESSAGE_IDS and msg_id != _MSG_GLOBAL_POSITION_INT:
+        if msg_id not in _IMU_MESSAGE_IDS and msg_id not in (_MSG_GLOBAL_POSITION_INT, _MSG_ATTITUDE):
             return mavlink2.MAV_RESULT_DENIED
         if self.config.deny_nonzero_param3 and param3 != 0:
             return mavlink2.MAV_RESULT_DENIED
         if interval_us < 0:
             self._streams.pop(msg_id, None)
         elif interval_us == 0:
-            default = self.sensors.rate_hz if msg_id != _MSG_GLOBAL_POSITION_INT else _POSITION_RATE_HZ
-            on = msg_id == _MSG_GLOBAL_POSITION_INT or (
-                self.config.stream_on_start and msg_id == message_id(self.config.message)
-            )
-            self._set_stream(msg_id, default if on else None)
+            defaults = {_MSG_GLOBAL_POSITION_INT: _POSITION_RATE_HZ, _MSG_ATTITUDE: self.config.attitude_rate_hz}
+            on = msg_id in defaults or (self.config.stream_on_start and msg_id == message_id(self.config.message))
+            rate_hz = defaults.get(msg_id, self.sensors.rate_hz)
+            self._set_stream(msg_id, rate_hz if on and rate_hz > 0 else None)
         else:
             self._set_stream(msg_id, 1e6 / interval_us)
         return mavlink2.MAV_RESULT_ACCEPTED
@@ -487,14 +505,15 @@ class FakeVehicle:
         if rate_hz is None:
             self._streams.pop(msg_id, None)
             return
-        if msg_id != _MSG_GLOBAL_POSITION_INT:
+        if msg_id in _IMU_MESSAGE_IDS:
             if self._script_t0_mono is None:
                 self._take_off()
             if self.config.link_max_imu_hz is not None:
                 rate_hz = min(rate_hz, self.config.link_max_imu_hz)
         stream = self._streams.get(msg_id)
         if stream is None:
-            self._streams[msg_id] = _Stream(rate_hz, self.script_time())
+            start = self.script_time() if msg_id in _IMU_MESSAGE_IDS else time.monotonic()
+            self._streams[msg_id] = _Stream(rate_hz, start)
         else:
             stream.rate_hz = rate_hz
 
