@@ -7,7 +7,7 @@
   everything before the lock) is ignored and counted. A log written by the autopilot itself names its
   vehicle (``source.vehicle``) and is locked onto from the start;
 - routes the vehicle's items: IMU samples into the pipeline (its outputs to the listener), positions to
-  the pipeline's magnetic reference (``reference.magnetic: auto``), the autopilot's attitude and any
+  the pipeline's magnetic reference (``wants_position``: ``reference.magnetic: auto``), the autopilot's attitude and any
   other message to the listener; an undecodable input message or a pipeline failure is counted as a
   reject and told to the listener, and the next sample goes on.
 
@@ -23,7 +23,7 @@ from typing import Any, Protocol
 
 from mavattitude.errors import MavAttitudeError
 from mavattitude.link.source import AutopilotAttitude, Heartbeat, PositionFix, Received, Sender, Undecodable
-from mavattitude.pipeline import AttitudeOutput, AttitudePipeline
+from mavattitude.pipeline import AttitudeOutput
 from mavattitude.sensors.units import ImuSample
 
 log = logging.getLogger(__name__)
@@ -40,6 +40,16 @@ class DispatchCounters:
     rejected: dict[str, int] = field(default_factory=lambda: dict.fromkeys(DISPATCH_REJECTS, 0))
     positions: int = 0  # vehicle positions handed to the pipeline (magnetic reference ``auto``)
     autopilot_attitudes: int = 0  # the autopilot's own attitude estimates seen
+
+
+class SampleSink(Protocol):
+    """Where the vehicle's samples and positions go: the :class:`AttitudePipeline` (or what only collects)."""
+
+    mag_ref_ned_uT: Any
+
+    def push(self, sample: ImuSample) -> list[AttitudeOutput]: ...
+
+    def set_position(self, lat_deg: float, lon_deg: float, alt_m: float, when: Any = None) -> bool: ...
 
 
 class Listener(Protocol):
@@ -69,18 +79,19 @@ class Dispatcher:
 
     def __init__(
         self,
-        pipeline: AttitudePipeline,
+        pipeline: SampleSink,
         listener: Listener,
         *,
         system_id: int = 0,
         vehicle: Sender | None = None,
         counters: DispatchCounters | None = None,
+        wants_position: bool = False,
     ) -> None:
         self.pipeline = pipeline
         self.listener = listener
         self.system_id = system_id
         self.counters = counters if counters is not None else DispatchCounters()
-        self.wants_position = pipeline.config.reference.magnetic.mode == "auto"
+        self.wants_position = wants_position
         self.vehicle: Sender | None = None
         if vehicle is not None:
             self._lock(vehicle)

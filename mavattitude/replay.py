@@ -99,7 +99,12 @@ def replay(source: MessageSource, config: Config, progress: Callable[[MessageSou
     if isinstance(streams, LogStreams) and source.vehicle is not None and _one_reference(streams, pipeline):
         return _replay_arrays(streams, result, source.vehicle)
     dispatcher = Dispatcher(
-        pipeline, _Collector(result), system_id=config.link.vehicle_system_id, vehicle=source.vehicle, counters=counters
+        pipeline,
+        _Collector(result),
+        system_id=config.link.vehicle_system_id,
+        vehicle=source.vehicle,
+        counters=counters,
+        wants_position=config.reference.magnetic.mode == "auto",
     )
     handle = dispatcher.handle
     while not source.finished:

@@ -249,7 +249,12 @@ class AttitudeService:
         self._next_alive = now
         self._degenerate_before = 0
         self.dispatcher = Dispatcher(
-            pipeline, self, system_id=config.link.vehicle_system_id, vehicle=self.source.vehicle, counters=self.counters
+            pipeline,
+            self,
+            system_id=config.link.vehicle_system_id,
+            vehicle=self.source.vehicle,
+            counters=self.counters,
+            wants_position=config.reference.magnetic.mode == "auto",
         )
 
     @property

@@ -167,7 +167,7 @@ def test_the_dispatcher_routes_attitude_position_and_other_messages():
     config = make_config(**{"reference.magnetic": "auto"})
     pipeline = AttitudePipeline(config)
     recorder = _Recorder()
-    dispatcher = Dispatcher(pipeline, recorder)
+    dispatcher = Dispatcher(pipeline, recorder, wants_position=True)
     link = MemoryLink()
     source = MavlinkSource(link, MavlinkDecoder.from_config(config))
     vehicle = Peer()

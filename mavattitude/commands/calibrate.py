@@ -1,7 +1,8 @@
 """`mavattitude calibrate mag INPUT -o OUT.yaml`: hard- and soft-iron calibration by ellipsoid fit.
 
 INPUT is a CSV (``.csv`` or ``.csv.gz`` with columns ``mag_x_uT, mag_y_uT, mag_z_uT``; rows with a
-``mag_new`` column of 0 are repeats and skipped), a telemetry log (``.tlog``), or a pymavlink connection
+``mag_new`` column of 0 are repeats and skipped), a flight log (``.tlog``, DataFlash ``.bin``, ULog ``.ulg``:
+the autopilot's samples, read as replay reads them), or a pymavlink connection
 string (``udpin:0.0.0.0:14551``, ``tcp:HOST:PORT``, ``/dev/ttyACM0``) to collect live while the vehicle is
 turned by hand: the autopilot is asked for the IMU message as the service asks for it, and while the
 vehicle rests the progress line says to turn it. Coverage counts the orientations the readings show, none
@@ -26,7 +27,7 @@ import numpy as np
 import yaml
 
 from mavattitude.errors import CalibrationError, DataFileError, SensorError
-from mavattitude.files import MAG_COLUMNS, open_text, reading
+from mavattitude.files import LOG_SUFFIXES, MAG_COLUMNS, open_text, reading
 from mavattitude.sensors import magfit, units
 from mavattitude.sensors.calibration import mag_block
 
@@ -47,7 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "input",
         metavar="INPUT",
-        help="a CSV (.csv/.csv.gz, columns mag_x_uT, mag_y_uT, mag_z_uT in µT, sensor frame), a .tlog, "
+        help="a CSV (.csv/.csv.gz, columns mag_x_uT, mag_y_uT, mag_z_uT in µT, sensor frame), a .tlog/.bin/.ulg, "
         "or a connection string (udpin:0.0.0.0:14551, tcp:HOST:PORT, /dev/ttyACM0) to collect live",
     )
     parser.add_argument("-o", "--output", required=True, metavar="OUT.yaml", help="YAML file to write")
@@ -92,8 +93,8 @@ def run(args: argparse.Namespace) -> int:
     source = args.input
     if source.endswith((".csv", ".csv.gz")):
         mag = read_csv_mag(Path(source))
-    elif source.endswith(".tlog"):
-        mag = _collect(_tlog_samples(Path(source), args), args, sys.stderr, live=False)
+    elif source.lower().endswith(LOG_SUFFIXES):
+        mag = _collect(_log_samples(Path(source), args), args, sys.stderr, live=False)
     else:
         mag = _collect(_live_samples(source, args), args, sys.stderr, live=True)
     try:
@@ -156,19 +157,57 @@ def _imu_sample(msg: Any, profile: units.UnitProfile) -> units.ImuSample | None:
         return None
 
 
-def _tlog_samples(path: Path, args: argparse.Namespace) -> Iterator[units.ImuSample]:
+class _Readings:
+    """The dispatcher's sink in calibrate: the vehicle's samples are kept, not estimated."""
+
+    mag_ref_ned_uT = None
+
+    def __init__(self) -> None:
+        self.samples: list[units.ImuSample] = []
+
+    def push(self, sample: units.ImuSample) -> list[Any]:
+        self.samples.append(sample)
+        return []
+
+    def set_position(self, lat_deg: float, lon_deg: float, alt_m: float, when: Any = None) -> bool:
+        return False
+
+
+class _Skipped:
+    """The dispatcher's listener in calibrate: says what it skipped, nothing else."""
+
+    def on_reject(self, reason: str, exc: BaseException) -> None:
+        log.warning("skipped a sample (%s): %s", reason, exc)
+
+    def __getattr__(self, name: str) -> Any:  # on_lock, on_input, on_outputs, ...: nothing to do
+        return lambda *args: None
+
+
+def _log_samples(path: Path, args: argparse.Namespace) -> Iterator[units.ImuSample]:
+    """The autopilot's IMU samples of a .tlog, .bin or .ulg, through the service's source and dispatcher."""
+    from mavattitude.config import load_config
+    from mavattitude.dispatch import Dispatcher
+    from mavattitude.link.logs import detect_format, open_log
+
+    message = args.message
+    if message is None and detect_format(path) == "tlog":
+        message = _first_imu_message(path, units.get_profile(args.profile), args.system_id)
+    config = load_config(None, {"input.profile": args.profile, "input.message": message or "RAW_IMU"}, env={})
+    source = open_log(path, config)
+    readings = _Readings()
+    dispatcher = Dispatcher(readings, _Skipped(), system_id=args.system_id or 0, vehicle=source.vehicle)
+    while not source.finished:
+        for received in source.recv(0.0):
+            dispatcher.handle(received)
+        yield from readings.samples
+        readings.samples.clear()
+
+
+def _first_imu_message(path: Path, profile: units.UnitProfile, system_id: int | None) -> str | None:
+    """The first of the profile's IMU messages a telemetry log holds (None: none)."""
     from mavattitude.link.tlog import read_messages
 
-    profile = units.get_profile(args.profile)
-    wanted = [args.message] if args.message else list(profile.messages)
-    chosen = args.message
-    for msg in read_messages(path, wanted, system_id=args.system_id):
-        chosen = chosen or msg.get_type()  # the first IMU message the log holds decides
-        if msg.get_type() != chosen:
-            continue
-        sample = _imu_sample(msg, profile)
-        if sample is not None:
-            yield sample
+    return next((msg.get_type() for msg in read_messages(path, list(profile.messages), system_id=system_id)), None)
 
 
 def _live_samples(connect: str, args: argparse.Namespace) -> Iterator[units.ImuSample]:

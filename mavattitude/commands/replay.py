@@ -42,6 +42,7 @@ import numpy as np
 from mavattitude.commands._offline import add_config_arguments, config_from_args, output_row, summarise, write_outputs
 from mavattitude.config import Config
 from mavattitude.errors import DataFileError, MavAttitudeError
+from mavattitude.files import LOG_SUFFIXES
 from mavattitude.link.logs import LOG_SUFFIXES
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
 

@@ -39,7 +39,6 @@ LOG_VEHICLE: Sender = (1, 1)
 CHUNK_ITEMS = 8192  # items per recv(): large enough to amortise the call, small enough for progress
 ULOG_MAGIC = b"ULog\x01\x12\x35"
 DATAFLASH_MAGIC = b"\xa3\x95\x80"  # a message header and the FMT message's type: every DataFlash log starts so
-LOG_SUFFIXES = (".tlog", ".bin", ".ulg")
 
 
 @dataclass

@@ -21,7 +21,8 @@ from mavattitude.config import from_dict
 from mavattitude.link.mavlink2 import mavlink2
 from mavattitude.sensors.calibration import Calibration
 from mavattitude.sensors.units import ImuSample, encode, get_profile
-from tests.link.test_tlog import write_tlog
+from mavattitude.sim.logwriter import SensorLog, write_dataflash
+from tests.link.test_tlog import HEARTBEAT, write_tlog
 
 OFFSET = np.array([18.0, -25.0, 9.0])
 DISTORTION = np.array([[1.15, 0.03, 0.0], [0.03, 0.9, 0.02], [0.0, 0.02, 1.05]])
@@ -62,7 +63,9 @@ def test_from_csv_writes_the_mag_block_and_reports(tmp_path: Path, capsys: pytes
 
 def test_from_a_tlog(tmp_path: Path) -> None:
     profile = get_profile("ardupilot")
-    packets = [
+    packets = [(2, "RAW_IMU", encode(ImuSample(0.0, (0.0, 0.0, -9.8), (0.0,) * 3, (99.0,) * 3), profile, "RAW_IMU"))]
+    packets += [(1, "HEARTBEAT", HEARTBEAT)]  # the autopilot, locked onto as the service does: not system 2
+    packets += [
         (1, "RAW_IMU", encode(ImuSample(i * 0.01, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), tuple(m)), profile, "RAW_IMU"))
         for i, m in enumerate(_distorted(1000))
     ]
@@ -71,6 +74,16 @@ def test_from_a_tlog(tmp_path: Path) -> None:
     out = tmp_path / "mag.yaml"
     assert main(["calibrate", "mag", str(log), "-o", str(out), "--profile", "ardupilot"]) == 0
     _check_yaml(out)
+
+
+def test_from_a_dataflash_log(tmp_path: Path) -> None:
+    mags = _distorted(1000)
+    t = np.arange(len(mags)) * 0.01
+    flight = SensorLog(t, np.tile([0.0, 0.0, -9.8], (len(t), 1)), np.zeros((len(t), 3)), t, mags)
+    out = tmp_path / "mag.yaml"
+    assert main(["calibrate", "mag", str(write_dataflash(tmp_path / "turns.bin", flight)), "-o", str(out)]) == 0
+    cal = _check_yaml(out)
+    assert np.asarray(cal.mag.hard_iron_uT) == pytest.approx(OFFSET, abs=0.3)  # int16 milligauss: 0.05 µT steps
 
 
 def test_poor_coverage_is_refused_with_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
