@@ -43,7 +43,6 @@ from mavattitude.commands._offline import add_config_arguments, config_from_args
 from mavattitude.config import Config
 from mavattitude.errors import DataFileError, MavAttitudeError
 from mavattitude.files import LOG_SUFFIXES
-from mavattitude.link.logs import LOG_SUFFIXES
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
 
 NAME = "replay"

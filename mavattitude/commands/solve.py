@@ -33,8 +33,16 @@ from mavattitude.commands._offline import (
 )
 from mavattitude.config import Config
 from mavattitude.errors import ConfigError, DataFileError
-from mavattitude.files import ACC_COLUMNS, GYR_COLUMNS, MAG_COLUMNS, TIME_COLUMN, load_numbers, open_text, reading
-from mavattitude.link.logs import LOG_SUFFIXES
+from mavattitude.files import (
+    ACC_COLUMNS,
+    GYR_COLUMNS,
+    LOG_SUFFIXES,
+    MAG_COLUMNS,
+    TIME_COLUMN,
+    load_numbers,
+    open_text,
+    reading,
+)
 
 NAME = "solve"
 HELP = "attitude for every sample of a CSV file (offline, same pipeline as the service)"
