@@ -335,9 +335,8 @@ def _check_found(path: str, message: str, result: Any) -> None:
 
 def summary_table(results: list[LogResult], method: str) -> str:
     """The summary as aligned text: one line per log, then the note on snapshot methods."""
-    rows = [r.row() for r in results]
-    names = list(rows[0])
-    text = [[str(v) for v in row.values()] for row in rows]
+    names, rows = _summary_rows(results)
+    text = [[str(row.get(n, "")) for n in names] for row in rows]
     widths = [max(len(n), *(len(t[i]) for t in text)) for i, n in enumerate(names)]
     lines = ["  ".join(n.ljust(w) for n, w in zip(names, widths, strict=True)).rstrip()]
     lines += ["  ".join(v.ljust(w) for v, w in zip(t, widths, strict=True)).rstrip() for t in text]
@@ -346,9 +345,14 @@ def summary_table(results: list[LogResult], method: str) -> str:
     return "\n".join(lines)
 
 
-def _write_summary(path: Path, results: list[LogResult]) -> None:
+def _summary_rows(results: list[LogResult]) -> tuple[list[str], list[dict[str, Any]]]:
+    """Every column any log has (a failed log has no compass or cross-check columns), and the rows."""
     rows = [r.row() for r in results]
-    names = list(dict.fromkeys(k for row in rows for k in row))
+    return list(dict.fromkeys(k for row in rows for k in row)), rows
+
+
+def _write_summary(path: Path, results: list[LogResult]) -> None:
+    names, rows = _summary_rows(results)
     with path.open("w", encoding="utf-8", newline="") as f:
         writer = csv.DictWriter(f, names, lineterminator="\n")
         writer.writeheader()
