@@ -39,6 +39,7 @@ from mavattitude.estimation import (  # noqa: E402
 )
 from mavattitude.estimation import conventions as cv  # noqa: E402
 from mavattitude.estimation.noise import paper_weight  # noqa: E402
+from mavattitude.plotting import break_wraps  # noqa: E402
 from mavattitude.sim.scenarios import (  # noqa: E402
     PAPER_ACCEL_STD_MPS2,
     PAPER_GRAVITY_BODY_MPS2,
@@ -332,11 +333,14 @@ def figures(s: dict, d: dict, folder: Path) -> list[Path]:
 
     fig, axes = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
     idx = np.arange(5000, min(6000, len(s["acc"])))
-    for m, colour in (("cgn", "tab:orange"), ("ign", "tab:blue")):
+    # IGN as dots, CGN as crosses drawn over them: in yaw the two nearly coincide run by run, and CGN's
+    # dots used to hide under IGN's.
+    for m, colour, marker, size in (("ign", "tab:blue", "o", 2.5), ("cgn", "tab:orange", "x", 3.5)):
         e = euler_errors_deg(s["q"][m][idx], PAPER_Q)
         for k, ax in enumerate(axes):
-            ax.plot(idx, e[:, k], ".", ms=2, color=colour, label=m.upper())
+            ax.plot(idx, e[:, k], marker, ms=size, mew=0.8, ls="none", color=colour, label=m.upper())
             ax.set_ylabel(f"δ{labels[k]} (deg)")
+    axes[0].text(0.01, 0.04, "CGN and IGN nearly coincide in yaw", transform=axes[0].transAxes, fontsize=8)
     axes[0].legend(loc="upper right")
     axes[-1].set_xlabel("Monte Carlo run")
     fig.suptitle("Fig. 1 — Euler angle errors, static simulation (runs 5000–6000)")
@@ -372,7 +376,7 @@ def figures(s: dict, d: dict, folder: Path) -> list[Path]:
     fig, ax = plt.subplots(figsize=(8, 4))
     euler = np.degrees(cv.euler_from_quat(d["q_true"]))
     for k, name in enumerate(("roll", "pitch", "yaw")):
-        ax.plot(d["t"], euler[:, k], label=name)
+        ax.plot(*break_wraps(d["t"], euler[:, k]), label=name)  # yaw passes ±180°: a gap, not a stroke
     ax.set_xlabel("t (s)")
     ax.set_ylabel("deg")
     ax.legend()
@@ -381,10 +385,11 @@ def figures(s: dict, d: dict, folder: Path) -> list[Path]:
 
     fig, axes = plt.subplots(3, 2, figsize=(11, 7), sharex=True)
     for col, (case, per) in enumerate(d["cases"].items()):
-        for m, colour in (("cgn", "tab:orange"), ("ign", "tab:blue")):
+        # IGN wide and pale, CGN thin and dark over it: where they coincide (yaw) both still show.
+        for m, colour, width, alpha in (("ign", "tab:blue", 2.2, 0.45), ("cgn", "tab:orange", 0.6, 1.0)):
             e = euler_errors_deg(per[m][0], d["q_true"])
             for k in range(3):
-                axes[k, col].plot(d["t"], e[:, k], lw=0.7, color=colour, label=m.upper())
+                axes[k, col].plot(d["t"], e[:, k], lw=width, alpha=alpha, color=colour, label=m.upper())
                 axes[k, col].set_ylabel(f"δ{labels[k]} (deg)")
         axes[0, col].set_title(f"accelerometer {case}")
         axes[-1, col].set_xlabel("t (s)")

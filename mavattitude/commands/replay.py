@@ -410,33 +410,50 @@ def _compare(ours: np.ndarray, autopilot: np.ndarray, job: Job, result: LogResul
     if job.plot is None:
         return
     try:
-        _plot(job.plot, ours, t, q_ref, diff)
+        title = f"{job.log.name}: mavattitude ({job.config.estimator.method}) vs the autopilot's attitude"
+        _plot(job.plot, title, ours, t, q_ref, diff)
     except ImportError:
         log.warning("matplotlib is not installed (pip install mavattitude[plot]): no plot written")
         return
     log.info("wrote the comparison plot %s", job.plot)
 
 
-def _plot(path: Path, ours: np.ndarray, t: np.ndarray, q_ref: np.ndarray, diff: np.ndarray) -> None:
-    """Roll, pitch, yaw of ours (rows ``t_s, qw, qx, qy, qz``) and the autopilot's, and the angle between."""
+def _plot(path: Path, title: str, ours: np.ndarray, t: np.ndarray, q_ref: np.ndarray, diff: np.ndarray) -> None:
+    import matplotlib.pyplot as plt
+
+    fig = comparison_figure(title, ours, t, q_ref, diff)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def comparison_figure(title: str, ours: np.ndarray, t: np.ndarray, q_ref: np.ndarray, diff: np.ndarray) -> Any:
+    """Roll, pitch, yaw of ours (rows ``t_s, qw, qx, qy, qz``) and the autopilot's, and the angle between.
+
+    Each line is enveloped to a few thousand points (a long log's 250 000 were a solid band) with its yaw
+    wraps broken; ours is drawn wide and pale under the autopilot's thin line, so both show where they agree.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from mavattitude.estimation.conventions import euler_from_quat
+    from mavattitude.plotting import angle_series, envelope
 
     ref_deg = np.degrees(euler_from_quat(q_ref))
     ours_deg = np.degrees(euler_from_quat(ours[:, 1:5]))
-    fig, axes = plt.subplots(4, 1, sharex=True, figsize=(10, 9))
+    fig, axes = plt.subplots(4, 1, sharex=True, figsize=(11, 9))
     for i, name in enumerate(("roll", "pitch", "yaw")):
-        axes[i].plot(ours[:, 0], ours_deg[:, i], lw=0.8, label="mavattitude")
-        axes[i].plot(t, ref_deg[:, i], lw=0.8, label="autopilot ATTITUDE")
+        axes[i].plot(*angle_series(ours[:, 0], ours_deg[:, i]), lw=2.5, alpha=0.45, color="C0", label="mavattitude")
+        axes[i].plot(*angle_series(t, ref_deg[:, i]), lw=0.7, color="k", label="autopilot ATTITUDE")
         axes[i].set_ylabel(f"{name} (deg)")
-    axes[0].legend(loc="upper right")
-    axes[3].plot(t, diff[:, 3], lw=0.8, color="k")
-    axes[3].set_ylabel("difference (deg)")
+        axes[i].grid(True, lw=0.3)
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[3].plot(*envelope(t, diff[:, 3]), lw=0.7, color="C3")
+    axes[3].set_ylabel("angle between (deg)")
+    axes[3].grid(True, lw=0.3)
     axes[3].set_xlabel("vehicle time (s)")
+    rms = np.sqrt(np.mean(diff[:, 3] ** 2))
+    axes[0].set_title(f"{title}\nangle between: {rms:.2f}° RMS over {len(t)} outputs", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    return fig

@@ -1,0 +1,61 @@
+"""Readable plots: long series enveloped (extremes kept), angle wraps broken, and the replay figure built
+from them with a title and both lines visible."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mavattitude.estimation.conventions import quat_from_euler
+from mavattitude.plotting import MAX_POINTS, angle_series, break_wraps, envelope
+
+
+def _wrapping_yaw(n: int) -> tuple[np.ndarray, np.ndarray]:
+    t = np.arange(n) * 0.004  # 250 000 samples: 1000 s at 250 Hz, a long log
+    yaw = (t * 7.0 + 180.0) % 360.0 - 180.0  # turning 7°/s: wraps every ~51 s
+    return t, yaw
+
+
+def test_a_long_series_is_enveloped_and_keeps_its_spikes() -> None:
+    t = np.arange(250_000) * 0.004
+    y = np.sin(t)
+    y[123_457] = 40.0  # one spike that plain striding would skip
+    te, ye = envelope(t, y)
+    assert len(te) <= MAX_POINTS and np.all(np.diff(te) >= 0)
+    assert ye.max() == 40.0 and ye.min() == pytest.approx(-1.0, abs=1e-3)
+    short = np.arange(10.0)
+    assert np.array_equal(envelope(short, short)[1], short)  # a short series is drawn as it is
+
+
+def test_a_wrap_is_a_gap_not_a_vertical_stroke() -> None:
+    t, a = break_wraps([0.0, 1.0, 2.0, 3.0], [170.0, 179.0, -179.0, -170.0])
+    assert np.isnan(a[2]) and np.isnan(t[2]) and list(a[[0, 1, 3, 4]]) == [170.0, 179.0, -179.0, -170.0]
+    t, yaw = _wrapping_yaw(250_000)
+    _, drawn = angle_series(t, yaw)
+    finite_steps = np.abs(np.diff(drawn))
+    assert np.nanmax(finite_steps) < 180.0  # no segment crosses the panel
+    assert np.isnan(drawn).sum() == np.count_nonzero(np.abs(np.diff(yaw)) > 180.0)  # one gap per wrap
+
+
+def test_the_replay_figure_is_titled_decimated_and_shows_both_attitudes() -> None:
+    pytest.importorskip("matplotlib")
+    import matplotlib.pyplot as plt
+
+    from mavattitude.commands.replay import comparison_figure
+
+    t, yaw = _wrapping_yaw(250_000)
+    q = quat_from_euler(np.zeros_like(t), np.zeros_like(t), np.radians(yaw))
+    ours = np.column_stack([t, q])
+    diff = np.zeros((len(t), 4))
+    fig = comparison_figure("flight.tlog: mavattitude (ign) vs the autopilot's attitude", ours, t, q, diff)
+    try:
+        axes = fig.axes
+        assert axes[0].get_title().startswith("flight.tlog: mavattitude (ign)")
+        for ax in axes:
+            for line in ax.get_lines():
+                assert len(line.get_xdata()) <= MAX_POINTS + 100  # + one gap per wrap
+        ours_line, autopilot_line = axes[2].get_lines()
+        assert ours_line.get_linewidth() > 2 * autopilot_line.get_linewidth()  # wide and pale under thin
+        assert np.nanmax(np.abs(np.diff(autopilot_line.get_ydata()))) < 180.0
+    finally:
+        plt.close(fig)
