@@ -38,7 +38,7 @@ from mavattitude.estimation import METHODS
 from mavattitude.estimation.fused.settings import FusedSettings
 from mavattitude.sensors.calibration import Calibration, Mat3, Vec3
 from mavattitude.sensors.magref import MagneticReference
-from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
+from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES, CustomScales
 
 ENV_VAR = "MAVATTITUDE_CONFIG"
 
@@ -186,13 +186,6 @@ class LinkConfig:
         default=5.0, metadata=_meta(_number(0.5, 3600.0), "re-assert the requested rate this often, s")
     )
     signing: SigningConfig = field(default_factory=SigningConfig)
-
-
-@dataclass(frozen=True)
-class CustomScales:
-    accel_mps2_per_lsb: float | None = field(default=None, metadata=_meta(_optional(_positive), "m/s² per raw unit"))
-    gyro_radps_per_lsb: float | None = field(default=None, metadata=_meta(_optional(_positive), "rad/s per raw unit"))
-    mag_uT_per_lsb: float | None = field(default=None, metadata=_meta(_optional(_positive), "µT per raw unit"))
 
 
 @dataclass(frozen=True)
@@ -411,7 +404,8 @@ def _check_of(f: dataclasses.Field, hint: Any) -> Check | None:
     config imports (their fields carry only a description); ``None`` for a nested section."""
     if "range" in f.metadata:
         lo, hi, lo_open = f.metadata["range"]
-        return _number(lo, hi, lo_open=lo_open)
+        check = _number(lo, hi, lo_open=lo_open)
+        return _optional(check) if type(None) in typing.get_args(hint) else check
     return f.metadata.get("check") or _CHECK_BY_TYPE.get(hint)
 
 

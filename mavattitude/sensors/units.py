@@ -147,6 +147,21 @@ PROFILES: dict[str, UnitProfile] = {
 PROFILE_NAMES = (*PROFILES, "custom")
 
 
+def _scale(doc: str) -> Any:
+    """An ``input.custom`` scale: a positive number of SI units per raw unit, or unset."""
+    return field(default=None, metadata={"doc": doc, "range": (0.0, math.inf, True)})
+
+
+@dataclass(frozen=True)
+class CustomScales:
+    """``input.custom``: the scales of profile ``custom``, one per sensor for every message (the config
+    reads and checks them by each field's range and description)."""
+
+    accel_mps2_per_lsb: float | None = _scale("m/s² per raw unit")
+    gyro_radps_per_lsb: float | None = _scale("rad/s per raw unit")
+    mag_uT_per_lsb: float | None = _scale("µT per raw unit")
+
+
 def custom_profile(
     accel_mps2_per_lsb: float,
     gyro_radps_per_lsb: float,
@@ -165,9 +180,8 @@ def custom_profile(
     return UnitProfile("custom", {m: scale for m in messages})
 
 
-def get_profile(name: str, custom: Any = None) -> UnitProfile:
-    """The named profile; ``custom`` needs an object with ``accel_mps2_per_lsb``, ``gyro_radps_per_lsb``,
-    ``mag_uT_per_lsb`` (the config's ``input.custom``)."""
+def get_profile(name: str, custom: CustomScales | None = None) -> UnitProfile:
+    """The named profile; ``custom`` needs its scales (the config's ``input.custom``)."""
     if name == "custom":
         if custom is None:
             raise SensorError("profile 'custom' needs input.custom scales")

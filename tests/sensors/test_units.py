@@ -93,7 +93,7 @@ def test_all_zero_magnetometer_means_no_compass() -> None:
 
 
 def test_custom_profile_scales_each_sensor() -> None:
-    scales = SimpleNamespace(accel_mps2_per_lsb=0.01, gyro_radps_per_lsb=0.001, mag_uT_per_lsb=0.1)
+    scales = units.CustomScales(accel_mps2_per_lsb=0.01, gyro_radps_per_lsb=0.001, mag_uT_per_lsb=0.1)
     s = decode(_msg("RAW_IMU", time_usec=0, **{**IMU_ZERO, "xacc": 100, "ygyro": 10, "zmag": 400}),
                get_profile("custom", scales))  # fmt: skip
     assert s.acc_mps2 == pytest.approx((1.0, 0, 0)) and s.gyr_radps == pytest.approx((0, 0.01, 0))
