@@ -505,14 +505,51 @@ def read_yaml(path: str | Path) -> dict[str, Any]:
     except UnicodeDecodeError as exc:
         raise ConfigError(f"{path}: not a YAML text file (byte {exc.start} is not UTF-8)") from None
     try:
-        data = yaml.load(text, Loader=_UniqueKeyLoader)  # a SafeLoader
+        node, data = _load(text)
     except yaml.YAMLError as exc:
         raise _yaml_error(path, exc) from None
     if data is None:
         return {}
     if not isinstance(data, Mapping):
         raise ConfigError(f"{path}: expected a mapping of sections at the top level")
-    return dict(data)
+    return _Located(data, _key_lines(node))
+
+
+def _load(text: str) -> tuple[yaml.Node | None, Any]:
+    """The document's node tree (where each key is) and its data, keys given twice refused."""
+    loader = _UniqueKeyLoader(text)  # a SafeLoader
+    try:
+        node = loader.get_single_node()
+        return node, loader.construct_document(node) if node is not None else None
+    finally:
+        loader.dispose()  # type: ignore[no-untyped-call]
+
+
+class _Located(dict[str, Any]):
+    """A config file's data, with the ``line:column`` of each dotted key, for errors that say where."""
+
+    def __init__(self, data: Mapping[str, Any], where: dict[str, str]) -> None:
+        super().__init__(data)
+        self.where = where
+
+
+def _key_lines(node: yaml.Node, prefix: str = "") -> dict[str, str]:
+    out: dict[str, str] = {}
+    if isinstance(node, yaml.MappingNode):
+        for key, value in node.value:
+            if isinstance(key, yaml.ScalarNode):
+                out[f"{prefix}{key.value}"] = f"{key.start_mark.line + 1}:{key.start_mark.column + 1}"
+                out.update(_key_lines(value, f"{prefix}{key.value}."))
+    return out
+
+
+def _located(source: str, data: Mapping[str, Any], message: str) -> str:
+    """``source:LINE:COLUMN`` for an error about a key the file holds (the nearest enclosing one), else ``source``."""
+    where = getattr(data, "where", {})
+    key = message.split(":", 1)[0]
+    while key and key not in where:
+        key = key.rpartition(".")[0]
+    return f"{source}:{where[key]}" if key else source
 
 
 def from_dict(data: Mapping[str, Any], source: str = "config", *, cross_check: bool = True) -> Config:
@@ -522,7 +559,7 @@ def from_dict(data: Mapping[str, Any], source: str = "config", *, cross_check: b
         if cross_check:
             _cross_check(config)
     except ConfigError as exc:
-        raise ConfigError(f"{source}: {exc}") from None
+        raise ConfigError(f"{_located(source, data, str(exc))}: {exc}") from None
     return config
 
 

@@ -184,8 +184,8 @@ def test_a_higher_layer_replaces_the_magnetic_reference_whole(tmp_path):
 def test_errors_name_the_layer_they_come_from(tmp_path):
     base = write(tmp_path, "base.yaml", {"estimator": {"method": "ign"}})
     bad = write(tmp_path, "site.yaml", {"estimator": {"tolerence": 1e-9}})
-    with pytest.raises(ConfigError, match=rf"{ENV_VAR}=.*site\.yaml: estimator\.tolerence: unknown key; did you mean"):
-        load_config(base, env={ENV_VAR: str(bad)})
+    with pytest.raises(ConfigError, match=rf"{ENV_VAR}=.*site\.yaml:2:3: estimator\.tolerence: unknown key; did you"):
+        load_config(base, env={ENV_VAR: str(bad)})  # the file's line:column of the key, as an editor counts
     with pytest.raises(ConfigError, match=r"command-line flags: estimator\.method: 'x' is not one of"):
         load_config(base, overrides={"estimator.method": "x"}, env={})
     with pytest.raises(ConfigError, match=r"effective config: filter\.cutoff_hz: must be below half"):
@@ -227,3 +227,13 @@ def test_yaml_is_loaded_safely(tmp_path):
     evil.write_text("logging: !!python/object/apply:os.system ['true']\n", encoding="utf-8")
     with pytest.raises(ConfigError, match="not valid YAML"):
         load_config(evil, env={})
+
+
+def test_a_bad_value_is_named_by_its_line_and_column(tmp_path):
+    path = tmp_path / "site.yaml"
+    path.write_text("link:\n  connect: udpin:0.0.0.0:14550\nfilter:\n  enabled: true\n  cutoff_hz: -3\n")
+    with pytest.raises(ConfigError, match=r"site\.yaml:5:3: filter\.cutoff_hz: -3 is out of range"):
+        load_config(path, env={})
+    path.write_text("mounting:\n  rotation: {yaw: 90}\n")  # a key inside a value the file holds: its parent's line
+    with pytest.raises(ConfigError, match=r"site\.yaml:2:3: mounting\.rotation"):
+        load_config(path, env={})
