@@ -1,15 +1,16 @@
 """Replay: the service's pipeline and dispatcher over a finite message source, as fast as the CPU goes.
 
 :func:`replay` reads a log source (:mod:`mavattitude.link.logs`) to its end through the same
-:class:`~mavattitude.dispatch.Dispatcher` as the live service (lock-on, routing, the pipeline), keeping every
-attitude output and the autopilot's own attitudes; no I/O of its own beyond the source.
+:class:`~mavattitude.dispatch.Dispatcher` as the live service (lock-on, routing), and the vehicle's samples
+through the same pipeline, keeping every attitude output and the autopilot's own attitudes.
 
-A DataFlash or ULog log already holds its streams as arrays, from one vehicle: there is nothing to lock
-onto or route, and the pipeline takes the IMU samples at once (:meth:`AttitudePipeline.push_batch`: the
-vectorised front end, then the same estimator step per tick), which is what makes replay fast. That
-needs one magnetic reference for the whole log (fixed, or the WMM's at the log's first position when the
-vehicle stays within the distance after which the service would look it up again); otherwise the items
-go through the dispatcher one by one, as from a telemetry log.
+The pipeline takes the samples at once (:meth:`AttitudePipeline.push_batch`: the vectorised front end,
+then the same estimator step per tick), which is what makes replay fast: a DataFlash or ULog log already
+holds its streams as arrays, from one vehicle; from a telemetry log the dispatcher's sink gathers the
+samples of the autopilot it locked onto into the same arrays. That needs one magnetic reference for the
+whole log (fixed, or the WMM's at the log's first position when the vehicle stays within the distance
+after which the service would look it up again); otherwise, and with ``at_once=False``, the samples go
+into the pipeline one by one as they would live.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ import numpy as np
 
 from mavattitude.config import Config
 from mavattitude.dispatch import DispatchCounters, Dispatcher
-from mavattitude.link.logs import LogStreams, mag_for_imu
+from mavattitude.link.logs import LogStreams
 from mavattitude.link.source import AutopilotAttitude, MessageSource, Sender
 from mavattitude.pipeline import AttitudeOutput, AttitudePipeline
 from mavattitude.sensors.magref import distance_km
@@ -90,20 +91,41 @@ class _Collector:
         log.debug("rejected (%s): %s", reason, exc)
 
 
-def replay(source: MessageSource, config: Config, progress: Callable[[MessageSource], None] | None = None) -> Replayed:
+def replay(
+    source: MessageSource,
+    config: Config,
+    progress: Callable[[MessageSource], None] | None = None,
+    at_once: bool = True,
+) -> Replayed:
     """Run ``source`` to its end through the service's dispatcher and pipeline (see the module docstring)."""
     pipeline = AttitudePipeline(config)
-    counters = DispatchCounters()
-    result = Replayed([], [], counters, pipeline, None)
+    result = Replayed([], [], DispatchCounters(), pipeline, None)
+    if not at_once:
+        return _replay_items(source, result, progress)
     streams = getattr(source, "streams", None)
-    if isinstance(streams, LogStreams) and source.vehicle is not None and _one_reference(streams, pipeline):
-        return _replay_arrays(streams, result, source.vehicle)
+    vehicle = source.vehicle
+    if not isinstance(streams, LogStreams) or vehicle is None:
+        streams = _gather(source, result, progress)
+        vehicle = result.vehicle
+    if vehicle is not None and _one_reference(streams, pipeline):
+        return _replay_arrays(streams, result, vehicle)
+    from mavattitude.link.logs import StreamSource  # the gathered streams, one by one
+
+    ignored = result.counters.ignored
+    result = Replayed([], [], DispatchCounters(ignored=ignored), AttitudePipeline(config), None)
+    return _replay_items(StreamSource(source.name, streams), result, progress)
+
+
+def _dispatch(
+    source: MessageSource, sink: Any, result: Replayed, progress: Callable[[MessageSource], None] | None
+) -> None:
+    config = result.pipeline.config
     dispatcher = Dispatcher(
-        pipeline,
+        sink,
         _Collector(result),
         system_id=config.link.vehicle_system_id,
         vehicle=source.vehicle,
-        counters=counters,
+        counters=result.counters,
         wants_position=config.reference.magnetic.mode == "auto",
     )
     handle = dispatcher.handle
@@ -112,9 +134,63 @@ def replay(source: MessageSource, config: Config, progress: Callable[[MessageSou
             handle(received)
         if progress is not None:
             progress(source)
+
+
+def _replay_items(
+    source: MessageSource, result: Replayed, progress: Callable[[MessageSource], None] | None
+) -> Replayed:
+    """Every item through the dispatcher into the pipeline, one by one, as live."""
+    _dispatch(source, result.pipeline, result, progress)
     if result.internal_errors:  # offline, a bug is reported, not served around
         raise result.internal_errors[0]
     return result
+
+
+class _Gathered:
+    """The dispatcher's sink while a telemetry log is read: the vehicle's samples and positions, in order."""
+
+    mag_ref_ned_uT = None
+
+    def __init__(self) -> None:
+        self.samples: list[ImuSample] = []
+        self.positions: list[tuple[int, float, float, float, Any]] = []  # (samples before it, lat, lon, alt, date)
+
+    def push(self, sample: ImuSample) -> list[AttitudeOutput]:
+        self.samples.append(sample)
+        return []
+
+    def set_position(self, lat_deg: float, lon_deg: float, alt_m: float, when: Any = None) -> bool:
+        self.positions.append((len(self.samples), lat_deg, lon_deg, alt_m, when))
+        return False
+
+    def streams(self, autopilot: list[AutopilotAttitude]) -> LogStreams:
+        """The gathered samples as a log's arrays; a position's time is that of the first sample after it."""
+        samples = self.samples
+        t = np.array([x.time_s for x in samples], dtype=float)
+        acc = np.array([x.acc_mps2 for x in samples], dtype=float).reshape(-1, 3)
+        gyr = np.array([x.gyr_radps for x in samples], dtype=float).reshape(-1, 3)
+        with_mag = [i for i, x in enumerate(samples) if x.mag_uT is not None]
+        mag = np.array([samples[i].mag_uT for i in with_mag], dtype=float).reshape(-1, 3)
+        carried = np.full(len(samples), -1, dtype=np.int64)
+        carried[with_mag] = np.arange(len(with_mag))
+        after = [i for i, *_ in self.positions]
+        pos_t = np.array([t[i] if i < len(t) else math.inf for i in after], dtype=float)
+        pos = np.array([p[1:4] for p in self.positions], dtype=float).reshape(-1, 3)
+        att_t = np.array([a.time_s for a in autopilot], dtype=float)
+        att_q = np.array([a.q for a in autopilot], dtype=float).reshape(-1, 4)
+        date = self.positions[0][4] if self.positions else None
+        wrap = samples[0].time_wrap_s if samples else None
+        return LogStreams(t, acc, gyr, t[with_mag], mag, att_t, att_q, pos_t, pos, date, wrap, imu_mag_index=carried)
+
+
+def _gather(source: MessageSource, result: Replayed, progress: Callable[[MessageSource], None] | None) -> LogStreams:
+    """The vehicle's samples, positions and attitudes of a source, through the dispatcher (lock-on, routing)."""
+    gathered = _Gathered()
+    _dispatch(source, gathered, result, progress)
+    streams = gathered.streams(result.autopilot)
+    result.autopilot = []  # _replay_arrays takes them from the streams
+    result.counters.received = 0
+    return streams
 
 
 def _one_reference(streams: LogStreams, pipeline: AttitudePipeline) -> bool:
@@ -132,7 +208,7 @@ def _replay_arrays(s: LogStreams, result: Replayed, vehicle: Sender) -> Replayed
     """The arrays of a log through :meth:`AttitudePipeline.push_batch`, as the items would go one by one."""
     pipeline, counters = result.pipeline, result.counters
     result.vehicle = vehicle
-    log.info("following the autopilot's own log (%d IMU samples at once)", len(s.imu_t_s))
+    log.info("%d IMU samples of the autopilot at once", len(s.imu_t_s))
     reference_after_s = -math.inf
     if pipeline.waiting_for_reference and len(s.position_t_s):
         lat, lon, alt = s.position[0].tolist()
@@ -140,7 +216,7 @@ def _replay_arrays(s: LogStreams, result: Replayed, vehicle: Sender) -> Replayed
         counters.positions = len(s.position_t_s)
         before = s.imu_t_s[s.imu_t_s < s.position_t_s[0]]  # a tick is computed when the sample after it arrives
         reference_after_s = float(before[-1]) if len(before) else -math.inf
-    carried = mag_for_imu(s.imu_t_s, s.mag_t_s, s.mag_uT)
+    carried = s.carried_mag()
     mag = np.full((len(carried), 3), np.nan)
     mag[carried >= 0] = s.mag_uT[carried[carried >= 0]]
     result.outputs = pipeline.push_batch(

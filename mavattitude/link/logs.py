@@ -57,6 +57,15 @@ class LogStreams:
     date: dt.date | None = None  # the day the log was recorded (GPS time), for the World Magnetic Model
     time_wrap_s: float | None = None  # the IMU time field's wrap period (old DataFlash: uint32 ms)
     damage: str | None = None  # where the file is truncated or damaged, if it is
+    #: the magnetometer row each IMU sample carries (-1: none), where the source knows it (a telemetry log's
+    #: messages carry their own); otherwise the newest reading at or before the sample, if new (mag_for_imu)
+    imu_mag_index: NDArray[np.int64] | None = None
+
+    def carried_mag(self) -> NDArray[np.int64]:
+        """Which magnetometer row each IMU sample carries, -1 where none."""
+        if self.imu_mag_index is not None:
+            return self.imu_mag_index
+        return mag_for_imu(self.imu_t_s, self.mag_t_s, self.mag_uT)
 
     def check(self, path: str, imu: str, mag: str) -> None:
         """What replay cannot do without, as one :class:`DataFileError` naming the file and the record."""
@@ -106,7 +115,7 @@ class StreamSource:
         )
         order = np.lexsort((kinds, times))
         self._times, self._kinds, self._index = times[order].tolist(), kinds[order].tolist(), index[order].tolist()
-        self._mag_index = mag_for_imu(s.imu_t_s, s.mag_t_s, s.mag_uT).tolist()
+        self._mag_index = s.carried_mag().tolist()
         self._acc, self._gyr, self._mag = s.acc_mps2.tolist(), s.gyr_radps.tolist(), s.mag_uT.tolist()
         self._imu_t = s.imu_t_s.tolist()
         self._next = 0

@@ -137,20 +137,6 @@ def test_the_shared_px4_logs(tmp_path, name):
     assert len(read_rows(out)) > 100
 
 
-class _OneByOne:
-    """A log source without its arrays: its items go through the dispatcher one at a time, as a live link's."""
-
-    def __init__(self, source) -> None:
-        self.source, self.vehicle, self.name = source, source.vehicle, source.name
-
-    @property
-    def finished(self) -> bool:
-        return self.source.finished
-
-    def recv(self, timeout_s: float) -> list:
-        return self.source.recv(timeout_s)
-
-
 @pytest.mark.parametrize("method", ["ign", "fused"])
 @pytest.mark.parametrize("reference", [{"reference.magnetic": {"declination_deg": 0, "inclination_deg": 63.5}}, {}])
 def test_a_log_at_once_gives_the_outputs_of_its_items_one_by_one(tmp_path, method, reference):
@@ -165,10 +151,28 @@ def test_a_log_at_once_gives_the_outputs_of_its_items_one_by_one(tmp_path, metho
     path = write_dataflash(tmp_path / "n.bin", log)
     config = load_config(None, {**reference, "estimator.method": method}, env={})
     at_once = replay(open_log(path, config), config)
-    one_by_one = replay(_OneByOne(open_log(path, config)), config)
+    one_by_one = replay(open_log(path, config), config, at_once=False)
     a, b = at_once.output_array(), one_by_one.output_array()
     assert len(a) > 900 and np.array_equal(a[:, 0], b[:, 0])  # the same ticks; auto: from the first position on
     # the vectorised front end equals the streaming one to rounding (~1e-12 on the filtered vectors)
     assert np.max(angle_between(a[:, 1:], b[:, 1:])) < 1e-9
     assert at_once.pipeline.counters.frontend.flagged == one_by_one.pipeline.counters.frontend.flagged
     assert at_once.counters.received == one_by_one.counters.received == len(log.imu_t_s)
+
+
+@pytest.mark.parametrize("method", ["ign", "fused"])
+def test_a_telemetry_log_at_once_gives_its_outputs_one_by_one(tmp_path, method):
+    from mavattitude.config import load_config
+    from mavattitude.link.logs import open_log
+    from mavattitude.replay import replay
+    from tests.commands.test_replay import write_tlog
+
+    path = write_tlog(tmp_path / "two.tlog", seconds=4.0, position=True)  # two vehicles, a ground station
+    config = load_config(None, {"estimator.method": method}, env={})  # auto: the WMM at the logged position
+    at_once = replay(open_log(path, config), config)
+    one_by_one = replay(open_log(path, config), config, at_once=False)
+    a, b = at_once.output_array(), one_by_one.output_array()
+    assert len(a) > 150 and np.array_equal(a[:, 0], b[:, 0])
+    assert np.max(angle_between(a[:, 1:], b[:, 1:])) < 1e-9  # the front ends agree to rounding
+    assert at_once.counters.ignored == one_by_one.counters.ignored > 0  # vehicle 2 and the ground station
+    assert len(at_once.autopilot) == len(one_by_one.autopilot) > 30

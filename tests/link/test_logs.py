@@ -133,3 +133,21 @@ def test_both_ulog_generations(name, mag):
     assert np.median(np.linalg.norm(s.acc_mps2, axis=1)) == pytest.approx(9.81, rel=0.02)
     assert 20.0 < np.median(np.linalg.norm(s.mag_uT, axis=1)) < 70.0  # gauss × 100: an Earth field
     assert np.allclose(np.linalg.norm(s.attitude_q, axis=1), 1.0, atol=1e-5)
+
+
+def test_a_telemetry_log_record_that_fails_its_crc_is_skipped_and_said(tmp_path):
+    from mavattitude.sim.logwriter import write_tlog
+
+    path = write_tlog(tmp_path / "c.tlog", static_log(1.0))
+    data = bytearray(path.read_bytes())
+    at = len(data) // 2
+    data[at] ^= 0xFF  # one byte of one record: its CRC no longer matches
+    path.write_bytes(bytes(data))
+    source = open_log(path, make_config())
+    items = []
+    while not source.finished:
+        items += source.recv(0.0)
+    samples = [i for _, _, i in items if isinstance(i, ImuSample)]
+    assert source.bad_records == 1 and source.damage.startswith("damaged: the record at byte ")
+    assert at - 60 < int(source.damage.split("byte ")[1].split()[0]) <= at
+    assert len(samples) == 399  # the others are read
