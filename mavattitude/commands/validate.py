@@ -144,7 +144,8 @@ def run(args: argparse.Namespace) -> int:
                 estimate = estimate_stream(recording, config, _progress(label))
             else:
                 estimate = estimate_batch(recording, config)
-            print(f"\r{label}: done in {estimate.elapsed_s:.1f} s", file=sys.stderr, flush=True)
+            redraw = "\r" if sys.stderr.isatty() else ""  # over the terminal's percent line; a log gets lines
+            print(f"{redraw}{label}: done in {estimate.elapsed_s:.1f} s", file=sys.stderr, flush=True)
             evaluations.append(evaluate(recording, estimate))
         if args.peers:
             for estimate in _peer_estimates(recording):

@@ -16,8 +16,10 @@ def test_validate_writes_table_report_and_json(tmp_path, capsys, px4_csv) -> Non
     report, scores = tmp_path / "validation.md", tmp_path / "scores.json"
     argv = ["validate", str(px4_csv), "--stop", "10", "--method", "ign", "--method", "triad", "--path", "batch"]
     assert main([*argv, "--report", str(report), "--json", str(scores)]) == 0
-    printed = capsys.readouterr().out
+    captured = capsys.readouterr()
+    printed = captured.out
     assert "px4_sample_sensors" in printed and "roll rms" in printed
+    assert "\r" not in captured.err and "px4_sample_sensors batch ign: done in" in captured.err  # not a terminal
     assert "| batch | triad |" in report.read_text()
     data = json.loads(scores.read_text())["px4_sample_sensors"]
     assert [(row["path"], row["method"]) for row in data] == [("batch", "ign"), ("batch", "triad")]
