@@ -21,6 +21,7 @@ incomplete) or with damaged bytes is read as far as it goes, and :attr:`StreamSo
 from __future__ import annotations
 
 import datetime as dt
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -98,45 +99,53 @@ class StreamSource:
 
     def __init__(self, name: str, streams: LogStreams) -> None:
         self.name = name
-        self.streams = s = streams
-        self.damage = s.damage
+        self.streams = streams
+        self.damage = streams.damage
         self.finished = False
-        # all items in time order; at equal times a position first, the autopilot's attitude after the sample
-        times = np.concatenate([s.position_t_s, s.imu_t_s, s.attitude_t_s])
-        kinds = np.concatenate(
-            [
-                np.zeros(len(s.position_t_s), np.int8),
-                np.ones(len(s.imu_t_s), np.int8),
-                np.full(len(s.attitude_t_s), 2, np.int8),
-            ]
-        )
-        index = np.concatenate(
-            [np.arange(len(s.position_t_s)), np.arange(len(s.imu_t_s)), np.arange(len(s.attitude_t_s))]
-        )
-        order = np.lexsort((kinds, times))
-        self._times, self._kinds, self._index = times[order].tolist(), kinds[order].tolist(), index[order].tolist()
-        self._mag_index = s.carried_mag().tolist()
-        self._acc, self._gyr, self._mag = s.acc_mps2.tolist(), s.gyr_radps.tolist(), s.mag_uT.tolist()
-        self._imu_t = s.imu_t_s.tolist()
         self._next = 0
+
+    @functools.cached_property
+    def _items(self) -> tuple[list[float], list[int], list[int]]:
+        """Every item's time, kind (0 position, 1 IMU sample, 2 attitude) and row, in time order; at equal
+        times a position first, the autopilot's attitude after the sample. Built at the first recv: a
+        reader that takes the arrays (replay) never pays for it."""
+        s = self.streams
+        times = np.concatenate([s.position_t_s, s.imu_t_s, s.attitude_t_s])
+        counts = (len(s.position_t_s), len(s.imu_t_s), len(s.attitude_t_s))
+        kinds = np.repeat(np.arange(3, dtype=np.int8), counts)
+        index = np.concatenate([np.arange(n) for n in counts])
+        order = np.lexsort((kinds, times))
+        return times[order].tolist(), kinds[order].tolist(), index[order].tolist()
+
+    @functools.cached_property
+    def _rows(self) -> tuple[list, list, list, list, list]:
+        s = self.streams
+        return (
+            s.imu_t_s.tolist(),
+            s.acc_mps2.tolist(),
+            s.gyr_radps.tolist(),
+            s.mag_uT.tolist(),
+            s.carried_mag().tolist(),
+        )
 
     @property
     def total(self) -> int:
         """Items the source hands out in all (for progress)."""
-        return len(self._times)
+        return len(self._items[0])
 
     @property
     def done(self) -> int:
         return self._next
 
     def recv(self, timeout_s: float = 0.0) -> list[Received]:
-        start, stop = self._next, min(self._next + CHUNK_ITEMS, len(self._times))
+        times, kinds, index = self._items
+        imu_t, acc, gyr, mag, mag_index = self._rows
+        start, stop = self._next, min(self._next + CHUNK_ITEMS, len(times))
         self._next = stop
-        self.finished = stop >= len(self._times)
+        self.finished = stop >= len(times)
         s, vehicle, wrap = self.streams, self.vehicle, self.streams.time_wrap_s
-        acc, gyr, mag, mag_index, imu_t = self._acc, self._gyr, self._mag, self._mag_index, self._imu_t
         out: list[Received] = []
-        for t, kind, i in zip(self._times[start:stop], self._kinds[start:stop], self._index[start:stop], strict=True):
+        for t, kind, i in zip(times[start:stop], kinds[start:stop], index[start:stop], strict=True):
             if kind == 1:
                 m = mag_index[i]
                 a, g = acc[i], gyr[i]
