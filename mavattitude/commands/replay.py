@@ -279,6 +279,9 @@ def _fill(result: LogResult, replayed: Any) -> None:
         + sum(pipeline.frontend.rejected.values())
         + sum(pipeline.rejected.values())
     )
+    # The fused filter's own counters and learnt offset (nothing for the snapshot methods).
+    fused = pipeline.estimator().items()
+    result.columns |= {f"fused.{k}": round(v, 2) if isinstance(v, float) else v for k, v in fused}
 
 
 def _compass_columns(figures: Any, result: LogResult) -> None:

@@ -21,6 +21,7 @@ import logging
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from mavattitude.commands._offline import (
     PROGRESS_MIN_SAMPLES,
@@ -56,6 +57,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", help="input CSV (or .csv.gz) with t_s, acc_*_mps2, mag_*_uT [, gyr_*_radps]")
     parser.add_argument("-o", "--output", required=True, help="output CSV (gzip-compressed if it ends in .gz)")
     add_config_arguments(parser)
+    parser.add_argument(
+        "--save-mag-offset",
+        metavar="OUT.yaml",
+        help="with --method fused: write the magnetometer calibration with the hard-iron offset the filter learnt "
+        "added (the `calibrate` format, to merge into the config)",
+    )
     parser.add_argument(
         "--progress",
         action=argparse.BooleanOptionalAction,
@@ -106,6 +113,8 @@ def run(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     data = read_samples(args.input)
     check_offline_config(config, "gyr" in data, args.input)
+    if args.save_mag_offset and config.estimator.method != "fused":
+        raise ConfigError("--save-mag-offset needs --method fused: only the fused filter learns a hard-iron offset")
     pipeline = AttitudePipeline(config)
     n = len(data["t_s"])
     t, acc, mag = data["t_s"].tolist(), data["acc"].tolist(), data["mag"].tolist()
@@ -121,4 +130,23 @@ def run(args: argparse.Namespace) -> int:
     summarise(pipeline, n, args.input)
     write_outputs(args.output, rows)
     log.info("wrote %d attitudes to %s", len(rows), args.output)
+    if args.save_mag_offset:
+        save_mag_offset(args.save_mag_offset, config, pipeline.estimator.counters())
     return 0
+
+
+def save_mag_offset(path: str, config: Config, counters: dict[str, float]) -> None:
+    """The config's magnetometer calibration with the fused filter's learnt body-frame offset folded in."""
+    from mavattitude.sensors.calibration import hard_iron_with_body_offset, mag_block
+    from mavattitude.sensors.mounting import mounting_matrix
+
+    offset = [counters.get(f"mag_offset_{axis}_uT", 0.0) for axis in "xyz"]  # none: the filter never started
+    mag = config.calibration.mag
+    hard_iron = hard_iron_with_body_offset(mag, mounting_matrix(config.mounting.rotation), offset)
+    Path(path).write_text(
+        "# magnetometer calibration with the hard-iron offset learnt by `mavattitude solve --method fused` "
+        f"(body-frame offset {', '.join(f'{v:.2f}' for v in offset)} µT): mag = soft_iron (raw − hard_iron_uT)\n"
+        + yaml.safe_dump(mag_block(hard_iron, mag.soft_iron), sort_keys=False),
+        encoding="utf-8",
+    )
+    log.info("wrote the magnetometer calibration with the learnt offset to %s", path)

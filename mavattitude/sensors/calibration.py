@@ -67,6 +67,13 @@ def mag_block(hard_iron_uT: ArrayLike, soft_iron: ArrayLike) -> dict[str, Any]:
     return {"calibration": {"mag": mag}}
 
 
+def hard_iron_with_body_offset(mag: MagCalibration, mounting: ArrayLike, offset_body_uT: ArrayLike) -> Array:
+    """The hard iron that also removes an offset ``o`` found in the calibrated body-frame field (e.g. the
+    fused filter's learnt offset): ``R S (raw − h) − o = R S (raw − h − S⁻¹ Rᵀ o)``, so ``h' = h + S⁻¹ Rᵀ o``."""
+    r, soft = np.asarray(mounting, dtype=float), np.asarray(mag.soft_iron, dtype=float)
+    return np.asarray(mag.hard_iron_uT, dtype=float) + np.linalg.solve(soft, r.T @ np.asarray(offset_body_uT, float))
+
+
 def affine(matrix: ArrayLike, bias: ArrayLike, mounting: ArrayLike) -> tuple[Array, Array]:
     """``(A, c)`` with ``body = A raw − c``: ``A = R M``, ``c = A b``."""
     a = np.asarray(mounting, dtype=float) @ np.asarray(matrix, dtype=float)

@@ -17,7 +17,7 @@ import yaml
 
 from mavattitude.cli import main
 from mavattitude.commands._offline import OUTPUT_COLUMNS
-from mavattitude.config import ENV_VAR
+from mavattitude.config import ENV_VAR, load_config
 from mavattitude.estimation.conventions import angle_between, euler_from_quat, quat_from_euler, rotate_ned_to_body
 from mavattitude.sensors.magref import field_from_angles
 from tests.shared import shared_path
@@ -131,6 +131,16 @@ def test_the_fused_filter_runs_from_the_command_line(tmp_path):
     assert len(rows) > 50 and np.degrees(angle_between(rows[-1, 1:5], Q_TRUE)) < MAX_ERR_DEG
 
 
+def test_the_learnt_offset_is_saved_as_a_calibration_the_config_reads(tmp_path):
+    """At rest nothing is learnt: the file holds the config's own calibration, in the `calibrate` format."""
+    out, cal = tmp_path / "out.csv", tmp_path / "cal.yaml"
+    args = ["solve", str(write_csv(tmp_path / "in.csv")), "-o", str(out), *REF, "--method", "fused"]
+    assert main([*args, "--save-mag-offset", str(cal)]) == 0
+    config = load_config(cal, env={})
+    assert config.calibration.mag.hard_iron_uT == (0.0, 0.0, 0.0)
+    assert "learnt by `mavattitude solve --method fused`" in cal.read_text(encoding="utf-8")
+
+
 def test_fused_needs_gyro_columns(tmp_path, capsys):
     src = write_csv(tmp_path / "in.csv", gyro=False)
     assert main(["solve", str(src), "-o", str(tmp_path / "o.csv"), *REF, "--method", "fused"]) == 2
@@ -152,6 +162,11 @@ def test_accel_and_mag_std_take_one_or_three_values(tmp_path):
         (lambda src, out: [src, "-o", out, "--declination", "3"], r"--declination and --inclination go together"),
         (lambda src, out: [src, "-o", out, *REF, "--accel-std", "-1"], r"noise\.accel_std_mps2: -1.0 is out of range"),
         (lambda src, out: [src + ".missing", "-o", out, *REF], r"cannot open"),
+        (
+            lambda src, out: [src, "-o", out, *REF, "--method", "fused", "--mag-std", "0.3"],
+            r"noise\.mag_std_uT: not used by estimator\.method fused.*estimator\.fused\.mag_std_uT",
+        ),
+        (lambda src, out: [src, "-o", out, *REF, "--save-mag-offset", out + ".yaml"], r"needs --method fused"),
     ],
 )
 def test_user_mistakes_are_one_line_and_exit_2(tmp_path, capsys, make_args, message):

@@ -7,7 +7,7 @@ import pytest
 
 from mavattitude.config import from_dict
 from mavattitude.errors import ConfigError
-from mavattitude.sensors.calibration import mag_block, sensor_affines
+from mavattitude.sensors.calibration import hard_iron_with_body_offset, mag_block, sensor_affines
 from mavattitude.sensors.clock import ClockEvent, VehicleClock
 from mavattitude.sensors.mounting import ARDUPILOT_ROTATIONS, mounting_matrix, rotation_angles_deg
 
@@ -114,3 +114,15 @@ def test_calibration_yaml_keys_and_errors() -> None:
 def _calibration(block: dict):
     """The ``calibration`` section as the config reads it from YAML."""
     return from_dict({"calibration": block}).calibration
+
+
+def test_a_body_frame_offset_folds_into_the_hard_iron() -> None:
+    """``R S (raw − h') = R S (raw − h) − o`` for the fused filter's learnt offset ``o`` (rounding only)."""
+    rng = np.random.default_rng(7)
+    soft = np.eye(3) + 0.1 * rng.normal(size=(3, 3))
+    cal = from_dict({"calibration": {"mag": {"hard_iron_uT": [3.0, -2.0, 5.0], "soft_iron": soft.tolist()}}})
+    mag = cal.calibration.mag
+    r, raw, offset = mounting_matrix("ROLL_180_YAW_90"), rng.normal(size=3) * 40.0, np.array([-3.0, 1.0, 25.0])
+    h_new = hard_iron_with_body_offset(mag, r, offset)
+    before = r @ soft @ (raw - np.array(mag.hard_iron_uT))
+    assert np.allclose(r @ soft @ (raw - h_new), before - offset, atol=1e-9)

@@ -13,7 +13,9 @@ Propagation — every input sample, ``ω = g − b``: ``q ← q ⊗ exp(ω Δt)`
 Update — one scalar measurement ``z ≈ hᵀ x + ν``, ``ν ~ N(0, r)`` (vector measurements with independent
 components are a sequence of these, which is exact for a diagonal ``R``)::
 
-    u = P h,   s = hᵀ u + r,   K = u / s,   x̂ = K z,   q ← q ⊗ exp(δθ̂),   b ← b + δb̂
+    u = P h,   s = hᵀ u + r,   K = u / s,   x̂ ← x̂ + K (z − hᵀ x̂)
+
+and after the update's measurements the reset ``q ← q ⊗ exp(δθ̂)``, ``b ← b + δb̂``, ``x̂ ← 0``.
 
 The gain may be restricted to a direction (``on``: only that component of ``K_θ`` and ``K_b``) or kept off
 one (``off``: that component of ``K_θ`` removed), so that a measurement corrects only what it is trusted
@@ -52,6 +54,7 @@ class ErrorStateFilter:
         self.p_tt: Mat3 = ZERO3
         self.p_tb: Mat3 = ZERO3
         self.p_bb: Mat3 = ZERO3
+        self.dx = [0.0] * 6  # the error state estimated since the last reset: [δθ, δb]
         self.dq: Quat = IDENTITY_Q  # rotation since the last propagation
         self.duration_s = 0.0
         self.angle_rad = 0.0
@@ -106,14 +109,17 @@ class ErrorStateFilter:
         on: Vec3 | None = None,
         off: Vec3 | None = None,
     ) -> None:
-        """One scalar measurement ``z ≈ h_θᵀ δθ + h_bᵀ δb + ν`` (module docstring); ``on``/``off`` restrict the
-        gain (unit vectors). Call :meth:`propagate` first: ``q`` must carry the whole interval."""
-        tt, tb, bb = self.p_tt, self.p_tb, self.p_bb
+        """One scalar measurement ``z ≈ h_θᵀ δθ + h_bᵀ δb + ν`` (module docstring) of the error against the
+        nominal state as it was at the last :meth:`reset`; ``on``/``off`` restrict the gain (unit vectors).
+        Call :meth:`propagate` first (``q`` must carry the whole interval) and :meth:`reset` after the last."""
+        tt, tb, bb, dx = self.p_tt, self.p_tb, self.p_bb, self.dx
         u_t, u_b, s = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), r
         if h_theta is not None:
             u_t, u_b = m3.matvec(tt, h_theta), m3.tmatvec(tb, h_theta)
             s += m3.dot(h_theta, u_t)
+            z -= h_theta[0] * dx[0] + h_theta[1] * dx[1] + h_theta[2] * dx[2]
         if h_bias is not None:
+            z -= h_bias[0] * dx[3] + h_bias[1] * dx[4] + h_bias[2] * dx[5]
             v_t, v_b = m3.matvec(tb, h_bias), m3.matvec(bb, h_bias)
             s += m3.dot(h_bias, v_b) + 2.0 * m3.dot(h_theta, v_t) if h_theta is not None else m3.dot(h_bias, v_b)
             u_t = (u_t[0] + v_t[0], u_t[1] + v_t[1], u_t[2] + v_t[2])
@@ -124,27 +130,23 @@ class ErrorStateFilter:
         if off is not None:
             c = m3.dot(off, k_t)
             k_t = (k_t[0] - c * off[0], k_t[1] - c * off[1], k_t[2] - c * off[2])
-        tt, tb, bb = (
-            m3.outer_update(tt, k_t, u_t, -1.0),
-            m3.outer_update(tb, k_t, u_b, -1.0),
-            m3.outer_update(bb, k_b, u_b, -1.0),
-        )
-        if on is not None or off is not None:
-            w_t, w_b = _axpy3(k_t, s, u_t), _axpy3(k_b, s, u_b)
-            tt, tb, bb = (
-                m3.outer_update(tt, w_t, k_t, 1.0),
-                m3.outer_update(tb, w_t, k_b, 1.0),
-                m3.outer_update(bb, w_b, k_b, 1.0),
-            )
-        self.p_tt, self.p_tb, self.p_bb = m3.symmetric(tt), tb, m3.symmetric(bb)
-        self.apply(_scale(k_t, z), _scale(k_b, z))
+        w_t, w_b = _axpy3(k_t, s, u_t), _axpy3(k_b, s, u_b)  # zero for the optimal gain
+        self.p_tt = _sym_rank2(tt, w_t, k_t, u_t)
+        self.p_tb = _rank2(tb, w_t, k_b, k_t, u_b)
+        self.p_bb = _sym_rank2(bb, w_b, k_b, u_b)
+        for i, k in enumerate((*k_t, *k_b)):
+            dx[i] += k * z
 
-    def apply(self, d_theta: Sequence[float], d_bias: Sequence[float]) -> None:
-        """Reset: move the estimated error state ``[δθ, δb]`` into the nominal ``q`` and ``b``."""
-        correction = quat_from_rotvec_parts(d_theta[0], d_theta[1], d_theta[2])
+    def reset(self) -> None:
+        """Move the estimated error state ``[δθ, δb]`` into the nominal ``q`` and ``b``."""
+        dx = self.dx
+        if not any(dx):
+            return
+        correction = quat_from_rotvec_parts(dx[0], dx[1], dx[2])
         self.q = quat_normalize_parts(quat_multiply_parts(self.q, correction))
         b = self.bias
-        self.bias = (b[0] + d_bias[0], b[1] + d_bias[1], b[2] + d_bias[2])
+        self.bias = (b[0] + dx[3], b[1] + dx[4], b[2] + dx[5])
+        self.dx = [0.0] * 6
 
 
 def _scale(v: Sequence[float], k: float) -> Vec3:
@@ -154,3 +156,36 @@ def _scale(v: Sequence[float], k: float) -> Vec3:
 def _axpy3(k: Vec3, s: float, u: Vec3) -> Vec3:
     """``s k − u``."""
     return (s * k[0] - u[0], s * k[1] - u[1], s * k[2] - u[2])
+
+
+def _rank2(p: Mat3, a: Vec3, b: Vec3, c: Vec3, d: Vec3) -> Mat3:
+    """``p + a bᵀ − c dᵀ``."""
+    a0, a1, a2 = a
+    b0, b1, b2 = b
+    c0, c1, c2 = c
+    d0, d1, d2 = d
+    return (
+        p[0] + a0 * b0 - c0 * d0,
+        p[1] + a0 * b1 - c0 * d1,
+        p[2] + a0 * b2 - c0 * d2,
+        p[3] + a1 * b0 - c1 * d0,
+        p[4] + a1 * b1 - c1 * d1,
+        p[5] + a1 * b2 - c1 * d2,
+        p[6] + a2 * b0 - c2 * d0,
+        p[7] + a2 * b1 - c2 * d1,
+        p[8] + a2 * b2 - c2 * d2,
+    )
+
+
+def _sym_rank2(p: Mat3, w: Vec3, k: Vec3, u: Vec3) -> Mat3:
+    """The symmetric part of ``p + w kᵀ − k uᵀ`` (``p`` symmetric): the covariance block after an update."""
+    w0, w1, w2 = w
+    k0, k1, k2 = k
+    u0, u1, u2 = u
+    xx = p[0] + w0 * k0 - k0 * u0
+    yy = p[4] + w1 * k1 - k1 * u1
+    zz = p[8] + w2 * k2 - k2 * u2
+    xy = p[1] + 0.5 * (w0 * k1 + w1 * k0 - k0 * u1 - k1 * u0)
+    xz = p[2] + 0.5 * (w0 * k2 + w2 * k0 - k0 * u2 - k2 * u0)
+    yz = p[5] + 0.5 * (w1 * k2 + w2 * k1 - k1 * u2 - k2 * u1)
+    return (xx, xy, xz, xy, yy, yz, xz, yz, zz)

@@ -7,16 +7,24 @@ filter. Pure math: no I/O, no clock (time comes from the samples), no logging (e
 and the measured figures; the parts are :mod:`.ekf` (state, propagation, the update),
 :mod:`.rest` (zero-rate update), :mod:`.magnetic` (checks, field learning, hard-iron offset).
 
-Accelerometer pre-filter (quasi-inertial low-pass): with ``q_g`` the gyro-only attitude,
-``a_I ← LP₂(R(q_g) a)``, ``ã = A(q_g) a_I`` — a second-order Butterworth low-pass at the update rate,
-cut-off ``√2 / (2π τ_a)`` (VQF's pre-filter, Laidig & Seel 2023), designed by
-:func:`mavattitude.sensors.lowpass.butter2` like the front end's.
+Accelerometer pre-filters (quasi-inertial low-passes): with ``q_g`` the gyro-only attitude,
+``a_I ← LP₂(R(q_g) a)``, ``ã = A(q_g) a_I`` — second-order Butterworth low-passes at the update rate,
+cut-off ``√2 / (2π τ)`` (VQF's pre-filter, Laidig & Seel 2023), designed by
+:func:`mavattitude.sensors.lowpass.butter2` like the front end's. Two of them: ``ã`` (``τ_a``) is what
+the tilt update measures — long, so that hand motion and vibration, which average out in an earth-fixed
+frame, are gone; ``ã_j`` (``τ_j``, shorter) is what the rejection watches, since it sees an acceleration
+start (and end) sooner.
 
 Tilt update — ``u = ã/|ã|`` against ``h = A(q) v_a``: ``u − h ≈ [h×] δθ``; along two unit vectors
 ``e₁, e₂ ⊥ h``: ``zᵢ = eᵢ·(u − h)``, ``h_θ = eᵢ × h``, ``r = (σ_a'/|ã|)²``, gain kept off ``h`` (the
-heading), with ``σ_a'² = σ_a² + (k_n (|ã| − g))² + (k_a (|a| − g))² + (k_r g ε)²`` (``a``: the sample as it came,
-which sees an acceleration at once, where the pre-filtered ``ã`` lags it by ``τ_a``; ``ε``: the measured
-angle between ``ã`` and ``m`` minus the reference's, only while the field is clean).
+heading), with the acceleration rejection (smooth covariance inflation, never a switch)::
+
+    σ_a'² = σ_a² + (k_n (|ã_j| − g))² + (k_d |a_I − a_I,j|)² + (k_r g ε)²
+
+``|ã_j| − g``: a sustained acceleration (it changes |a|); ``|a_I − a_I,j|``: the two pre-filters disagree,
+so the long one still holds an acceleration that started or ended within ``τ_a`` (a flight's manoeuvre,
+which hand motion is not); ``ε``: the measured angle between ``ã`` and ``m`` minus the reference's
+(only while the field is clean).
 
 Heading update — the horizontal field ``m_h`` (of ``R(q) (m − o)``) against the reference's
 horizontal direction ``n``: ``z = atan2(m_h × n, m_h · n)``, ``h_θ = A(q) e_D`` (the vertical in the body),
@@ -54,6 +62,7 @@ from mavattitude.sensors.lowpass import butter2
 from .ekf import ErrorStateFilter, Quat
 from .magnetic import MagneticChecks
 from .mat3 import Vec3, cross, dot, symmetric
+from .mat3 import matvec as _matvec
 from .rest import RestDetector
 from .settings import FusedSettings
 
@@ -108,10 +117,8 @@ class FusedFilter:
         self._ekf = ErrorStateFilter(s.gyro_noise_radps, s.gyro_scale_fraction, s.gyro_bias_walk_radps2)
         self._mag = MagneticChecks(s, self._update_period_s)
         self._rest = RestDetector(s, self._update_period_s)
-        self._biquad = None
-        if s.accel_lowpass_s > 0.0:
-            self._biquad = butter2(math.sqrt(2.0) / (2.0 * math.pi * s.accel_lowpass_s), s.update_rate_hz)
-        self._acc_lp: list[list[float]] | None = None
+        self._lp_measure = EarthFrameLowpass(s.accel_lowpass_s, s.update_rate_hz)
+        self._lp_reject = EarthFrameLowpass(s.accel_rejection_lowpass_s, s.update_rate_hz)
         self._noise = NoiseModel(accel_std=(s.accel_std_mps2,) * 3, mag_std=(s.mag_std_uT,) * 3)
         self._t_last = 0.0
         self._gyr_last: Vec3 = (0.0, 0.0, 0.0)
@@ -200,9 +207,13 @@ class FusedFilter:
 
     # --- measurement updates ------------------------------------------------------------------------
     def _update(self, acc_mps2: ArrayLike, mag_uT: ArrayLike | None, time_s: float) -> None:
-        """Propagate ``P`` to now, then the zero-rate, tilt and heading updates (module docstring)."""
+        """Propagate ``P`` to now, then the zero-rate, tilt and heading updates (module docstring), then the reset."""
+        self._ekf.propagate()
+        self._measure(acc_mps2, mag_uT, time_s)
+        self._ekf.reset()
+
+    def _measure(self, acc_mps2: ArrayLike, mag_uT: ArrayLike | None, time_s: float) -> None:
         ekf, s = self._ekf, self.settings
-        ekf.propagate()
         raw = (float(acc_mps2[0]), float(acc_mps2[1]), float(acc_mps2[2]))
         if not math.isfinite(raw[0] + raw[1] + raw[2]) or math.sqrt(dot(raw, raw)) < 1e-3 * s.gravity_mps2:
             self.counters["skipped_updates"] += 1
@@ -210,8 +221,12 @@ class FusedFilter:
         self.counters["updates"] += 1
         if s.rest_gyro_std_radps > 0.0:
             self._rest_update(raw, time_s)
-        acc = self._inertial_lowpass(raw)
+        r_g = rotation_matrix_parts(self._ekf.q_gyro)
+        a_earth = _matvec(r_g, raw)  # R(q_g) a
+        lp_m, lp_r = self._lp_measure.step(a_earth), self._lp_reject.step(a_earth)
+        acc = rotate_ned_to_body_parts(r_g, lp_m)
         acc_norm = math.sqrt(dot(acc, acc))
+        lag2 = (lp_m[0] - lp_r[0]) ** 2 + (lp_m[1] - lp_r[1]) ** 2 + (lp_m[2] - lp_r[2]) ** 2
         r = rotation_matrix_parts(ekf.q)
         down_body: Vec3 = (r[6], r[7], r[8])  # A(q) e_D
         mag = None if mag_uT is None else self._mag.corrected((float(mag_uT[0]), float(mag_uT[1]), float(mag_uT[2])))
@@ -220,13 +235,13 @@ class FusedFilter:
             d, mag_norm, dip = self._mag.check(mag, down_body, ekf.p_tt[0] + ekf.p_tt[4] + ekf.p_tt[8])
             if math.isfinite(d):
                 self.counters["mag_relearned"] += self._mag.observe(d, mag_norm, dip, time_s)
-                self.counters["mag_offset_learned"] += self._mag.learn_offset(mag, self._mag.predicted_body(r), time_s)
+                self.counters["mag_offset_learned"] += self._mag.learn_offset(mag, r, time_s)
             self.counters["mag_disturbed"] += d >= 1.0
         g = s.gravity_mps2
         sigma_a2 = (
             s.accel_std_mps2**2
-            + (s.accel_norm_gain * (acc_norm - g)) ** 2
-            + (s.accel_raw_norm_gain * (math.sqrt(dot(raw, raw)) - g)) ** 2
+            + (s.accel_norm_gain * (math.sqrt(dot(lp_r, lp_r)) - g)) ** 2
+            + s.accel_lag_gain**2 * lag2
         )
         if mag is not None and d < 1.0:
             sigma_a2 += (
@@ -236,29 +251,10 @@ class FusedFilter:
         self._tilt_update(acc, acc_norm, min(math.sqrt(sigma_a2), _MAX_UNIT_STD * acc_norm), r)
         if mag is not None and d < 1.0:
             sigma_m2 = s.mag_std_uT**2 * self._mag.sigma2_factor(d, time_s)
-            if self._heading_update(mag, mag_norm, min(sigma_m2, (_MAX_UNIT_STD * mag_norm) ** 2), down_body):
+            sigma_m2 = min(sigma_m2, (_MAX_UNIT_STD * mag_norm) ** 2)
+            if self._heading_update(mag, mag_norm, sigma_m2, down_body):
                 return
         self.counters["tilt_only_updates"] += 1
-
-    def _inertial_lowpass(self, acc: Vec3) -> Vec3:
-        """Specific force low-passed in the gyro-only (quasi-inertial) frame, expressed in the body frame."""
-        if self._biquad is None:
-            return acc
-        r = rotation_matrix_parts(self._ekf.q_gyro)
-        x = (
-            r[0] * acc[0] + r[1] * acc[1] + r[2] * acc[2],
-            r[3] * acc[0] + r[4] * acc[1] + r[5] * acc[2],
-            r[6] * acc[0] + r[7] * acc[1] + r[8] * acc[2],
-        )
-        if self._acc_lp is None:
-            self._acc_lp = [[v, v, v, v] for v in x]  # x1, x2, y1, y2 at steady state
-        bq = self._biquad
-        y = []
-        for v, st in zip(x, self._acc_lp, strict=True):
-            out = bq.b0 * v + bq.b1 * st[0] + bq.b2 * st[1] - bq.a1 * st[2] - bq.a2 * st[3]
-            st[1], st[0], st[3], st[2] = st[0], v, st[2], out
-            y.append(out)
-        return rotate_ned_to_body_parts(r, y)
 
     def _vector_residual(self, acc: Vec3, acc_norm: float, mag: Vec3, mag_norm: float) -> float:
         """IGN residual as an angle: measured angle between the vectors minus the reference angle."""
@@ -295,9 +291,9 @@ class FusedFilter:
         rate = self._rest.rate(self._gyr_last, acc, self._ekf.bias, time_s)
         if rate is None:
             return
-        var, before = self.settings.rest_gyro_std_radps**2, self._ekf.bias
-        for axis, h in enumerate(_AXES):  # z = ḡ − b with b as the previous axes' updates left it
-            self._ekf.update(rate[axis] + before[axis] - self._ekf.bias[axis], None, var, h)
+        var = self.settings.rest_gyro_std_radps**2
+        for axis, h in enumerate(_AXES):
+            self._ekf.update(rate[axis], None, var, h)
         self.counters["rest_updates"] += 1
 
     # --- start-up and output ------------------------------------------------------------------------
@@ -315,7 +311,8 @@ class FusedFilter:
             self._ekf.start(q, p_tt, symmetric((0.0,) * 9, self.settings.gyro_bias_init_radps**2))  # type: ignore[arg-type]
             self._mag.start(self._mag.corrected((float(mag[0]), float(mag[1]), float(mag[2]))))
         self._started = True
-        self._acc_lp = None
+        self._lp_measure.reset()
+        self._lp_reject.reset()
         self._t_last = time_s
         self._gyr_last = gyr
         self._next_update_s = time_s + self._update_period_s
@@ -337,6 +334,34 @@ class FusedFilter:
             out.append(FusedEstimate(self._next_output_s, q_tick, rates, cov, np.array(b), self._mag.disturbed))
             self._next_output_s += self._output_period_s
         return out
+
+
+class EarthFrameLowpass:
+    """Second-order Butterworth low-pass of a vector in the quasi-inertial frame, cut-off ``√2 / (2π τ)``
+    (τ = 0: the input as it is); it starts at steady state on its first input."""
+
+    def __init__(self, tau_s: float, rate_hz: float) -> None:
+        self._bq = butter2(math.sqrt(2.0) / (2.0 * math.pi * tau_s), rate_hz) if tau_s > 0.0 else None
+        self._state: tuple[Vec3, Vec3, Vec3, Vec3] | None = None
+
+    def reset(self) -> None:
+        self._state = None
+
+    def step(self, x: Vec3) -> Vec3:
+        bq = self._bq
+        if bq is None:
+            return x
+        if self._state is None:
+            self._state = (x, x, x, x)  # x₋₁, x₋₂, y₋₁, y₋₂ at steady state
+        x1, x2, y1, y2 = self._state
+        b0, b1, b2, a1, a2 = bq.b0, bq.b1, bq.b2, bq.a1, bq.a2
+        y = (
+            b0 * x[0] + b1 * x1[0] + b2 * x2[0] - a1 * y1[0] - a2 * y2[0],
+            b0 * x[1] + b1 * x1[1] + b2 * x2[1] - a1 * y1[1] - a2 * y2[1],
+            b0 * x[2] + b1 * x1[2] + b2 * x2[2] - a1 * y1[2] - a2 * y2[2],
+        )
+        self._state = (x, x1, y, y1)
+        return y
 
 
 def _unit(v: Vec3) -> Vec3:

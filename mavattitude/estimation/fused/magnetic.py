@@ -122,8 +122,8 @@ class MagneticChecks:
             r[2] * b[0] + r[5] * b[1] + r[8] * b[2],
         )
 
-    def learn_offset(self, mag: Vec3, predicted: Vec3, time_s: float) -> bool:
-        """Gather ``e = m − o − A(q) B`` over windows; True when a window's mean was added to ``o``."""
+    def learn_offset(self, mag: Vec3, r: Sequence[float], time_s: float) -> bool:
+        """Gather ``e = m − o − A(q) B`` over windows (``r``: R(q)); True when a window's mean was added to ``o``."""
         s = self.s
         if s.mag_offset_window_s == 0.0:
             return False
@@ -131,7 +131,7 @@ class MagneticChecks:
             if not self.disturbed:
                 return False
             self._window, self._window_start_s = [0.0] * 9, time_s
-        w, norm = self._window, self.norm_ref
+        w, norm, predicted = self._window, self.norm_ref, self.predicted_body(r)
         e = (mag[0] - predicted[0], mag[1] - predicted[1], mag[2] - predicted[2])
         w[0] += 1.0
         w[8] += self.disturbed

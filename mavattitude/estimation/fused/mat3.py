@@ -8,8 +8,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from mavattitude.estimation.kernel import sym_det_adj
-
 Mat3 = tuple[float, float, float, float, float, float, float, float, float]
 Vec3 = tuple[float, float, float]
 ZERO3: Mat3 = (0.0,) * 9  # type: ignore[assignment]
@@ -39,7 +37,17 @@ def transpose(a: Mat3) -> Mat3:
 
 def axpy(a: Mat3, k: float, b: Mat3) -> Mat3:
     """``a + k b``."""
-    return tuple(x + k * y for x, y in zip(a, b, strict=True))  # type: ignore[return-value]
+    return (
+        a[0] + k * b[0],
+        a[1] + k * b[1],
+        a[2] + k * b[2],
+        a[3] + k * b[3],
+        a[4] + k * b[4],
+        a[5] + k * b[5],
+        a[6] + k * b[6],
+        a[7] + k * b[7],
+        a[8] + k * b[8],
+    )
 
 
 def symmetric(a: Mat3, diag: float = 0.0) -> Mat3:
@@ -71,27 +79,3 @@ def dot(a: Sequence[float], b: Sequence[float]) -> float:
 
 def cross(a: Sequence[float], b: Sequence[float]) -> Vec3:
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
-def outer_update(p: Mat3, u: Vec3, v: Vec3, k: float) -> Mat3:
-    """``p + k u vᵀ``."""
-    u0, u1, u2 = u[0] * k, u[1] * k, u[2] * k
-    return (
-        p[0] + u0 * v[0],
-        p[1] + u0 * v[1],
-        p[2] + u0 * v[2],
-        p[3] + u1 * v[0],
-        p[4] + u1 * v[1],
-        p[5] + u1 * v[2],
-        p[6] + u2 * v[0],
-        p[7] + u2 * v[1],
-        p[8] + u2 * v[2],
-    )
-
-
-def inverse_sym3(xx: float, xy: float, xz: float, yy: float, yz: float, zz: float) -> Mat3:
-    """Inverse of a symmetric 3×3 matrix by cofactors (:func:`~mavattitude.estimation.kernel.sym_det_adj`)."""
-    det, (c00, c01, c02, c11, c12, c22) = sym_det_adj((xx, xy, xz, yy, yz, zz))
-    k = 1.0 / det
-    c00, c01, c02, c11, c12, c22 = c00 * k, c01 * k, c02 * k, c11 * k, c12 * k, c22 * k
-    return (c00, c01, c02, c01, c11, c12, c02, c12, c22)

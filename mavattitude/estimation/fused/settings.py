@@ -35,11 +35,18 @@ class FusedSettings:
     gyro_bias_walk_radps2: float = _setting(3e-5, "σ_b: gyro bias random walk, rad/s/√s")
     gyro_bias_init_radps: float = _setting(0.02, "σ_b0: start-up gyro bias uncertainty, rad/s")
     accel_std_mps2: float = _setting(0.2, "σ_a: pre-filtered specific force σ per axis, m/s²", lo_open=True)
-    accel_lowpass_s: float = _setting(0.7, "τ_a: quasi-inertial accelerometer pre-filter, s (0: off)", hi=60.0)
+    accel_lowpass_s: float = _setting(
+        1.333, "τ_a: the earth-frame accelerometer pre-filter the tilt measures, s (0: off)", hi=60.0
+    )
+    accel_rejection_lowpass_s: float = _setting(
+        0.7,
+        "τ_j: the same pre-filter for the |a| the rejection looks at (shorter: sees an acceleration sooner), s",
+        hi=60.0,
+    )
+    accel_lag_gain: float = _setting(3.0, "k_d: σ_a added per m/s² between the two pre-filters' outputs")
     accel_norm_gain: float = _setting(8.0, "k_n: σ_a added per m/s² of | |a| − g |")
-    accel_raw_norm_gain: float = _setting(0.0, "k_a: σ_a added per m/s² of | |a| − g | of the raw sample")
     accel_residual_gain: float = _setting(0.0, "k_r: σ_a added per g·rad of the IGN residual angle")
-    mag_std_uT: float = _setting(3.5, "σ_m: magnetometer σ per axis, µT", lo_open=True)
+    mag_std_uT: float = _setting(5.25, "σ_m: magnetometer σ per axis, µT", lo_open=True)
     mag_norm_tolerance_fraction: float = _setting(
         0.1, "τ_n: |B| off its reference by this fraction is a disturbance", hi=10.0, lo_open=True
     )
