@@ -191,6 +191,40 @@ def dead_floors2(settings: FrontEndSettings, expected_field_uT: float | None) ->
 
 CONTINUED, STARTED, GAP = 0, 1, 2
 
+# --- the screening rules, stated once for one sample (numpy bools, floats) and for arrays of them --------
+
+
+def sample_rejects(finite: Any, saturated_acc: Any, saturated_gyr: Any, dead_acc: Any) -> dict[str, Any]:
+    """Why input samples are dropped, the first reason that applies: non-finite accelerometer or gyroscope,
+    then saturated accelerometer, saturated gyroscope, dead accelerometer. Arguments and results are
+    numpy booleans: one sample's (the stream) or arrays (the batch); at most one result is true per sample."""
+    return {
+        "nonfinite": ~finite,
+        "saturated_acc": finite & saturated_acc,
+        "saturated_gyr": finite & ~saturated_acc & saturated_gyr,
+        "dead_acc": finite & ~saturated_acc & ~saturated_gyr & dead_acc,
+    }
+
+
+def mag_rejects(finite: Any, saturated: Any, dead: Any) -> dict[str, Any]:
+    """Why magnetometer readings are dropped (the sample kept), the first that applies; as :func:`sample_rejects`."""
+    return {"nonfinite": ~finite, "saturated": finite & saturated, "dead": finite & ~saturated & dead}
+
+
+def acc_suspect(norm_mps2: Any, settings: FrontEndSettings) -> Any:
+    """``| |a| − g | > acc_norm_tolerance · g``: the tick's specific force is not gravity alone (``ACC_NORM``)."""
+    g = settings.gravity_mps2
+    return abs(norm_mps2 - g) > settings.acc_norm_tolerance * g
+
+
+def mag_suspect(norm_uT: Any, expected_uT: float, settings: FrontEndSettings) -> Any:
+    """``| |B| − B₀ | > mag_norm_tolerance · B₀``: the tick's field is not the Earth's alone (``MAG_NORM``)."""
+    return abs(norm_uT - expected_uT) > settings.mag_norm_tolerance * expected_uT
+
+
+def _first(verdicts: dict[str, Any]) -> str | None:
+    return next((reason for reason, hit in verdicts.items() if hit), None)
+
 
 class _Stream:
     """Low-pass of a few channels over irregular times: rate measurement, (re)design, gap restart."""
@@ -349,23 +383,28 @@ class FrontEnd:
         return self._emit(t)
 
     def _reject_reason(self, sample: ImuSample) -> str | None:
+        """The fast path in :meth:`push` found something: which rule it is (None: only the magnetometer)."""
         s, acc, gyr = self.settings, sample.acc_mps2, sample.gyr_radps
-        if not (_finite(acc) and _finite(gyr)):
-            return "nonfinite"
-        if "acc" in sample.saturated or not _within(acc, s.acc_full_scale_mps2):
-            return "saturated_acc"
-        if "gyr" in sample.saturated or not _within(gyr, s.gyr_full_scale_radps):
-            return "saturated_gyr"
-        if _norm2(acc) < self._acc_floor2:
-            return "dead_acc"
-        return None  # only the magnetometer is saturated
+        return _first(
+            sample_rejects(
+                np.bool_(_finite(acc) and _finite(gyr)),
+                np.bool_("acc" in sample.saturated or not _within(acc, s.acc_full_scale_mps2)),
+                np.bool_("gyr" in sample.saturated or not _within(gyr, s.gyr_full_scale_radps)),
+                np.bool_(_norm2(acc) < self._acc_floor2),
+            )
+        )
 
     def _mag_reject_reason(self, mag: Vec3, saturated: frozenset[str]) -> str:
-        if not _finite(mag):
-            return "nonfinite"
-        if "mag" in saturated or not _within(mag, self.settings.mag_full_scale_uT):
-            return "saturated"
-        return "dead"
+        return (
+            _first(
+                mag_rejects(
+                    np.bool_(_finite(mag)),
+                    np.bool_("mag" in saturated or not _within(mag, self.settings.mag_full_scale_uT)),
+                    np.bool_(_norm2(mag) < self._mag_floor2),
+                )
+            )
+            or "dead"
+        )  # the fast path saw it fail; only the dead floor is left
 
     def _emit(self, t: float) -> list[ProcessedSample]:
         s, imu = self.settings, self._imu
@@ -394,12 +433,11 @@ class FrontEnd:
         mag, mag_flag = self._mag_at(tk)
         flags |= mag_flag
         acc_scale = mag_scale = 1.0
-        g = s.gravity_mps2
-        if abs(_norm(acc) - g) > s.acc_norm_tolerance * g:
+        if acc_suspect(_norm(acc), s):
             flags |= _ACC_NORM
             acc_scale = s.suspect_std_scale
         b0 = self.expected_field_uT
-        if mag is not None and b0 is not None and abs(_norm(mag) - b0) > s.mag_norm_tolerance * b0:
+        if mag is not None and b0 is not None and mag_suspect(_norm(mag), b0, s):
             flags |= _MAG_NORM
             mag_scale = s.suspect_std_scale
         c = self.counters
@@ -563,32 +601,23 @@ def process_batch(
     sat_acc = sat["acc"] | ~_within_rows(acc, s.acc_full_scale_mps2)
     sat_gyr = sat["gyr"] | ~_within_rows(gyr, s.gyr_full_scale_radps)
     mag_sat = sat["mag"] | ~_within_rows(mag, s.mag_full_scale_uT)
-    live = kept & ok_fin & ~sat_acc & ~sat_gyr
     with np.errstate(invalid="ignore", over="ignore"):  # NaN and huge rows are not dead (and already refused)
         acc_dead, mag_dead = _norm2_rows(acc) < acc_floor2, _norm2_rows(mag) < mag_floor2
-    rejects = (
-        ("nonfinite", kept & ~ok_fin),
-        ("saturated_acc", kept & ok_fin & sat_acc),
-        ("saturated_gyr", kept & ok_fin & ~sat_acc & sat_gyr),
-        ("dead_acc", live & acc_dead),
-    )
-    for reason, mask in rejects:
-        if mask.any():
-            c.rejected[reason] += int(mask.sum())
-    accepted = live & ~acc_dead
+    rejects = sample_rejects(ok_fin, sat_acc, sat_gyr, acc_dead)
+    for reason, mask in rejects.items():
+        count = int(np.count_nonzero(kept & mask))
+        if count:
+            c.rejected[reason] += count
+    accepted = kept & ~np.logical_or.reduce(list(rejects.values()))
     c.accepted = int(accepted.sum())
     mag_fin = _finite_rows(mag)
     mag_in = accepted & mag_new
-    mag_live = mag_in & mag_fin & ~mag_sat
-    mag_rejects = (
-        ("nonfinite", mag_in & ~mag_fin),
-        ("saturated", mag_in & mag_fin & mag_sat),
-        ("dead", mag_live & mag_dead),
-    )
-    for reason, mask in mag_rejects:
-        if mask.any():
-            c.mag_rejected[reason] += int(mask.sum())
-    mag_ok = mag_live & ~mag_dead
+    mag_verdicts = mag_rejects(mag_fin, mag_sat, mag_dead)
+    for reason, mask in mag_verdicts.items():
+        count = int(np.count_nonzero(mag_in & mask))
+        if count:
+            c.mag_rejected[reason] += count
+    mag_ok = mag_in & ~np.logical_or.reduce(list(mag_verdicts.values()))
 
     affines = sensor_affines(s.calibration, mounting_matrix(s.mounting))
     # from here on channels first, time contiguous: (6, n) for the IMU, (3, n) for the magnetometer
@@ -802,14 +831,11 @@ def _concat(pieces: list[tuple[Array, Array, Array, NDArray[np.int64]]], c: Fron
 
 
 def _screen_batch(s: FrontEndSettings, out: BatchOutput, b0: float | None) -> None:
-    a = out.acc_mps2
-    g = s.gravity_mps2
-    acc_bad = np.abs(_norm_rows(a) - g) > s.acc_norm_tolerance * g
+    acc_bad = acc_suspect(_norm_rows(out.acc_mps2), s)
     out.flags[acc_bad] |= SampleFlag.ACC_NORM
     out.acc_std_scale[acc_bad] = s.suspect_std_scale
     if b0 is not None:
-        m = out.mag_uT
         with np.errstate(invalid="ignore"):
-            mag_bad = np.abs(_norm_rows(m) - b0) > s.mag_norm_tolerance * b0
+            mag_bad = mag_suspect(_norm_rows(out.mag_uT), b0, s)
         out.flags[mag_bad] |= SampleFlag.MAG_NORM
         out.mag_std_scale[mag_bad] = s.suspect_std_scale
