@@ -194,3 +194,28 @@ def test_a_log_that_names_its_vehicle_is_locked_onto_from_the_start():
     recorder = _Recorder()
     dispatcher = Dispatcher(AttitudePipeline(config), recorder, vehicle=(1, 1))
     assert dispatcher.vehicle == (1, 1) and recorder.locks == [(1, 1)]
+
+
+def test_degenerate_geometry_is_rejected_and_said_once(memory_service):
+    service, link = memory_service
+    vehicle = Peer()
+    along_gravity = rotate_ned_to_body(Q_TRUE, [0.0, 0.0, 1.0])
+    link.deliver(vehicle.heartbeat(), *vehicle.stream(200, mag_uT=-40.0 * along_gravity))  # mag ∥ acc: no heading
+    serve(service, link)
+    assert service.pipeline.counters.rejected["DegenerateGeometryError"] > 0
+    assert service.counters.emitted == 0
+    warnings = [m for m in sent(link, "STATUSTEXT") if "collinear" in m.text]
+    assert len(warnings) == 1 and warnings[0].severity == mavlink2.MAV_SEVERITY_WARNING
+
+
+def test_the_configured_system_id_is_followed_and_nothing_requested():
+    config = make_config(**{"link.vehicle_system_id": 5, "link.request_messages": False})
+    link = MemoryLink(source_system=5)
+    service = AttitudeService(config, link, AttitudePipeline(config), SystemdNotifier(environ={}))
+    other, wanted = Peer(system=1), Peer(system=5)
+    link.deliver(other.heartbeat(), *other.stream(10), wanted.heartbeat(), *wanted.stream(100))
+    serve(service, link)
+    assert service.vehicle == (5, 1)
+    assert service.counters.ignored == 11 and service.counters.received == 100
+    assert sent(link, "ATTITUDE_QUATERNION") and all(m.get_srcSystem() == 5 for m in link.sent())
+    assert service.counters.interval_requests == 0 and not sent(link, "COMMAND_LONG")

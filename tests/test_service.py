@@ -209,39 +209,6 @@ def test_input_loss_is_reported_once_and_output_resumes(served):
     assert sum(1 for m in vehicle.received if m.get_type() == "STATUSTEXT" and "output stopped" in m.text) == 1
 
 
-def test_degenerate_geometry_rejected_and_said_once(served):
-    running, vehicle = served
-    lock_on(vehicle)
-    along_gravity = rotate_ned_to_body(Q_TRUE, [0.0, 0.0, 1.0])
-    vehicle.stream(200, mag_uT=-40.0 * along_gravity)  # mag parallel to acc: no heading
-    wait_until(vehicle, lambda: running.service.pipeline.counters.rejected["DegenerateGeometryError"] > 0)
-    warn = vehicle.wait_for("STATUSTEXT", condition=lambda m: "collinear" in m.text)
-    assert warn.severity == mavlink2.MAV_SEVERITY_WARNING
-    counters = running.finish()
-    assert counters.emitted == 0
-    assert sum(1 for m in vehicle.received if m.get_type() == "STATUSTEXT" and "collinear" in m.text) == 1
-
-
-def test_configured_system_id_and_no_requests():
-    running = Running(make_config(**{"link.vehicle_system_id": 5, "link.request_messages": False}))
-    other = Autopilot(system=1)
-    wanted = Autopilot(system=5)
-    for peer in (other, wanted):
-        peer.target = running.link.local_address
-    other.send(other.heartbeat())
-    hb = other.wait_for("HEARTBEAT")
-    assert hb.get_srcSystem() == 5  # our id is the configured vehicle's from the start
-    wanted.send(wanted.heartbeat())
-    wait_until(wanted, lambda: running.service.vehicle == (5, 1))
-    wanted.stream(100)
-    wanted.wait_for("ATTITUDE_QUATERNION")
-    counters = running.finish()
-    assert counters.interval_requests == 0 and counters.ignored >= 1
-    assert not any(m.get_type() == "COMMAND_LONG" for m in wanted.received + other.received)
-    other.close()
-    wanted.close()
-
-
 def test_automatic_magnetic_reference_waits_for_the_vehicle_position(caplog):
     caplog.set_level(logging.INFO)
     config = make_config(**{"reference.magnetic": "auto"})
