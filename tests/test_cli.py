@@ -7,6 +7,7 @@ import logging
 import signal
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import pytest
@@ -80,11 +81,20 @@ def test_a_simulation_says_it_waits_and_interrupted_exits_130_with_its_summary()
         stderr=subprocess.PIPE,
         text=True,
     )
-    assert proc.stderr is not None
-    assert "fake vehicle on udpin:127.0.0.1:" in proc.stderr.readline()  # its real port, not :0
+    deadline = threading.Timer(60.0, proc.kill)  # bounds the reads below; the lines come within ~4 s
+    deadline.start()
+    try:
+        assert proc.stderr is not None
+        first, second = proc.stderr.readline(), proc.stderr.readline()
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30.0)
+    finally:
+        deadline.cancel()
+        if proc.poll() is None:  # never left running, whatever failed above
+            proc.kill()
+            proc.wait()
+    assert "fake vehicle on udpin:127.0.0.1:" in first  # its real port, not :0
     # Nobody asks for the IMU: after 3 s it says so, rather than look like a hang.
-    assert "waiting for a service to ask for the IMU stream on udpin:127.0.0.1:" in proc.stderr.readline()
-    proc.send_signal(signal.SIGINT)
-    out, _ = proc.communicate(timeout=30.0)
+    assert "waiting for a service to ask for the IMU stream on udpin:127.0.0.1:" in second
     assert proc.returncode == EXIT_INTERRUPTED
     assert "IMU messages sent: 0" in out

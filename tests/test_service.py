@@ -456,8 +456,13 @@ def test_started_before_the_autopilot_it_says_its_banner_then_what_it_waits_for(
     finally:
         deadline.cancel()
         proc.send_signal(signal.SIGINT)
-        proc.communicate(timeout=15.0)
-        closed.close()
+        try:
+            proc.communicate(timeout=15.0)
+        finally:
+            if proc.poll() is None:  # never left running
+                proc.kill()
+                proc.wait()
+            closed.close()
     assert "mavattitude" in lines[0] and f"link {connect}" in lines[0]  # the banner first
     assert f"waiting for the autopilot at {connect} (" in lines[1]
     assert lines[2].endswith(
