@@ -179,8 +179,20 @@ class _Skipped:
     def on_reject(self, reason: str, exc: BaseException) -> None:
         log.warning("skipped a sample (%s): %s", reason, exc)
 
-    def __getattr__(self, name: str) -> Any:  # on_lock, on_input, on_outputs, ...: nothing to do
-        return lambda *args: None
+    def on_lock(self, vehicle: tuple[int, int]) -> None:
+        log.info("reading the autopilot at system %d, component %d", *vehicle)
+
+    def on_input(self, sample: units.ImuSample, t_rx: float) -> None:
+        """Kept by the sink."""
+
+    def on_outputs(self, outputs: list[Any], t_rx: float) -> None:
+        """Nothing is estimated here."""
+
+    def on_autopilot_attitude(self, attitude: Any, t_rx: float) -> None:
+        """Not needed for a calibration."""
+
+    def on_message(self, msg: Any, t_rx: float) -> None:
+        """Not needed for a calibration."""
 
 
 def _log_samples(path: Path, args: argparse.Namespace) -> Iterator[units.ImuSample]:

@@ -32,14 +32,21 @@ import dataclasses
 import logging
 import math
 import sys
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from mavattitude.commands._offline import add_config_arguments, config_from_args, output_row, summarise, write_outputs
+from mavattitude.commands._offline import (
+    Progress,
+    add_config_arguments,
+    config_from_args,
+    output_row,
+    summarise,
+    write_outputs,
+)
 from mavattitude.config import Config
 from mavattitude.errors import DataFileError, MavAttitudeError
 from mavattitude.files import LOG_SUFFIXES
@@ -190,33 +197,18 @@ def _jobs(args: argparse.Namespace, config: Config) -> list[Job]:
 
 
 def replay_all(jobs: list[Job], workers: int) -> list[LogResult]:
-    progress = _LogProgress(len(jobs))
+    progress = Progress(len(jobs), len(jobs) > 1 and sys.stderr.isatty(), "replayed logs")
     if workers == 1 or len(jobs) == 1:
         results = []
         for job in jobs:
             results.append(replay_log(job))
-            progress.done()
+            progress.update(len(results))
         return results
     with concurrent.futures.ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as pool:
         futures = [pool.submit(replay_log, job) for job in jobs]
-        for _ in concurrent.futures.as_completed(futures):
-            progress.done()
+        for done, _ in enumerate(concurrent.futures.as_completed(futures), start=1):
+            progress.update(done)
         return [f.result() for f in futures]
-
-
-class _LogProgress:
-    """``replayed 3/10 logs`` redrawn in place on a terminal; nothing when stderr is not one."""
-
-    def __init__(self, total: int) -> None:
-        self.total, self.count = total, 0
-        self.enabled = total > 1 and sys.stderr.isatty()
-
-    def done(self) -> None:
-        self.count += 1
-        if self.enabled:
-            end = "\n" if self.count == self.total else "\r"
-            sys.stderr.write(f"replayed {self.count}/{self.total} logs{end}")
-            sys.stderr.flush()
 
 
 def replay_log(job: Job) -> LogResult:
@@ -227,7 +219,7 @@ def replay_log(job: Job) -> LogResult:
     result = LogResult(str(job.log))
     try:
         source = open_log(job.log, job.config, job.imu, job.mag)
-        replayed = replay(source, job.config, _SampleProgress(job.log.name) if job.table else None)
+        replayed = replay(source, job.config, _source_progress(job.log.name) if job.table else None)
         _check_found(str(job.log), job.config.input.message, replayed)
     except MavAttitudeError as exc:
         return dataclasses.replace(result, status="failed", note=str(exc))
@@ -249,24 +241,20 @@ def replay_log(job: Job) -> LogResult:
     return result
 
 
-class _SampleProgress:
-    """A log's progress on a terminal (none when stderr is not one), from the source's position."""
+def _source_progress(label: str) -> Callable[[Any], None] | None:
+    """A progress bar over a source's items (drawn on a terminal only; built at the first update, when the
+    source knows its size)."""
+    if not sys.stderr.isatty():
+        return None
+    bar: Progress | None = None
 
-    def __init__(self, label: str) -> None:
-        self.label = label
-        self.enabled = sys.stderr.isatty()
-        self.shown = -1
+    def update(source: Any) -> None:
+        nonlocal bar
+        if bar is None:
+            bar = Progress(source.total, True, label)
+        bar.update(source.done)
 
-    def __call__(self, source: Any) -> None:
-        total, done = getattr(source, "total", 0), getattr(source, "done", 0)
-        if not self.enabled or not total:
-            return
-        percent = 100 * done // total
-        if percent != self.shown:
-            self.shown = percent
-            end = "\n" if source.finished else "\r"
-            sys.stderr.write(f"{self.label}: [{'#' * (percent // 5):<20}] {percent:3d}%{end}")
-            sys.stderr.flush()
+    return update
 
 
 def _fill(result: LogResult, replayed: Any) -> None:
