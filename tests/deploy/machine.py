@@ -28,6 +28,7 @@ MIN_FREE_BYTES = 3 * 1024**3  # two trees (~0.5 GB) and the Docker data root (~1
 # The client of Debian's docker.io, which has BuildKit built in (a newer client elsewhere on PATH, such as
 # one in /usr/local/bin, may need the buildx plugin, which Debian 12 does not package).
 DOCKER = "/usr/bin/docker"
+LOCK = Path("/run/lock/mavattitude-ci.lock")  # whatever the cache: two dockerds would share a bridge
 HOST_CA_BUNDLE = Path("/etc/ssl/certs/ca-certificates.crt")
 DEBOOTSTRAP_TIMEOUT_S = 900.0  # ~1 min each when the mirror is quick; a slow mirror gets room
 
@@ -62,18 +63,24 @@ class Tree:
             (root / path).unlink()
 
 
-# The Docker base image: what python:3.11-slim-bookworm has that the Dockerfile uses.
-PYTHON_TREE = Tree(
-    "python",
+# One Debian 12 tree for both: systemd as PID 1 and sudo, what the README's systemd section assumes, and
+# python3 with venv and pip, what python:3.11-slim-bookworm gives the Dockerfile (minbase: one
+# debootstrap of about a minute instead of two).
+TREE = Tree(
+    "debian",
     "minbase",
-    ("python3", "python3-venv", "python3-pip", "python-is-python3", "ca-certificates"),
+    (
+        "systemd",
+        "systemd-sysv",
+        "dbus",
+        "sudo",
+        "python3",
+        "python3-venv",
+        "python3-pip",
+        "python-is-python3",
+        "ca-certificates",
+    ),
     remove=("usr/lib/python3.11/EXTERNALLY-MANAGED",),
-)
-# A Debian machine with systemd as PID 1, python3 and sudo: what the README's systemd section assumes.
-SYSTEMD_TREE = Tree(
-    "systemd",
-    None,
-    ("systemd", "systemd-sysv", "dbus", "python3", "python3-venv", "python3-pip", "ca-certificates", "sudo"),
 )
 
 
@@ -93,9 +100,8 @@ def why_not() -> str | None:
 
 @contextlib.contextmanager
 def cache_lock() -> Iterator[None]:
-    """One deployment run at a time on this machine: they share the cache and the Docker data root."""
-    CACHE.mkdir(parents=True, exist_ok=True)
-    with open(CACHE / "lock", "w") as handle:
+    """One deployment run at a time on this machine: they share the cache, dockerd's socket and its bridge."""
+    with open(LOCK, "w") as handle:
         fcntl.flock(handle, fcntl.LOCK_EX)
         yield
 
@@ -132,7 +138,7 @@ def cached_tree(tree: Tree) -> Path:
     run(tree.command(partial), timeout_s=DEBOOTSTRAP_TIMEOUT_S)
     tree.finish(partial)
     partial.rename(done)
-    for stale in done.parent.glob(f"{tree.name}-*"):  # an older key: the package list changed
+    for stale in done.parent.iterdir():  # an older recipe's tree
         if stale != done:
             shutil.rmtree(stale, ignore_errors=True)
     return done
@@ -228,10 +234,9 @@ class NspawnMachine:
     BOOT_TIMEOUT_S = 60.0
     STOP_TIMEOUT_S = 30.0
 
-    def __init__(self, lower: Path, workdir: Path, binds: Sequence[str] = ()) -> None:
+    def __init__(self, lower: Path, workdir: Path) -> None:
         self.lower = lower
         self.workdir = workdir
-        self.binds = binds  # systemd-nspawn --bind=HOST:MACHINE
         self.root = workdir / "root"
         self.proc: subprocess.Popen[bytes] | None = None
         self.leader: int | None = None
@@ -246,7 +251,6 @@ class NspawnMachine:
             self.proc = subprocess.Popen(
                 [
                     "systemd-nspawn",
-                    *(f"--bind={bind}" for bind in self.binds),
                     "-D",
                     self.root,
                     "-b",

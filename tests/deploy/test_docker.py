@@ -17,7 +17,7 @@ import pytest
 from . import machine
 from .conftest import EXAMPLE_CONFIG, OUTPUT_TIMEOUT_S, ROOT, assert_attitudes_scored, readme_block, vehicle
 
-BASE_IMAGE = "local/python:3.11"
+BASE_REPOSITORY = "local/python"
 README_PORT = "-p 14551:14551/udp"
 EPHEMERAL_PORT = "-p 127.0.0.1::14551/udp"  # Docker picks the host port: nothing fixed on the machine
 README_CONFIG_DIR = "-v /etc/mavattitude:"
@@ -43,12 +43,16 @@ def docker(deploy_host: None) -> Iterator[machine.Dockerd]:
 @pytest.fixture(scope="module")
 def image(docker: machine.Dockerd) -> str:
     """The README's `docker build` line, run in the checkout against the local base image."""
-    if not docker.has_image(BASE_IMAGE):
-        docker.import_tree(machine.cached_tree(machine.PYTHON_TREE), BASE_IMAGE)
+    base = f"{BASE_REPOSITORY}:3.11-{machine.TREE.key}"  # a new tree recipe, a new base image
+    if not docker.has_image(base):
+        stale = docker.docker("images", "-q", BASE_REPOSITORY).stdout.split()
+        if stale:
+            docker.docker("rmi", "-f", *stale)
+        docker.import_tree(machine.cached_tree(machine.TREE), base)
     build = _readme_line("DOCKER_BUILDKIT=1 docker build").split()
     assert build[:3] == ["DOCKER_BUILDKIT=1", "docker", "build"] and build[-1] == "."
     tag = build[build.index("-t") + 1]
-    args = [*build[2:-1], "--network=host", "--build-arg", f"PYTHON_IMAGE={BASE_IMAGE}", str(ROOT)]
+    args = [*build[2:-1], "--network=host", "--build-arg", f"PYTHON_IMAGE={base}", str(ROOT)]
     docker.docker(*args, timeout_s=900)
     return tag
 

@@ -60,11 +60,9 @@ class Installed:
 
 @pytest.fixture(scope="module")
 def installed(deploy_host: None, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Installed]:
-    pip_cache = machine.CACHE / "pip"
-    pip_cache.mkdir(exist_ok=True)
-    tree = machine.cached_tree(machine.SYSTEMD_TREE)
+    tree = machine.cached_tree(machine.TREE)
     workdir = tmp_path_factory.mktemp("nspawn")
-    with machine.NspawnMachine(tree, workdir, binds=[f"{pip_cache}:/root/.cache/pip"]) as m:
+    with machine.NspawnMachine(tree, workdir) as m:
         shutil.copytree(ROOT, m.root / CHECKOUT.lstrip("/"), ignore=COPY_IGNORE)
         silent = vehicle("udpin:127.0.0.1:0")  # bound, not started: no HEARTBEAT until a test starts one
         lines = readme_block(HEADING)
