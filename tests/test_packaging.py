@@ -206,6 +206,11 @@ def test_dockerfile_is_multistage_pinned_non_root_and_runs_the_service():
     assert args["ENTRYPOINT"] == '["mavattitude"]'
     assert args["CMD"] == '["run", "--config", "/etc/mavattitude/config.yaml"]'
     assert args["VOLUME"] == '["/etc/mavattitude"]'
+    # A uid with no group: Docker then applies the user's /etc/group memberships (dialout); "uid:gid" drops them.
+    assert ":" not in user[-1]
+    assert args["HEALTHCHECK"].startswith("--interval=")
+    # No "# syntax=" directive: it makes every build fetch a frontend image from a registry.
+    assert not re.search(r"^#\s*syntax=", DOCKERFILE.read_text(), re.M | re.I)
 
 
 def _locked() -> dict[str, list[str]]:
