@@ -26,7 +26,6 @@ for; for any such gain ``P ← (I − K hᵀ) P (I − K hᵀ)ᵀ + r K Kᵀ`` (
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 
 from mavattitude.estimation.conventions import (
     quat_from_rotvec_parts,
@@ -113,10 +112,10 @@ class ErrorStateFilter:
         nominal state as it was at the last :meth:`reset`; ``on``/``off`` restrict the gain (unit vectors).
         Call :meth:`propagate` first (``q`` must carry the whole interval) and :meth:`reset` after the last."""
         tt, tb, bb, dx = self.p_tt, self.p_tb, self.p_bb, self.dx
-        u_t, u_b, s = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), r
+        u_t, u_b, s = _ZERO_V, _ZERO_V, r
         if h_theta is not None:
             u_t, u_b = m3.matvec(tt, h_theta), m3.tmatvec(tb, h_theta)
-            s += m3.dot(h_theta, u_t)
+            s += h_theta[0] * u_t[0] + h_theta[1] * u_t[1] + h_theta[2] * u_t[2]
             z -= h_theta[0] * dx[0] + h_theta[1] * dx[1] + h_theta[2] * dx[2]
         if h_bias is not None:
             z -= h_bias[0] * dx[3] + h_bias[1] * dx[4] + h_bias[2] * dx[5]
@@ -124,18 +123,31 @@ class ErrorStateFilter:
             s += m3.dot(h_bias, v_b) + 2.0 * m3.dot(h_theta, v_t) if h_theta is not None else m3.dot(h_bias, v_b)
             u_t = (u_t[0] + v_t[0], u_t[1] + v_t[1], u_t[2] + v_t[2])
             u_b = (u_b[0] + v_b[0], u_b[1] + v_b[1], u_b[2] + v_b[2])
-        k_t, k_b = _scale(u_t, 1.0 / s), _scale(u_b, 1.0 / s)
-        if on is not None:
-            k_t, k_b = _scale(on, m3.dot(on, k_t)), _scale(on, m3.dot(on, k_b))
-        if off is not None:
-            c = m3.dot(off, k_t)
-            k_t = (k_t[0] - c * off[0], k_t[1] - c * off[1], k_t[2] - c * off[2])
-        w_t, w_b = _axpy3(k_t, s, u_t), _axpy3(k_b, s, u_b)  # zero for the optimal gain
-        self.p_tt = _sym_rank2(tt, w_t, k_t, u_t)
-        self.p_tb = _rank2(tb, w_t, k_b, k_t, u_b)
-        self.p_bb = _sym_rank2(bb, w_b, k_b, u_b)
-        for i, k in enumerate((*k_t, *k_b)):
-            dx[i] += k * z
+        inv_s = 1.0 / s
+        k_t = (u_t[0] * inv_s, u_t[1] * inv_s, u_t[2] * inv_s)
+        k_b = (u_b[0] * inv_s, u_b[1] * inv_s, u_b[2] * inv_s)
+        if on is None and off is None:  # the optimal gain: P ← P − K uᵀ
+            self.p_tt = _sym_rank2(tt, _ZERO_V, k_t, u_t)
+            self.p_tb = _rank2(tb, _ZERO_V, k_b, k_t, u_b)
+            self.p_bb = _sym_rank2(bb, _ZERO_V, k_b, u_b)
+        else:
+            if on is not None:
+                c_t, c_b = m3.dot(on, k_t), m3.dot(on, k_b)
+                k_t, k_b = (on[0] * c_t, on[1] * c_t, on[2] * c_t), (on[0] * c_b, on[1] * c_b, on[2] * c_b)
+            if off is not None:
+                c = m3.dot(off, k_t)
+                k_t = (k_t[0] - c * off[0], k_t[1] - c * off[1], k_t[2] - c * off[2])
+            w_t = (s * k_t[0] - u_t[0], s * k_t[1] - u_t[1], s * k_t[2] - u_t[2])
+            w_b = (s * k_b[0] - u_b[0], s * k_b[1] - u_b[1], s * k_b[2] - u_b[2])
+            self.p_tt = _sym_rank2(tt, w_t, k_t, u_t)
+            self.p_tb = _rank2(tb, w_t, k_b, k_t, u_b)
+            self.p_bb = _sym_rank2(bb, w_b, k_b, u_b)
+        dx[0] += k_t[0] * z
+        dx[1] += k_t[1] * z
+        dx[2] += k_t[2] * z
+        dx[3] += k_b[0] * z
+        dx[4] += k_b[1] * z
+        dx[5] += k_b[2] * z
 
     def reset(self) -> None:
         """Move the estimated error state ``[δθ, δb]`` into the nominal ``q`` and ``b``."""
@@ -149,13 +161,7 @@ class ErrorStateFilter:
         self.dx = [0.0] * 6
 
 
-def _scale(v: Sequence[float], k: float) -> Vec3:
-    return (v[0] * k, v[1] * k, v[2] * k)
-
-
-def _axpy3(k: Vec3, s: float, u: Vec3) -> Vec3:
-    """``s k − u``."""
-    return (s * k[0] - u[0], s * k[1] - u[1], s * k[2] - u[2])
+_ZERO_V: Vec3 = (0.0, 0.0, 0.0)
 
 
 def _rank2(p: Mat3, a: Vec3, b: Vec3, c: Vec3, d: Vec3) -> Mat3:

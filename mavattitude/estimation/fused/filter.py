@@ -122,6 +122,7 @@ class FusedFilter:
         self._noise = NoiseModel(accel_std=(s.accel_std_mps2,) * 3, mag_std=(s.mag_std_uT,) * 3)
         self._t_last = 0.0
         self._gyr_last: Vec3 = (0.0, 0.0, 0.0)
+        self._arrays: tuple[Array, Array] | None = None  # P_θθ and b as arrays for the output ticks
         self._next_update_s = 0.0
         self._next_output_s = 0.0
         self.set_mag_ref(mag_ref)
@@ -211,6 +212,7 @@ class FusedFilter:
         self._ekf.propagate()
         self._measure(acc_mps2, mag_uT, time_s)
         self._ekf.reset()
+        self._arrays = None
 
     def _measure(self, acc_mps2: ArrayLike, mag_uT: ArrayLike | None, time_s: float) -> None:
         ekf, s = self._ekf, self.settings
@@ -252,7 +254,7 @@ class FusedFilter:
         if mag is not None and d < 1.0:
             sigma_m2 = s.mag_std_uT**2 * self._mag.sigma2_factor(d, time_s)
             sigma_m2 = min(sigma_m2, (_MAX_UNIT_STD * mag_norm) ** 2)
-            if self._heading_update(mag, mag_norm, sigma_m2, down_body):
+            if self._heading_update(mag, mag_norm, sigma_m2, r):
                 return
         self.counters["tilt_only_updates"] += 1
 
@@ -264,17 +266,17 @@ class FusedFilter:
     def _tilt_update(self, acc: Vec3, acc_norm: float, sigma_a: float, r: Sequence[float]) -> None:
         """The accelerometer direction, along the two axes it measures; its gain is kept off the heading."""
         h = rotate_ned_to_body_parts(r, self._v_acc)
-        u = (acc[0] / acc_norm, acc[1] / acc_norm, acc[2] / acc_norm)
+        d = (acc[0] / acc_norm - h[0], acc[1] / acc_norm - h[1], acc[2] / acc_norm - h[2])  # u − h
         e1 = _unit(cross(h, (1.0, 0.0, 0.0) if abs(h[0]) < 0.6 else (0.0, 1.0, 0.0)))
         e2 = cross(h, e1)
         var = (sigma_a / acc_norm) ** 2
-        for e in (e1, e2):
-            self._ekf.update(dot(e, u) - dot(e, h), cross(e, h), var, off=h)
+        self._ekf.update(dot(e1, d), cross(e1, h), var, off=h)
+        self._ekf.update(dot(e2, d), cross(e2, h), var, off=h)
 
-    def _heading_update(self, mag: Vec3, mag_norm: float, sigma_m2: float, down_body: Vec3) -> bool:
-        """The field's horizontal direction against the reference's: heading only. False if the field is
-        too close to vertical to give one."""
-        r = rotation_matrix_parts(self._ekf.q)
+    def _heading_update(self, mag: Vec3, mag_norm: float, sigma_m2: float, r: Sequence[float]) -> bool:
+        """The field's horizontal direction against the reference's (``r``: R(q)): heading only. False if the
+        field is too close to vertical to give one."""
+        down_body = (r[6], r[7], r[8])  # A(q) e_D
         mn = r[0] * mag[0] + r[1] * mag[1] + r[2] * mag[2]
         me = r[3] * mag[0] + r[4] * mag[1] + r[5] * mag[2]
         horizontal2 = mn * mn + me * me
@@ -311,6 +313,7 @@ class FusedFilter:
             self._ekf.start(q, p_tt, symmetric((0.0,) * 9, self.settings.gyro_bias_init_radps**2))  # type: ignore[arg-type]
             self._mag.start(self._mag.corrected((float(mag[0]), float(mag[1]), float(mag[2]))))
         self._started = True
+        self._arrays = None
         self._lp_measure.reset()
         self._lp_reject.reset()
         self._t_last = time_s
@@ -324,14 +327,16 @@ class FusedFilter:
         b, g = self._ekf.bias, self._gyr_last
         wx, wy, wz = g[0] - b[0], g[1] - b[1], g[2] - b[2]
         rates = np.array([wx, wy, wz])
+        if self._arrays is None:  # the covariance and bias change only at an update
+            self._arrays = np.array(self._ekf.p_tt).reshape(3, 3), np.array(b)
+        cov, bias = self._arrays
         q_now = self._current_q()
         out = []
         while self._next_output_s <= time_s:
             back = self._next_output_s - time_s
             carry = quat_from_rotvec_parts(wx * back, wy * back, wz * back)
             q_tick = np.array(quat_normalize_parts(quat_multiply_parts(q_now, carry)))
-            cov = np.array(self._ekf.p_tt).reshape(3, 3)
-            out.append(FusedEstimate(self._next_output_s, q_tick, rates, cov, np.array(b), self._mag.disturbed))
+            out.append(FusedEstimate(self._next_output_s, q_tick, rates, cov, bias, self._mag.disturbed))
             self._next_output_s += self._output_period_s
         return out
 

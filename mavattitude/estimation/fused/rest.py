@@ -22,16 +22,22 @@ class RestDetector:
         self._gyro2 = settings.rest_gyro_threshold_radps**2
         self._accel2 = settings.rest_accel_threshold_mps2**2
         self._min_s = settings.rest_min_s
-        self._lp: list[float] | None = None
+        self._lp: tuple[float, ...] | None = None
         self._still_since_s = math.inf
 
     def rate(self, gyr: Vec3, acc: Vec3, bias: Vec3, time_s: float) -> Vec3 | None:
         """``ḡ − b`` once at rest for ``rest_min_s``, else None."""
         if self._lp is None:
-            self._lp = [*gyr, *acc]
+            self._lp = (*gyr, *acc)
         k, lp = self._alpha, self._lp
-        for i, v in enumerate((*gyr, *acc)):
-            lp[i] += k * (v - lp[i])
+        lp = self._lp = (
+            lp[0] + k * (gyr[0] - lp[0]),
+            lp[1] + k * (gyr[1] - lp[1]),
+            lp[2] + k * (gyr[2] - lp[2]),
+            lp[3] + k * (acc[0] - lp[3]),
+            lp[4] + k * (acc[1] - lp[4]),
+            lp[5] + k * (acc[2] - lp[5]),
+        )
         dev_g2 = (gyr[0] - lp[0]) ** 2 + (gyr[1] - lp[1]) ** 2 + (gyr[2] - lp[2]) ** 2
         dev_a2 = (acc[0] - lp[3]) ** 2 + (acc[1] - lp[4]) ** 2 + (acc[2] - lp[5]) ** 2
         rate = (lp[0] - bias[0], lp[1] - bias[1], lp[2] - bias[2])
