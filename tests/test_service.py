@@ -297,6 +297,22 @@ def test_counters_line_is_numbers_only():
     assert all(math.isnan(float(v)) or float(v) >= 0 for v in pairs.values())
 
 
+def test_counters_line_carries_the_fused_filters_counters_and_learnt_offset():
+    pipeline = AttitudePipeline(make_config(**{"estimator.method": "fused"}))
+    field = 50.0 * pipeline.mag_ref_ned_uT / np.linalg.norm(pipeline.mag_ref_ned_uT)  # angles only: a direction
+    mag = rotate_ned_to_body((1.0, 0.0, 0.0, 0.0), field)
+    for i in range(100):  # 2 s at rest, level, heading north: an update per sample after the first
+        pipeline.push(units.ImuSample(0.02 * i, (0.0, 0.0, -9.80665), (0.0, 0.0, 0.0), tuple(mag)))
+    line = counters_line(ServiceCounters(), LinkCounters(), pipeline.counters)
+    pairs = dict(item.split("=") for item in line.split())
+    assert int(pairs["fused.updates"]) >= 95 and int(pairs["fused.tilt_only_updates"]) == 0
+    assert int(pairs["fused.rest_updates"]) > 0 and pairs["fused.mag_offset_learned"] == "0"
+    assert float(pairs["fused.mag_offset_z_uT"]) == 0.0
+    assert "fused.updates" not in counters_line(
+        ServiceCounters(), LinkCounters(), AttitudePipeline(make_config()).counters
+    )
+
+
 @pytest.mark.parametrize(("stop_signal", "code"), [(signal.SIGTERM, 0), (signal.SIGINT, 130)])
 def test_run_command_stops_on_a_signal_with_final_counters(stop_signal, code):
     # SIGTERM is how systemd and Docker stop it (a clean stop); SIGINT is Ctrl-C (interrupted: 130).

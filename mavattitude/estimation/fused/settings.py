@@ -40,24 +40,24 @@ class FusedSettings:
     )
     accel_rejection_lowpass_s: float = _setting(
         0.7,
-        "τ_j: the same pre-filter for the |a| the rejection looks at (shorter: sees an acceleration sooner), s",
+        "τ_j: the same pre-filter for the ‖a‖ the rejection watches (shorter: sees an acceleration sooner), s",
         hi=60.0,
     )
     accel_lag_gain: float = _setting(3.0, "k_d: σ_a added per m/s² between the two pre-filters' outputs")
-    accel_norm_gain: float = _setting(8.0, "k_n: σ_a added per m/s² of | |a| − g |")
-    accel_residual_gain: float = _setting(0.0, "k_r: σ_a added per g·rad of the IGN residual angle")
+    accel_norm_gain: float = _setting(8.0, "k_n: σ_a added per m/s² of ‖a‖ − g (of the short pre-filter)")
+    accel_residual_gain: float = _setting(0.0, "k_r: σ_a added per g·rad of the acc/mag angle error")
     mag_std_uT: float = _setting(5.25, "σ_m: magnetometer σ per axis, µT", lo_open=True)
     mag_norm_tolerance_fraction: float = _setting(
-        0.1, "τ_n: |B| off its reference by this fraction is a disturbance", hi=10.0, lo_open=True
+        0.1, "τ_n: ‖B‖ off its learnt value by this fraction is a disturbance", hi=10.0, lo_open=True
     )
     mag_dip_tolerance_deg: float = _setting(
         10.0, "τ_δ: dip off its reference by this much is a disturbance, deg", hi=90.0
     )
     mag_reference_s: float = _setting(
-        20.0, "τ_ref: |B| is learnt over this much clean field from the start, s", lo_open=True
+        20.0, "τ_ref: ‖B‖ is learnt over this much clean field from the start, s", lo_open=True
     )
     mag_relearn_s: float = _setting(
-        60.0, "T_new: a field disturbed this long with the tilt agreeing is adopted (heading only), s", lo_open=True
+        60.0, "T_new: a field disturbed this long without a break is adopted (it sets heading only), s", lo_open=True
     )
     mag_soft_fraction: float = _setting(0.5, "d₀: σ_m inflation scale below the disturbance threshold", lo_open=True)
     mag_recovery_factor: float = _setting(10.0, "ρ₀: σ_m² multiplier just after a long disturbance", lo=1.0)
@@ -68,7 +68,7 @@ class FusedSettings:
         hi=3600.0,
     )
     mag_offset_turn_fraction: float = _setting(
-        0.05, "the turn the offset needs: 1 − |mean predicted field direction| over the window", hi=1.0
+        0.05, "the turn the offset needs: 1 − ‖mean predicted field direction‖ over the window", hi=1.0
     )
     rest_gyro_threshold_radps: float = _setting(math.radians(2.0), "rest: gyro deviation and rate below this, rad/s")
     rest_accel_threshold_mps2: float = _setting(0.5, "rest: accelerometer deviation below this, m/s²")
