@@ -301,6 +301,9 @@ class CompassConfig:
     field_allowance: float = field(
         default=0.15, metadata=_meta(_number(0.0, 1.0), "|B| error calibration and field model explain, fraction")
     )
+    turn_allowance: float = field(
+        default=0.2, metadata=_meta(_number(0.0, 10.0), "share of the field's turn it may make unlike the gyroscope")
+    )
 
 
 @dataclass(frozen=True)

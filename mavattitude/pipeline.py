@@ -158,7 +158,13 @@ def _noise_model(config: Config) -> NoiseModel:
 def _compass_settings(config: Config) -> CompassSettings:
     c = config.compass
     return CompassSettings(
-        c.enabled, c.window_s, c.low_accel_fraction, c.max_rate_dps, c.dip_allowance_deg, c.field_allowance
+        c.enabled,
+        c.window_s,
+        c.low_accel_fraction,
+        c.max_rate_dps,
+        c.dip_allowance_deg,
+        c.field_allowance,
+        c.turn_allowance,
     )
 
 

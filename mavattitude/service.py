@@ -597,6 +597,8 @@ def compass_warning(figures: CompassFigures) -> str:
 
 def compass_statustext(figures: CompassFigures) -> str:
     """The same in STATUSTEXT's 50 ASCII characters: the figure that is off, and what to check."""
+    if figures.turn_off:
+        return "compass turns unlike the gyro: check mount, cal"
     if abs(figures.dip_deg - figures.expected_dip_deg) > figures.threshold_dip_deg:
         return f"compass dip {figures.dip_deg:+.0f} (expected {figures.expected_dip_deg:+.0f}): check mount, cal"
     return f"compass |B| {100.0 * figures.field_ratio:.0f}% of expected: check calibration"
@@ -610,6 +612,7 @@ def compass_pairs(figures: CompassFigures) -> list[tuple[str, float]]:
         ("compass_dip_std_deg", figures.dip_std_deg),
         ("compass_dip_1min_deg", figures.first_dip_deg),
         ("compass_field_ratio", figures.field_ratio),
+        ("compass_turn_mismatch", figures.turn_mismatch),
         ("compass_warnings", figures.warnings),
     ]
 

@@ -10,13 +10,26 @@ Two figures need no attitude at all, so they can judge the magnetometer before a
   as soon as the vehicle sits level; a rotation about the vertical shows only when the vehicle tilts;
 - the **field ratio** ``|B| / |B₀|`` against the reference's intensity (when it is known).
 
-Only *quiet* samples count: low acceleration (``| |f| − g | ≤ low_accel_fraction · g``) and slow rotation
-(``|ω| ≤ max_rate_dps``): elsewhere the specific force is not gravity (linear acceleration; or the
+A third needs no attitude either, and sees what the dip cannot (a compass turned about the vertical,
+or mirrored in a vertical plane, keeps its dip while the vehicle is level, which a multicopter is whenever
+it does not accelerate): the **turn**. Seen from the body, the Earth's field turns opposite to the body's
+rotation, which the gyroscope measures: carried into a frame the integrated gyroscope keeps fixed, a good
+field stays put. :class:`TurnCheck` compares, over steps of ``TURN_SPAN_S`` that turned by at least
+``MIN_TURN_DEG``, how far the field moved in that frame with how far it moved in the body:
+``mismatch = Σ |F_k − F_j|² / Σ |B_k − B_j|²``. A field that turns with the body as the gyroscope says
+gives ~0 (0.01–0.05 on every shared recording, 0.27 with a magnet attached to the sensor, an uncorrected
+hard iron); a compass mounted in another orientation than the gyroscope turns the other way about some
+axis, ≥ 0.4 (flips and 90° turns about any axis, on the SITL flight and the BROAD trials). The threshold is
+``turn_allowance + k · (noise's share)``, the noise's share being ``n · 6 σ̄_mag² / Σ |B_k − B_j|²``.
+
+Only *quiet* samples count for the dip and |B|: low acceleration (``| |f| − g | ≤ low_accel_fraction · g``)
+and slow rotation (``|ω| ≤ max_rate_dps``): elsewhere the specific force is not gravity (linear acceleration; or the
 centripetal and tangential acceleration of a sensor off the rotation axis, and the small time offset
 between the filtered accelerometer and magnetometer, which together bias the dip by −6° on BROAD's fast
 rotation trial at 100–800°/s) and the dip is not the field's. :class:`CompassMonitor` keeps both figures over a
 sliding window of vehicle time (mean and spread) and over the first minute, and judges the compass
-*inconsistent* when a window mean is further from its reference than the threshold:
+*inconsistent* when a window mean is further from its reference than the threshold (or the turn mismatch,
+below, is beyond its own):
 
 ``dip threshold = dip_allowance_deg + k σ_dip``, ``σ_dip = √(σ̄_mag² / |B₀|² + σ̄_acc² / g²)`` (rad),
 
@@ -25,7 +38,7 @@ sliding window of vehicle time (mean and spread) and over the first minute, and 
 with ``σ̄`` the noise model's RMS per-axis σ (Eq. 2), ``k = NOISE_SIGMAS``: the per-sample direction noise
 of each unit vector (Eq. 9, ``tr R_unit = 2σ²/|W|²`` for isotropic noise, ``σ²/|W|²`` per perpendicular
 axis) widened by the allowance for what calibration and the field model leave (docs/vehicle.md). It is
-consistent again when both are back within ``CLEAR_FRACTION`` of their thresholds (hysteresis: no
+consistent again when all three are back within ``CLEAR_FRACTION`` of their thresholds (hysteresis: no
 flip-flop at the edge).
 
 Pure functions and a small state machine on plain floats; no I/O (the service and replay say what it found).
@@ -40,6 +53,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from .conventions import quat_from_rotvec_parts, quat_multiply_parts, quat_normalize_parts, rotation_matrix_parts
+
 Vec3 = tuple[float, float, float]
 
 STANDARD_GRAVITY_MPS2 = 9.80665
@@ -47,6 +62,9 @@ NOISE_SIGMAS = 3.0  # k: a window mean this many per-sample σ off is not noise
 CLEAR_FRACTION = 0.75  # consistent again below this fraction of the thresholds
 FIRST_PERIOD_S = 60.0  # "over the first minute": from the first judged sample, vehicle time
 HEADING_UNKNOWN_STD_RAD = math.pi / math.sqrt(3.0)  # σ of a heading uniform over ±180°
+TURN_SPAN_S = 0.2  # the field's turn is compared over steps this long ...
+MIN_TURN_DEG = 5.0  # ... that turned the body by at least this much (else noise dominates)
+MAX_TURN_GAP_S = 0.1  # a longer gap between ticks restarts the gyroscope's integration
 
 
 def _norm(v: Vec3) -> float:
@@ -79,6 +97,7 @@ class CompassSettings:
     max_rate_dps: float = 60.0
     dip_allowance_deg: float = 10.0
     field_allowance: float = 0.15
+    turn_allowance: float = 0.2
     min_samples: int = 25  # quiet samples in the window before judging (0.5 s at 50 Hz)
 
 
@@ -120,6 +139,8 @@ class CompassFigures:
     first_field_ratio: float
     threshold_dip_deg: float
     threshold_field: float
+    turn_mismatch: float  # window Σ|F_k − F_j|² / Σ|B_k − B_j|²: ~0 for a field that turns as the gyroscope says
+    threshold_turn: float
     inconsistent: bool
     warnings: int  # times it turned inconsistent
 
@@ -128,7 +149,14 @@ class CompassFigures:
         text = f"compass dip {self.dip_deg:+.0f}° vs expected {self.expected_dip_deg:+.0f}°"
         if self.field_ratio == self.field_ratio:
             text += f", |B| {100.0 * self.field_ratio:.0f} % of the expected"
+        if self.turn_mismatch == self.turn_mismatch:
+            text += f", turns unlike the gyroscope by {100.0 * self.turn_mismatch:.0f} %"
         return text
+
+    @property
+    def turn_off(self) -> bool:
+        """The turn mismatch is beyond its threshold (what the warning should name first)."""
+        return self.turn_mismatch > self.threshold_turn
 
 
 @dataclass(frozen=True)
@@ -177,6 +205,70 @@ def _std(n: int, s: float, s2: float) -> float:
     return math.sqrt(max(s2 / n - (s / n) ** 2, 0.0))
 
 
+def _rotate(r: tuple, v: Vec3) -> Vec3:
+    """``R v`` for a row-major rotation matrix 9-tuple (body → the gyroscope's fixed frame)."""
+    return (
+        r[0] * v[0] + r[1] * v[1] + r[2] * v[2],
+        r[3] * v[0] + r[4] * v[1] + r[5] * v[2],
+        r[6] * v[0] + r[7] * v[1] + r[8] * v[2],
+    )
+
+
+class TurnCheck:
+    """Whether the field turns in the body as the gyroscope says it should (see the module docstring)."""
+
+    def __init__(self, window_s: float) -> None:
+        self.window_s = window_s
+        self._q = (1.0, 0.0, 0.0, 0.0)  # body → a frame the integrated gyroscope keeps fixed
+        self._t: float | None = None
+        self._recent: deque[tuple[float, tuple, Vec3, Vec3]] = deque()  # (t, q, F, B) within TURN_SPAN_S
+        self._steps: deque[tuple[float, float, float]] = deque()  # (t, |ΔF|², |ΔB|²) within window_s
+        self.moved2 = self.changed2 = 0.0
+
+    @property
+    def steps(self) -> int:
+        return len(self._steps)
+
+    def mismatch(self) -> float:
+        if not self._steps:
+            return math.nan
+        if self.changed2 <= 0.0:  # the body turned and the field did not move in it at all
+            return math.inf if self.moved2 > 0.0 else math.nan
+        return self.moved2 / self.changed2
+
+    def update(self, time_s: float, mag_uT: Vec3, gyr_radps: Vec3) -> None:
+        if self._t is None or not 0.0 < time_s - self._t <= MAX_TURN_GAP_S:
+            self._recent.clear()  # a gap or a reset: the integration starts over
+        else:
+            dt = time_s - self._t
+            step = quat_from_rotvec_parts(gyr_radps[0] * dt, gyr_radps[1] * dt, gyr_radps[2] * dt)
+            self._q = quat_normalize_parts(quat_multiply_parts(self._q, step))
+        self._t = time_s
+        fixed = _rotate(rotation_matrix_parts(self._q), mag_uT)
+        recent = self._recent
+        recent.append((time_s, self._q, fixed, mag_uT))
+        while len(recent) > 1 and recent[1][0] <= time_s - TURN_SPAN_S:
+            recent.popleft()
+        t0, q0, f0, b0 = recent[0]
+        if time_s - t0 >= TURN_SPAN_S and self._turned(q0):
+            moved2 = float(sum((a - b) ** 2 for a, b in zip(fixed, f0, strict=True)))
+            changed2 = float(sum((a - b) ** 2 for a, b in zip(mag_uT, b0, strict=True)))
+            self._steps.append((time_s, moved2, changed2))
+            self.moved2 += moved2
+            self.changed2 += changed2
+        while self._steps and self._steps[0][0] <= time_s - self.window_s:
+            _, moved2, changed2 = self._steps.popleft()
+            self.moved2 -= moved2
+            self.changed2 -= changed2
+
+    def _turned(self, q0: tuple) -> bool:
+        dot = abs(sum(a * b for a, b in zip(q0, self._q, strict=True)))
+        return dot <= _COS_HALF_MIN_TURN
+
+
+_COS_HALF_MIN_TURN = math.cos(math.radians(MIN_TURN_DEG) / 2.0)
+
+
 class CompassMonitor:
     """Dip and field ratio over a sliding window and the first minute; the consistency verdict.
 
@@ -196,14 +288,29 @@ class CompassMonitor:
         self._expected_dip = math.nan
         self._field_uT: float | None = None
         self._thresholds = Thresholds(math.nan, math.nan, math.nan)
+        self._turn = TurnCheck(settings.window_s)
+        self._turn_excess = 0.0  # the turn mismatch over its threshold, as last judged
         self.samples = 0
         self.inconsistent = False
         self.warnings = 0
 
     @property
     def judged(self) -> bool:
-        """Enough quiet samples in the window to judge."""
+        """Enough quiet samples in the window to judge the dip."""
         return self._win.n >= self.settings.min_samples
+
+    @property
+    def turn_judged(self) -> bool:
+        """Enough turning steps in the window to judge the turn."""
+        return self._turn.steps >= self.settings.min_samples
+
+    def _turn_threshold(self) -> float:
+        """``turn_allowance`` plus k times the share of the field's change that its noise explains."""
+        if not self._turn.changed2:
+            return math.nan
+        sigma = rms_sigma(self._sigmas[1])
+        noise_share = self._turn.steps * 6.0 * sigma * sigma / self._turn.changed2
+        return self.settings.turn_allowance + NOISE_SIGMAS * noise_share
 
     def set_reference(self, field_ned_uT: Vec3, intensity_uT: float | None) -> None:
         self._expected_dip = reference_dip_deg(field_ned_uT)
@@ -236,8 +343,14 @@ class CompassMonitor:
         return not self.judged and off > self._thresholds.dip_deg and self.quiet(acc_mps2, gyr_radps)
 
     def update(self, time_s: float, acc_mps2: Vec3, mag_uT: Vec3, gyr_radps: Vec3) -> CompassEvent | None:
-        if not self.quiet(acc_mps2, gyr_radps) or self._expected_dip != self._expected_dip:
+        if self._expected_dip != self._expected_dip:
             return None
+        self._turn.update(time_s, mag_uT, gyr_radps)
+        if self.quiet(acc_mps2, gyr_radps):
+            self._add_quiet(time_s, acc_mps2, mag_uT)
+        return self._judge(time_s) if self.judged or self.turn_judged else None
+
+    def _add_quiet(self, time_s: float, acc_mps2: Vec3, mag_uT: Vec3) -> None:
         dip = measured_dip_deg(acc_mps2, mag_uT)
         field = _norm(mag_uT) if self._field_uT is not None else None
         self.samples += 1
@@ -250,15 +363,20 @@ class CompassMonitor:
         while self._window and self._window[0][0] <= time_s - self.settings.window_s:
             _, old_dip, old_field = self._window.popleft()
             self._win.add(old_dip, old_field, -1)
-        return self._judge(time_s) if self.judged else None
 
     def _excess(self) -> float:
-        """The larger of the window's two distances from the reference, as a fraction of its threshold."""
+        """The largest of the window's distances from the reference (dip, |B|) and of the turn mismatch, each
+        as a fraction of its threshold (those not yet judged count 0)."""
         t = self._thresholds
-        dip = abs(self._win.dip_mean() - self._expected_dip) / t.dip_deg
-        if self._field_uT is None or not self._win.nf:
-            return dip
-        return max(dip, abs(self._win.field_mean() / self._field_uT - 1.0) / t.field)
+        excess = [0.0]
+        if self.judged:
+            excess.append(abs(self._win.dip_mean() - self._expected_dip) / t.dip_deg)
+            if self._field_uT is not None and self._win.nf:
+                excess.append(abs(self._win.field_mean() / self._field_uT - 1.0) / t.field)
+        if self.turn_judged:  # else the last judgement holds: a vehicle that stopped turning shows nothing new
+            self._turn_excess = self._turn.mismatch() / self._turn_threshold()
+        excess.append(self._turn_excess)
+        return max(excess)
 
     def _judge(self, time_s: float) -> CompassEvent | None:
         excess = self._excess()
@@ -285,6 +403,8 @@ class CompassMonitor:
             first_field_ratio=f.field_mean() / b0,
             threshold_dip_deg=self._thresholds.dip_deg,
             threshold_field=self._thresholds.field,
+            turn_mismatch=self._turn.mismatch(),
+            threshold_turn=self._turn_threshold(),
             inconsistent=self.inconsistent,
             warnings=self.warnings,
         )

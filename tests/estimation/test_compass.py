@@ -17,7 +17,13 @@ from mavattitude.estimation.compass import (
     reference_dip_deg,
     thresholds,
 )
-from mavattitude.estimation.conventions import quat_from_euler, rotate_ned_to_body
+from mavattitude.estimation.conventions import (
+    quat_conjugate,
+    quat_from_euler,
+    quat_multiply,
+    rotate_ned_to_body,
+    rotvec_from_quat,
+)
 from mavattitude.sensors.magref import field_from_angles
 
 G = 9.80665
@@ -122,9 +128,45 @@ def test_the_heading_uncertain_covariance_adds_variance_about_the_vertical_only(
     assert across @ cov @ across == pytest.approx(across @ base @ across)
 
 
-def test_fast_rotation_is_not_judged():
+def test_fast_rotation_is_not_quiet():
     m = _monitor()
     acc, mag = _body(quat_from_euler(0.0, 0.0, 0.0), flip_z=True)
     spinning = (0.0, 0.0, np.radians(CompassSettings().max_rate_dps + 1.0))
-    assert all(m.update(0.02 * i, acc, mag, spinning) is None for i in range(200))
-    assert m.samples == 0 and not m.suspect(acc, mag, spinning)
+    for i in range(200):
+        m.update(0.02 * i, acc, mag, spinning)
+    assert m.samples == 0 and not m.judged and not m.suspect(acc, mag, spinning)
+
+
+def _turning(flip: np.ndarray, seconds: float = 20.0, seed: int = 5) -> list:
+    """A level vehicle rolling, pitching and yawing (±20°, 0.2–0.5 Hz); its compass turned by ``flip``."""
+    rng = np.random.default_rng(seed)
+    freq, phase = rng.uniform(0.2, 0.5, 3), rng.uniform(0, 2 * np.pi, 3)
+    t = np.arange(0.0, seconds, 0.02)
+    angles = np.radians([20.0, 20.0, 90.0])[:, None] * np.sin(2 * np.pi * freq[:, None] * t + phase[:, None])
+    q = quat_from_euler(*angles)
+    events = []
+    m = _monitor()
+    for k in range(1, len(t)):
+        # body rate from consecutive attitudes: the rotation vector of q_{k-1}* ⊗ q_k over dt
+        w = rotvec_from_quat(quat_multiply(quat_conjugate(q[k - 1]), q[k])) / 0.02
+        acc, mag = _body(q[k])
+        event = m.update(t[k], acc, tuple((flip @ np.array(mag)).tolist()), tuple(w.tolist()))
+        events += [event] if event is not None else []
+    return events, m
+
+
+@pytest.mark.parametrize(
+    "flip",
+    [np.diag([-1.0, 1.0, 1.0]), np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])],
+    ids=["mirrored_x", "turned_90_about_z"],
+)
+def test_a_compass_turned_about_the_vertical_is_found_by_its_turn(flip):
+    events, m = _turning(flip)
+    assert events and events[0].inconsistent and events[0].time_s < 5.0
+    f = m.figures()
+    assert f.turn_off and f.turn_mismatch > 0.4 and "turns unlike the gyroscope" in f.describe()
+
+
+def test_a_good_compass_turns_with_the_gyroscope():
+    events, m = _turning(np.eye(3))
+    assert events == [] and m.figures().turn_mismatch < 0.01  # exact data: only the rate's discretisation
