@@ -66,6 +66,8 @@ from mavattitude.sensors.units import ImuSample
 
 log = logging.getLogger(__name__)
 
+COMPASS_PERIOD_S = 0.0199  # the monitor takes one tick per 20 ms (50 Hz) at most; just under: ticks jitter
+
 
 @dataclass(frozen=True)
 class AttitudeOutput:
@@ -346,6 +348,7 @@ class AttitudePipeline:
         self.counters = PipelineCounters(self.frontend.counters, estimator=self.estimator.counters)
         self.compass = CompassMonitor(_compass_settings(config), config.noise.accel_std_mps2, config.noise.mag_std_uT)
         self.compass_events: list[CompassEvent] = []  # verdict changes not yet taken by the service or replay
+        self._compass_at_s = -math.inf  # vehicle time of the last tick the monitor took
         self.mag_ref_ned_uT: Array | None = None
         self.last_error: MavAttitudeError | None = None
         self.magref = ReferenceTracker(config.reference.magnetic)
@@ -450,14 +453,23 @@ class AttitudePipeline:
         return [o for o in outputs if self._valid(o)]
 
     def _judge_compass(self, tick: ProcessedSample, mag_uT: tuple[float, float, float]) -> ProcessedSample:
-        """Feed the compass monitor; flag the tick ``MAG_INCONSISTENT`` when it judges the field off."""
+        """Feed the compass monitor (at most one tick per ``COMPASS_PERIOD_S``: the fused filter's ticks are its input
+        samples, and the figures need no more); flag the tick ``MAG_INCONSISTENT`` when it judges the field off."""
         compass = self.compass
+        since_s = tick.time_s - self._compass_at_s
+        if 0.0 <= since_s < COMPASS_PERIOD_S:
+            return self._flagged(tick) if compass.inconsistent else tick
+        self._compass_at_s = tick.time_s
         event = compass.update(tick.time_s, tick.acc_mps2, mag_uT, tick.gyr_radps)
         if event is not None:
             self.compass_events.append(event)
         if compass.suspect(tick.acc_mps2, mag_uT, tick.gyr_radps):
-            return dataclasses.replace(tick, flags=tick.flags | SampleFlag.MAG_INCONSISTENT)
+            return self._flagged(tick)
         return tick
+
+    @staticmethod
+    def _flagged(tick: ProcessedSample) -> ProcessedSample:
+        return dataclasses.replace(tick, flags=tick.flags | SampleFlag.MAG_INCONSISTENT)
 
     def take_compass_events(self) -> list[CompassEvent]:
         """The compass verdict's changes since the last call."""
