@@ -298,6 +298,7 @@ class CompassMonitor:
         self._field_uT: float | None = None
         self._thresholds = Thresholds(math.nan, math.nan, math.nan)
         self._turn = TurnCheck(settings.window_s)
+        self._dip_excess = 0.0  # the dip's (or |B|'s) distance over its threshold, as last judged
         self._turn_excess = 0.0  # the turn mismatch over its threshold, as last judged
         self.samples = 0
         self.inconsistent = False
@@ -380,17 +381,17 @@ class CompassMonitor:
 
     def _excess(self) -> float:
         """The largest of the window's distances from the reference (dip, |B|) and of the turn mismatch, each
-        as a fraction of its threshold (those not yet judged count 0)."""
+        as a fraction of its threshold (those never judged count 0)."""
+        # Each figure's last judgement holds while it has too few samples to judge: a vehicle that stopped
+        # turning, or that has not been quiet for a window, shows nothing new either way.
         t = self._thresholds
-        excess = [0.0]
         if self.judged:
-            excess.append(abs(self._win.dip_mean() - self._expected_dip) / t.dip_deg)
+            self._dip_excess = abs(self._win.dip_mean() - self._expected_dip) / t.dip_deg
             if self._field_uT is not None and self._win.nf:
-                excess.append(abs(self._win.field_mean() / self._field_uT - 1.0) / t.field)
-        if self.turn_judged:  # else the last judgement holds: a vehicle that stopped turning shows nothing new
+                self._dip_excess = max(self._dip_excess, abs(self._win.field_mean() / self._field_uT - 1.0) / t.field)
+        if self.turn_judged:
             self._turn_excess = self._turn.mismatch() / self._turn_threshold()
-        excess.append(self._turn_excess)
-        return max(excess)
+        return max(self._dip_excess, self._turn_excess)
 
     def _judge(self, time_s: float) -> CompassEvent | None:
         excess = self._excess()

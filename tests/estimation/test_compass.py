@@ -170,3 +170,15 @@ def test_a_compass_turned_about_the_vertical_is_found_by_its_turn(flip):
 def test_a_good_compass_turns_with_the_gyroscope():
     events, m = _turning(np.eye(3))
     assert events == [] and m.figures().turn_mismatch < 0.01  # exact data: only the rate's discretisation
+
+
+def test_no_new_evidence_does_not_clear_the_verdict():
+    m = _monitor()
+    _feed(m, 100, flip_z=True)
+    assert m.inconsistent
+    acc, mag = _body(quat_from_euler(0.0, 0.0, 0.0), flip_z=True)
+    strong = tuple(1.5 * a for a in acc)
+    for i in range(1000):  # 20 s of high acceleration: not one quiet sample, the window ages out
+        m.update(2.0 + 0.02 * i, strong, mag, STILL)
+    m.update(30.0, acc, mag, STILL)  # one quiet sample: too few to judge anew
+    assert m.inconsistent and m.warnings == 1
