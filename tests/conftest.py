@@ -9,9 +9,21 @@ from __future__ import annotations
 
 import logging
 import random
+import signal
 from collections.abc import Iterator
 
 import pytest
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Commands started by a test get SIGINT as from a terminal, however the suite itself was started.
+
+    A suite started in the background by a script (``cmd &``, nohup) inherits SIGINT ignored, and an
+    ignored signal stays ignored across exec: every command a test then interrupts would run on until its
+    time-out. A handler here (not SIG_IGN) is reset to the default in each child.
+    """
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
