@@ -189,17 +189,19 @@ def config_for(vehicle: FakeVehicle, **sections: Mapping[str, Any]) -> dict[str,
     """A service config that matches ``vehicle``: its port, message, profile, rate, field and noise.
 
     The noise σ given to the service are the sensor model's (floored at the encoding's quantisation σ,
-    LSB/√12, so an ideal sensor still gets a positive σ).
+    LSB/√12, so an ideal sensor still gets a positive σ); not with ``estimator.method: fused``, whose σ are
+    its own effective values (``estimator.fused``) and which refuses a ``noise`` section.
     """
     cfg = vehicle.config
     sensors = vehicle.sensors
-    matched = {
+    matched: dict[str, Any] = {
         "link": {"request_rate_hz": sensors.rate_hz},
         "input": {"message": cfg.message, "profile": cfg.profile},
         "reference": {"magnetic": {"field_ned_uT": [float(v) for v in vehicle.script.mag_ned_uT]}},
-        "noise": {
+    }
+    if sections.get("estimator", {}).get("method") != "fused":
+        matched["noise"] = {
             "accel_std_mps2": [max(float(s), 0.003) for s in sensors.accel.noise_std],
             "mag_std_uT": [max(float(s), 0.03) for s in sensors.mag.noise_std],
-        },
-    }
+        }
     return service_config(vehicle.port, **deep_merge(matched, sections))
