@@ -215,6 +215,7 @@ class FusedFilter:
         self._arrays = None
 
     def _measure(self, acc_mps2: ArrayLike, mag_uT: ArrayLike | None, time_s: float) -> None:
+        """The update's measurements, each accumulated into the error state."""
         ekf, s = self._ekf, self.settings
         raw = (float(acc_mps2[0]), float(acc_mps2[1]), float(acc_mps2[2]))
         if not math.isfinite(raw[0] + raw[1] + raw[2]) or math.sqrt(dot(raw, raw)) < 1e-3 * s.gravity_mps2:
@@ -223,40 +224,44 @@ class FusedFilter:
         self.counters["updates"] += 1
         if s.rest_gyro_std_radps > 0.0:
             self._rest_update(raw, time_s)
-        r_g = rotation_matrix_parts(self._ekf.q_gyro)
-        a_earth = _matvec(r_g, raw)  # R(q_g) a
-        lp_m, lp_r = self._lp_measure.step(a_earth), self._lp_reject.step(a_earth)
-        acc = rotate_ned_to_body_parts(r_g, lp_m)
+        acc, sigma_a2 = self._prefiltered(raw)
         acc_norm = math.sqrt(dot(acc, acc))
-        lag2 = (lp_m[0] - lp_r[0]) ** 2 + (lp_m[1] - lp_r[1]) ** 2 + (lp_m[2] - lp_r[2]) ** 2
         r = rotation_matrix_parts(ekf.q)
-        down_body: Vec3 = (r[6], r[7], r[8])  # A(q) e_D
         mag = None if mag_uT is None else self._mag.corrected((float(mag_uT[0]), float(mag_uT[1]), float(mag_uT[2])))
         d = mag_norm = math.inf
         if mag is not None:
-            d, mag_norm, dip = self._mag.check(mag, down_body, ekf.p_tt[0] + ekf.p_tt[4] + ekf.p_tt[8])
-            if math.isfinite(d):
-                self.counters["mag_relearned"] += self._mag.observe(d, mag_norm, dip, time_s)
-                self.counters["mag_offset_learned"] += self._mag.learn_offset(mag, r, time_s)
-            self.counters["mag_disturbed"] += d >= 1.0
-        g = s.gravity_mps2
-        sigma_a2 = (
-            s.accel_std_mps2**2
-            + (s.accel_norm_gain * (math.sqrt(dot(lp_r, lp_r)) - g)) ** 2
-            + s.accel_lag_gain**2 * lag2
-        )
+            d, mag_norm = self._check_field(mag, r, time_s)
         if mag is not None and d < 1.0:
-            sigma_a2 += (
-                s.accel_residual_gain * s.gravity_mps2 * self._vector_residual(acc, acc_norm, mag, mag_norm)
-            ) ** 2
+            residual = self._vector_residual(acc, acc_norm, mag, mag_norm)
+            sigma_a2 += (s.accel_residual_gain * s.gravity_mps2 * residual) ** 2
         # Past half a radian of direction noise the accelerometer tells nothing the gyro does not know.
         self._tilt_update(acc, acc_norm, min(math.sqrt(sigma_a2), _MAX_UNIT_STD * acc_norm), r)
         if mag is not None and d < 1.0:
-            sigma_m2 = s.mag_std_uT**2 * self._mag.sigma2_factor(d, time_s)
-            sigma_m2 = min(sigma_m2, (_MAX_UNIT_STD * mag_norm) ** 2)
+            sigma_m2 = min(s.mag_std_uT**2 * self._mag.sigma2_factor(d, time_s), (_MAX_UNIT_STD * mag_norm) ** 2)
             if self._heading_update(mag, mag_norm, sigma_m2, r):
                 return
         self.counters["tilt_only_updates"] += 1
+
+    def _prefiltered(self, raw: Vec3) -> tuple[Vec3, float]:
+        """``ã`` (the long pre-filter, body frame) and ``σ_a'²`` without the residual term (module docstring)."""
+        s = self.settings
+        r_g = rotation_matrix_parts(self._ekf.q_gyro)
+        a_earth = _matvec(r_g, raw)  # R(q_g) a
+        lp_m, lp_r = self._lp_measure.step(a_earth), self._lp_reject.step(a_earth)
+        lag2 = (lp_m[0] - lp_r[0]) ** 2 + (lp_m[1] - lp_r[1]) ** 2 + (lp_m[2] - lp_r[2]) ** 2
+        norm_dev = math.sqrt(dot(lp_r, lp_r)) - s.gravity_mps2
+        sigma_a2 = s.accel_std_mps2**2 + (s.accel_norm_gain * norm_dev) ** 2 + s.accel_lag_gain**2 * lag2
+        return rotate_ned_to_body_parts(r_g, lp_m), sigma_a2
+
+    def _check_field(self, mag: Vec3, r: Sequence[float], time_s: float) -> tuple[float, float]:
+        """``(d, |m|)``; the disturbance tracked, the field learnt, the hard-iron offset gathered."""
+        p = self._ekf.p_tt
+        d, mag_norm, dip = self._mag.check(mag, (r[6], r[7], r[8]), p[0] + p[4] + p[8])
+        if math.isfinite(d):
+            self.counters["mag_relearned"] += self._mag.observe(d, mag_norm, dip, time_s)
+            self.counters["mag_offset_learned"] += self._mag.learn_offset(mag, r, time_s)
+        self.counters["mag_disturbed"] += d >= 1.0
+        return d, mag_norm
 
     def _vector_residual(self, acc: Vec3, acc_norm: float, mag: Vec3, mag_norm: float) -> float:
         """IGN residual as an angle: measured angle between the vectors minus the reference angle."""
