@@ -270,18 +270,22 @@ def test_periodic_counters_lines_say_what_changed_the_whole_line_at_debug(served
     lock_on(vehicle)
     vehicle.stream(100)
     vehicle.wait_for("ATTITUDE_QUATERNION")
-    wait_until(vehicle, lambda: any(r.getMessage().startswith("counters: received=100 ") for r in caplog.records))
-    mark = len(caplog.records)
+
+    def ours() -> list[str]:  # this service's lines (its thread's), should another test's still run
+        return [r.getMessage() for r in caplog.records if r.thread == running.thread.ident]
+
+    wait_until(vehicle, lambda: any(m.startswith("counters: received=100 ") for m in ours()))
+    mark = len(ours())
     # Three more periods (0.2 s each) with no more input: the DEBUG line is whole, the INFO line holds only
     # what moved (our heartbeats' "sent", nothing at all in most periods), never "received=100" again.
-    wait_until(vehicle, lambda: sum(r.getMessage().startswith("counters (all): ") for r in caplog.records[mark:]) >= 3)
-    later = [r.getMessage() for r in caplog.records[mark:]]
+    wait_until(vehicle, lambda: sum(m.startswith("counters (all): ") for m in ours()[mark:]) >= 3)
+    later = ours()[mark:]
     whole = [m for m in later if m.startswith("counters (all): ")]
     short = [m for m in later if m.startswith("counters: ")]
     assert all("received=100 " in m and "rejected.decode=0" in m for m in whole)
     assert len(short) < len(whole) and not any("received=" in m or "ignored=" in m for m in short)
     running.finish()
-    final = [r.getMessage() for r in caplog.records if r.getMessage().startswith("counters (final): ")]
+    final = [m for m in ours() if m.startswith("counters (final): ")]
     assert len(final) == 1 and "received=100 " in final[0]  # the end says everything
 
 
