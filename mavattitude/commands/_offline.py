@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import csv
 import logging
 import sys
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
@@ -105,31 +104,32 @@ def config_from_args(args: argparse.Namespace, extra: dict[str, Any] | None = No
     return load_config(args.config, overrides)
 
 
-def write_outputs(path: str | Path, rows: Iterable[Sequence[Any]]) -> int:
-    """Write the attitude CSV (``OUTPUT_COLUMNS``); returns the number of rows."""
-    n = 0
-    with open_text(path, "w") as f:
-        writer = csv.writer(f, lineterminator="\n")
-        writer.writerow(OUTPUT_COLUMNS)
-        for row in rows:
-            writer.writerow(row)
-            n += 1
-    return n
+#: printf formats of ``OUTPUT_COLUMNS``: time to the µs, quaternion to 1e-9, angles to 1e-4°, covariance.
+ROW_FORMAT = ["%.6f", *["%.9f"] * 4, *["%.4f"] * 3, "%d", "%d", *["%.6e"] * 6]
 
 
-def output_row(out: AttitudeOutput) -> list[str]:
-    """One CSV row (``OUTPUT_COLUMNS``): the covariance is of the body-frame error angles, rad² (NaN: none)."""
+def write_outputs(path: str | Path, outputs: Sequence[AttitudeOutput]) -> int:
+    """Write the attitude CSV (``OUTPUT_COLUMNS``), Euler angles computed for all rows at once; returns the
+    number of rows. The covariance is of the body-frame error angles, rad² (NaN: none)."""
     from mavattitude.estimation.conventions import euler_from_quat
 
-    rpy_deg = np.degrees(euler_from_quat(out.q))
-    return [
-        f"{out.time_s:.6f}",
-        *(f"{v:.9f}" for v in out.q),
-        *(f"{v:.4f}" for v in rpy_deg),
-        str(out.iterations),
-        str(int(out.converged)),
-        *(f"{v:.6e}" for v in out.covariance_or_nan()[_UPPER]),
-    ]
+    n = len(outputs)
+    q = np.array([o.q for o in outputs], dtype=float).reshape(n, 4)
+    table = np.column_stack(
+        [
+            np.array([o.time_s for o in outputs], dtype=float),
+            q,
+            np.degrees(euler_from_quat(q)).reshape(n, 3),
+            np.array([o.iterations for o in outputs], dtype=float),
+            np.array([o.converged for o in outputs], dtype=float),
+            np.array([o.covariance_or_nan()[_UPPER] for o in outputs], dtype=float).reshape(n, 6),
+        ]
+    )
+    with open_text(path, "w") as f:
+        f.write(",".join(OUTPUT_COLUMNS) + "\n")
+        if n:
+            np.savetxt(f, table, fmt=ROW_FORMAT, delimiter=",")
+    return n
 
 
 def summarise_compass(pipeline: AttitudePipeline, source: str, logger: logging.Logger) -> None:

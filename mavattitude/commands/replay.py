@@ -43,7 +43,6 @@ from mavattitude.commands._offline import (
     Progress,
     add_config_arguments,
     config_from_args,
-    output_row,
     summarise,
     write_outputs,
 )
@@ -224,7 +223,7 @@ def replay_log(job: Job) -> LogResult:
     except MavAttitudeError as exc:
         return dataclasses.replace(result, status="failed", note=str(exc))
     _fill(result, replayed)
-    write_outputs(job.csv, (output_row(o) for o in replayed.outputs))
+    write_outputs(job.csv, replayed.outputs)
     log.info("%s: wrote %d attitudes to %s", job.log, result.outputs, job.csv)
     damage = getattr(source, "damage", None)
     if damage:

@@ -28,7 +28,6 @@ from mavattitude.commands._offline import (
     Progress,
     add_config_arguments,
     config_from_args,
-    output_row,
     summarise,
     write_outputs,
 )
@@ -121,15 +120,14 @@ def run(args: argparse.Namespace) -> int:
     # Without gyro columns: zero rates (the snapshot solve does not use them, and the CSV output has none).
     gyr = data["gyr"].tolist() if "gyr" in data else [[0.0] * 3] * n
     progress = Progress(n, args.progress, f"solve {Path(args.input).name}")
-    rows = []
+    outputs = []
     for i in range(n):
-        for o in pipeline.push(ImuSample(t[i], tuple(acc[i]), tuple(gyr[i]), tuple(mag[i]))):
-            rows.append(output_row(o))
+        outputs += pipeline.push(ImuSample(t[i], tuple(acc[i]), tuple(gyr[i]), tuple(mag[i])))
         if i % 1000 == 0 or i == n - 1:
             progress.update(i + 1)
     summarise(pipeline, n, args.input)
-    write_outputs(args.output, rows)
-    log.info("wrote %d attitudes to %s", len(rows), args.output)
+    write_outputs(args.output, outputs)
+    log.info("wrote %d attitudes to %s", len(outputs), args.output)
     if args.save_mag_offset:
         save_mag_offset(args.save_mag_offset, config, pipeline.estimator.counters())
     return 0
