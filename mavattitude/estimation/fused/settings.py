@@ -32,9 +32,9 @@ class FusedSettings:
 
     gyro_noise_radps: float = _setting(0.003, "σ_g: gyro angle random walk, rad/s/√Hz (effective)")
     gyro_scale_fraction: float = _setting(0.005, "s_g: gyro scale-factor error, per rad turned", hi=0.5)
-    gyro_bias_walk_radps2: float = _setting(3e-5, "σ_b: gyro bias random walk, rad/s/√s")
+    gyro_bias_walk_radps2: float = _setting(2e-5, "σ_b: gyro bias random walk, rad/s/√s")
     gyro_bias_init_radps: float = _setting(0.02, "σ_b0: start-up gyro bias uncertainty, rad/s")
-    accel_std_mps2: float = _setting(0.2, "σ_a: pre-filtered specific force σ per axis, m/s²", lo_open=True)
+    accel_std_mps2: float = _setting(0.1333, "σ_a: pre-filtered specific force σ per axis, m/s²", lo_open=True)
     accel_lowpass_s: float = _setting(
         1.333, "τ_a: the earth-frame accelerometer pre-filter the tilt measures, s (0: off)", hi=60.0
     )
