@@ -464,7 +464,7 @@ def test_broad_slice_stays_within_the_full_file_figure(trial: str, stop_s: float
 
 def test_a_misoriented_compass_on_a_real_recording_leaves_roll_and_pitch() -> None:
     """BROAD 08 (fast rotation, 0–60 s) with the magnetometer's z axis flipped: roll and pitch within 1° RMS
-    of the good-compass run (the target; measured 0.03° on the whole file, tools/tune_fused.py --misoriented).
+    of the good-compass run (the target; measured 0.02° on the whole file, tools/tune_fused.py --misoriented).
     Data: Laidig et al., BROAD, Data 6(7):72, 2021, doi:10.3390/data6070072 (CC BY 4.0)."""
     from mavattitude.validation.loaders import load_recording
 
