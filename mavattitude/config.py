@@ -35,6 +35,7 @@ import yaml
 
 from mavattitude.errors import ConfigError
 from mavattitude.estimation import METHODS
+from mavattitude.estimation.compass import CompassSettings
 from mavattitude.estimation.fused.settings import FusedSettings
 from mavattitude.sensors.calibration import Calibration, Mat3, Vec3
 from mavattitude.sensors.magref import MagneticReference
@@ -281,32 +282,6 @@ class EstimatorConfig:
 
 
 @dataclass(frozen=True)
-class CompassConfig:
-    enabled: bool = field(
-        default=True,
-        metadata=_meta(_boolean, "judge the compass (dip, |B|); off, IGN takes only heading from it"),
-    )
-    window_s: float = field(
-        default=10.0, metadata=_meta(_number(1.0, 3600.0), "sliding window of the dip and |B| figures, s")
-    )
-    low_accel_fraction: float = field(
-        default=0.05, metadata=_meta(_number(0.0, 0.5, lo_open=True), "samples with ||a| − g| below this · g count")
-    )
-    max_rate_dps: float = field(
-        default=60.0, metadata=_meta(_number(0.0, 2000.0, lo_open=True), "and rotating slower than this, deg/s")
-    )
-    dip_allowance_deg: float = field(
-        default=10.0, metadata=_meta(_number(0.0, 90.0), "dip error calibration and field model explain, deg")
-    )
-    field_allowance: float = field(
-        default=0.15, metadata=_meta(_number(0.0, 1.0), "|B| error calibration and field model explain, fraction")
-    )
-    turn_allowance: float = field(
-        default=0.2, metadata=_meta(_number(0.0, 10.0), "share of the field's turn it may make unlike the gyroscope")
-    )
-
-
-@dataclass(frozen=True)
 class CrossCheckConfig:
     enabled: bool = field(
         default=True, metadata=_meta(_boolean, "compare with the autopilot's ATTITUDE and publish the difference")
@@ -357,7 +332,7 @@ class Config:
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
     estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
-    compass: CompassConfig = field(default_factory=CompassConfig)
+    compass: CompassSettings = field(default_factory=CompassSettings)
     crosscheck: CrossCheckConfig = field(default_factory=CrossCheckConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
     logging: LoggingConfig = field(default_factory=LoggingConfig)
@@ -412,7 +387,7 @@ def _check_of(f: dataclasses.Field, hint: Any) -> Check | None:
     return f.metadata.get("check") or _CHECK_BY_TYPE.get(hint)
 
 
-_CHECK_BY_TYPE: dict[Any, Check] = {Vec3: _vec3, Mat3: _mat3}
+_CHECK_BY_TYPE: dict[Any, Check] = {bool: _boolean, Vec3: _vec3, Mat3: _mat3}
 
 
 def _cross_check(c: Config) -> None:

@@ -51,7 +51,7 @@ from numpy.typing import NDArray
 from mavattitude.config import Config
 from mavattitude.errors import ConfigError, InputError, MavAttitudeError
 from mavattitude.estimation import SNAPSHOT_METHODS, NoiseModel, solve
-from mavattitude.estimation.compass import CompassEvent, CompassMonitor, CompassSettings, heading_uncertain
+from mavattitude.estimation.compass import CompassEvent, CompassMonitor, heading_uncertain
 from mavattitude.estimation.conventions import Array, is_unit_quaternion_parts
 from mavattitude.sensors.frontend import (
     FrontEnd,
@@ -155,19 +155,6 @@ class Estimator(Protocol):
 
 def _noise_model(config: Config) -> NoiseModel:
     return NoiseModel(accel_std=config.noise.accel_std_mps2, mag_std=config.noise.mag_std_uT)
-
-
-def _compass_settings(config: Config) -> CompassSettings:
-    c = config.compass
-    return CompassSettings(
-        c.enabled,
-        c.window_s,
-        c.low_accel_fraction,
-        c.max_rate_dps,
-        c.dip_allowance_deg,
-        c.field_allowance,
-        c.turn_allowance,
-    )
 
 
 class SnapshotEstimator:
@@ -346,7 +333,7 @@ class AttitudePipeline:
         except MavAttitudeError as exc:
             raise ConfigError(f"front end: {exc}") from exc
         self.counters = PipelineCounters(self.frontend.counters, estimator=self.estimator.counters)
-        self.compass = CompassMonitor(_compass_settings(config), config.noise.accel_std_mps2, config.noise.mag_std_uT)
+        self.compass = CompassMonitor(config.compass, config.noise.accel_std_mps2, config.noise.mag_std_uT)
         self.compass_events: list[CompassEvent] = []  # verdict changes not yet taken by the service or replay
         self._compass_at_s = -math.inf  # vehicle time of the last tick the monitor took
         self.mag_ref_ned_uT: Array | None = None

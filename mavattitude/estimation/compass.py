@@ -48,7 +48,8 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -87,18 +88,25 @@ def rms_sigma(std: Vec3) -> float:
     return math.sqrt((std[0] ** 2 + std[1] ** 2 + std[2] ** 2) / 3.0)
 
 
+def _setting(default: float, doc: str, lo: float, hi: float, lo_open: bool = False) -> Any:
+    """A field in ``[lo, hi]`` (``(lo, hi]`` with ``lo_open``) with its description: the config checks it."""
+    return field(default=default, metadata={"doc": doc, "range": (lo, hi, lo_open)})
+
+
 @dataclass(frozen=True)
 class CompassSettings:
-    """How the monitor judges (see the module docstring); ``config.compass`` in the project config."""
+    """How the monitor judges (see the module docstring): the config's ``compass`` section itself."""
 
-    enabled: bool = True
-    window_s: float = 10.0
-    low_accel_fraction: float = 0.05
-    max_rate_dps: float = 60.0
-    dip_allowance_deg: float = 10.0
-    field_allowance: float = 0.15
-    turn_allowance: float = 0.2
-    min_samples: int = 25  # quiet samples in the window before judging (0.5 s at 50 Hz)
+    enabled: bool = field(
+        default=True, metadata={"doc": "judge the compass (dip, |B|); off, IGN takes only heading from it"}
+    )
+    window_s: float = _setting(10.0, "sliding window of the dip and |B| figures, s", 1.0, 3600.0)
+    low_accel_fraction: float = _setting(0.05, "samples with ||a| − g| below this · g count", 0.0, 0.5, True)
+    max_rate_dps: float = _setting(60.0, "and rotating slower than this, deg/s", 0.0, 2000.0, True)
+    dip_allowance_deg: float = _setting(10.0, "dip error calibration and field model explain, deg", 0.0, 90.0)
+    field_allowance: float = _setting(0.15, "|B| error calibration and field model explain, fraction", 0.0, 1.0)
+    turn_allowance: float = _setting(0.2, "share of the field's turn it may make unlike the gyroscope", 0.0, 10.0)
+    min_samples: ClassVar[int] = 25  # quiet samples in the window before judging (0.5 s at 50 Hz)
 
 
 @dataclass(frozen=True)
