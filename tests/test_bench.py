@@ -16,6 +16,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.shared import shared_path
+
 ROOT = Path(__file__).resolve().parents[1]
 QUICK_TIMEOUT_S = 120  # the quick run takes seconds; this only bounds a hung one
 # A number with its unit (possibly followed by detail: "0 of 3995", "2000 Hz (tried 2000 Hz)"), or "none (...)".
@@ -45,6 +47,7 @@ def _table_rows(text: str) -> dict[tuple[str, str], tuple[str, str]]:
 
 
 def test_quick_run_prints_every_figure_as_a_number_and_exits_by_its_verdicts(tmp_path):
+    shared_path("data", "px4", "sample.ulg")  # the replay section times pyulog on this real log
     out = tmp_path / "bench.md"
     result = subprocess.run(
         [sys.executable, str(ROOT / "tools" / "bench.py"), "--quick", "--output", str(out)],
