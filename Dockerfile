@@ -27,19 +27,20 @@ ENV PIP_DISABLE_PIP_VERSION_CHECK=1 \
     PYTHONDONTWRITEBYTECODE=1 \
     PYTHONUNBUFFERED=1 \
     MAVATTITUDE_ALIVE_FILE=/tmp/mavattitude.alive
-# The run-time dependencies are installed from docker/requirements.lock: exact versions with their hashes
-# (every one a prebuilt wheel for CPython 3.11 on x86_64 and aarch64, so no compiler), so a rebuild gets
-# the same packages; then the wheel alone. Both are bind-mounted, never copied into a layer.
+# The run-time dependencies come from docker/requirements.lock: exact versions with their hashes (every
+# one a prebuilt wheel for CPython 3.11 on x86_64 and aarch64, so no compiler), so a rebuild gets the same
+# packages. Their layer comes first: a change to the code alone rebuilds only the wheel's layer below.
 RUN --mount=type=bind,source=docker/requirements.lock,target=/tmp/requirements.lock \
-    --mount=type=bind,from=build,source=/wheels,target=/wheels \
     pip install --no-cache-dir --require-hashes -r /tmp/requirements.lock \
-    && pip install --no-cache-dir --no-deps /wheels/*.whl \
-    && pip check \
     && groupadd --system --gid 10001 mavattitude \
     && useradd --system --uid 10001 --gid 10001 --groups dialout --no-create-home --shell /usr/sbin/nologin mavattitude \
     && mkdir -p /etc/mavattitude
 # The config comes from the host: mount a directory holding config.yaml (see configs/*.yaml), read-only.
 VOLUME ["/etc/mavattitude"]
+# The wheel alone, bind-mounted from the build stage (never copied into a layer); pip check: nothing missing.
+RUN --mount=type=bind,from=build,source=/wheels,target=/wheels \
+    pip install --no-cache-dir --no-deps /wheels/*.whl \
+    && pip check
 # A uid with no group: Docker then applies the user's groups from /etc/group, dialout (gid 20) among them,
 # which opens a serial device passed with `--device /dev/ttyACM0`. (`USER 10001:10001` would drop them.)
 USER 10001

@@ -135,7 +135,10 @@ def test_systemctl_stop_is_clean(installed: Installed) -> None:
         installed.sh(f"systemctl start {UNIT}")
 
 
-def test_security_exposure_of_the_installed_unit(installed: Installed) -> None:
+def test_installed_unit_verifies_and_its_security_exposure_is_low(installed: Installed) -> None:
+    # What the README says: verify passes once ExecStart= exists, i.e. after the install.
+    verify = installed.machine.sh(f"systemd-analyze verify /etc/systemd/system/{UNIT}", check=False)
+    assert verify.returncode == 0 and verify.stderr.strip() == "", verify.stderr
     report = installed.sh(f"systemd-analyze security --no-pager {UNIT}")
     exposure = re.search(r"Overall exposure level for mavattitude\.service: ([0-9.]+)", report)
     assert exposure is not None and float(exposure[1]) <= MAX_EXPOSURE, report[-1500:]
