@@ -27,8 +27,10 @@ OUTPUT_TIMEOUT_S = 30.0  # first attitude from a service just started in a conta
 MAX_ANGLE_RMS_DEG = 1.0  # static hold, paper-grade sensors: the e2e tests' bound (tests/e2e/test_profiles.py)
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def deploy_host() -> Iterator[None]:
+    """The machine's go-ahead and the lock, for one module: held to its end, not the session's, so another
+    suite's deployment tests wait only for these, not for everything that runs after them here."""
     reason = machine.why_not()
     if reason is not None:
         pytest.skip(f"deployment tests cannot run here: {reason}")
