@@ -124,23 +124,25 @@ def test_truncated_files(tmp_path: Path, command: str, suffix: str, fraction: fl
 
 
 FORMATS = (".csv", ".csv.gz", ".tlog", ".bin", ".yaml")  # .ulg: no writer yet, only the shared real logs
+LOG_FORMATS = {".tlog", ".bin", ".ulg"}
+# Every (command, file name, content) where the content is not what the name says; replay tells the log
+# formats apart by their content, so a log under another log's name is no error there.
+MISNAMED = [
+    (command, suffix, content)
+    for command, suffix in CASES
+    for content in FORMATS
+    if content != suffix and not (command == "replay" and {content, suffix} <= LOG_FORMATS)
+]
+UNREAD = [(command, suffix) for command in COMMANDS for suffix in FORMATS if suffix not in COMMANDS[command][1]]
 
 
-@pytest.mark.parametrize(("command", "suffix"), CASES)
-@pytest.mark.parametrize("content", FORMATS)
+@pytest.mark.parametrize(("command", "suffix", "content"), MISNAMED)
 def test_a_file_whose_content_is_not_what_its_name_says(
     tmp_path: Path, command: str, suffix: str, content: str
 ) -> None:
-    if content == suffix:
-        pytest.skip("the content its name says")
-    if command == "replay" and {content, suffix} <= {".tlog", ".bin", ".ulg"}:
-        pytest.skip("replay tells the log formats apart by their content")
     assert_one_line_error(run_on(tmp_path, command, suffix, good_bytes(content)), command, "input")
 
 
-@pytest.mark.parametrize("command", COMMANDS)
-@pytest.mark.parametrize("suffix", FORMATS)
+@pytest.mark.parametrize(("command", "suffix"), UNREAD)
 def test_a_format_the_command_does_not_read(tmp_path: Path, command: str, suffix: str) -> None:
-    if suffix in COMMANDS[command][1]:
-        pytest.skip("a format it reads")
     assert_one_line_error(run_on(tmp_path, command, suffix, good_bytes(suffix)), command, "input")
