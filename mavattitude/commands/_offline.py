@@ -18,6 +18,7 @@ from mavattitude.estimation import METHODS
 from mavattitude.files import open_text
 
 if TYPE_CHECKING:
+    from mavattitude.estimation.compass import CompassFigures
     from mavattitude.pipeline import AttitudeOutput, AttitudePipeline
 
 COVARIANCE_COLUMNS = ("cov_xx_rad2", "cov_xy_rad2", "cov_xz_rad2", "cov_yy_rad2", "cov_yz_rad2", "cov_zz_rad2")
@@ -141,20 +142,23 @@ def summarise_compass(pipeline: AttitudePipeline, source: str, logger: logging.L
             logger.warning("%s: t=%.1f s: %s", source, event.time_s, compass_warning(event.figures))
         else:
             logger.info("%s: t=%.1f s: compass consistent again: %s", source, event.time_s, event.figures.describe())
-    f = pipeline.compass.figures()
-    logger.info(
-        "%s: compass: dip %.1f° (spread %.1f°, first minute %.1f°) vs expected %.1f°, |B| %.2f of the expected "
-        "(spread %.2f, first minute %.2f), %d quiet samples, judged inconsistent %d time(s)",
-        source,
-        f.dip_deg,
-        f.dip_std_deg,
-        f.first_dip_deg,
-        f.expected_dip_deg,
-        f.field_ratio,
-        f.field_std,
-        f.first_field_ratio,
-        f.samples,
-        f.warnings,
+    logger.info("%s: %s", source, compass_summary(pipeline.compass.figures()))
+
+
+def compass_summary(f: CompassFigures) -> str:
+    """The compass monitor's figures over a log as one line; what was not measured is said so, not ``nan``."""
+    if f.samples == 0:
+        return "compass: no quiet sample (the vehicle never rested): dip and |B| not judged"
+    field = (
+        f"|B| {f.field_ratio:.2f} of the expected (spread {f.field_std:.2f}, first minute {f.first_field_ratio:.2f})"
+        if f.field_ratio == f.field_ratio
+        else "|B| not compared (the magnetic reference gives no field strength: reference.magnetic.intensity_uT "
+        "or a position for the World Magnetic Model)"
+    )
+    return (
+        f"compass: dip {f.dip_deg:.1f}° (spread {f.dip_std_deg:.1f}°, first minute {f.first_dip_deg:.1f}°) vs "
+        f"expected {f.expected_dip_deg:.1f}°, {field}, {f.samples} quiet samples, judged inconsistent "
+        f"{f.warnings} time(s)"
     )
 
 

@@ -123,6 +123,20 @@ def test_replay_writes_the_attitude_and_compares_with_the_autopilot(tmp_path, ca
     assert "other system or component" in captured.err  # vehicle 2 and the ground station were skipped
 
 
+def test_the_compass_line_says_when_the_field_strength_is_not_known(tmp_path, capsys):
+    """Declination and inclination give no intensity: |B| is not compared, and the line says so (not ``nan``);
+    with a full field vector it is compared."""
+    log = write_tlog(tmp_path / "flight.tlog", seconds=2.0, second_vehicle=False, attitude=False)
+    assert main(["replay", str(log), "-o", str(tmp_path / "a.csv"), *REF]) == 0
+    line = next(x for x in capsys.readouterr().err.splitlines() if ": compass: dip" in x)
+    assert "|B| not compared (the magnetic reference gives no field strength" in line and "nan" not in line
+    field = field_from_angles(DECL, INCL, F_UT)
+    assert main(["replay", str(log), "-o", str(tmp_path / "b.csv"), "--mag-ref-ned", *map(str, field)]) == 0
+    line = next(x for x in capsys.readouterr().err.splitlines() if ": compass: dip" in x)
+    ratio = float(line.split("|B| ")[1].split()[0])
+    assert ratio == pytest.approx(1.0, abs=0.05)  # the written field, 0.3 µT noise on 49 µT
+
+
 def test_the_configured_system_id_selects_the_vehicle(tmp_path, capsys):
     log = write_tlog(tmp_path / "two.tlog", attitude=False)
     config = tmp_path / "c.yaml"
