@@ -36,8 +36,10 @@ import yaml
 from mavattitude.errors import ConfigError
 from mavattitude.estimation import METHODS
 from mavattitude.estimation.compass import CompassSettings
+from mavattitude.estimation.conventions import Mat3, Vec3
+from mavattitude.estimation.crosscheck import CrossCheckSettings
 from mavattitude.estimation.fused.settings import FusedSettings
-from mavattitude.sensors.calibration import Calibration, Mat3, Vec3
+from mavattitude.sensors.calibration import Calibration
 from mavattitude.sensors.magref import MagneticReference
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES, CustomScales
 
@@ -282,25 +284,6 @@ class EstimatorConfig:
 
 
 @dataclass(frozen=True)
-class CrossCheckConfig:
-    enabled: bool = field(
-        default=True, metadata=_meta(_boolean, "compare with the autopilot's ATTITUDE and publish the difference")
-    )
-    attitude_rate_hz: float = field(
-        default=10.0, metadata=_meta(_number(0.0, 100.0, lo_open=True), "ATTITUDE rate asked of the autopilot, Hz")
-    )
-    publish_rate_hz: float = field(
-        default=2.0, metadata=_meta(_number(0.0, 50.0, lo_open=True), "NAMED_VALUE_FLOAT rate of the difference, Hz")
-    )
-    threshold_deg: float = field(
-        default=5.0, metadata=_meta(_number(0.0, 180.0, lo_open=True), "warn when the total difference stays above")
-    )
-    hold_s: float = field(
-        default=3.0, metadata=_meta(_number(0.0, 600.0), "... for this long (and clear after as long below), s")
-    )
-
-
-@dataclass(frozen=True)
 class OutputConfig:
     stats_interval_s: float = field(
         default=10.0, metadata=_meta(_number(0.0, 86400.0, lo_open=True), "counters log line period, s")
@@ -333,7 +316,7 @@ class Config:
     reference: ReferenceConfig = field(default_factory=ReferenceConfig)
     estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
     compass: CompassSettings = field(default_factory=CompassSettings)
-    crosscheck: CrossCheckConfig = field(default_factory=CrossCheckConfig)
+    crosscheck: CrossCheckSettings = field(default_factory=CrossCheckSettings)
     output: OutputConfig = field(default_factory=OutputConfig)
     logging: LoggingConfig = field(default_factory=LoggingConfig)
 

@@ -11,9 +11,10 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-Array = NDArray[np.float64]
+from mavattitude.estimation.conventions import Array
+
 MAX_POINTS = 4000  # per line: more than a figure's pixels across
 
 

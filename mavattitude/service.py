@@ -59,7 +59,7 @@ from mavattitude import __version__, alive
 from mavattitude.config import Config
 from mavattitude.dispatch import DISPATCH_REJECTS, DispatchCounters, Dispatcher
 from mavattitude.estimation.compass import CompassEvent, CompassFigures
-from mavattitude.estimation.crosscheck import CrossCheck, CrossCheckSettings
+from mavattitude.estimation.crosscheck import CrossCheck
 from mavattitude.link import MavlinkLink, load_signing_key, message_id
 from mavattitude.link.requests import LOW_FRACTION, PendingRequests, RateMonitor, StreamRequest
 from mavattitude.link.source import AutopilotAttitude, MavlinkDecoder, MavlinkSource, MessageSource, Sender
@@ -232,8 +232,7 @@ class AttitudeService:
         self._answers_said: set[tuple[str, str]] = set()  # (stream, result) logged once each
         self._rate = RateMonitor(config.link.request_rate_hz, RATE_WINDOW_S) if config.link.request_messages else None
         self._reconnects_seen = 0
-        xc = config.crosscheck
-        self._xcheck = CrossCheck(CrossCheckSettings(xc.threshold_deg, xc.hold_s)) if xc.enabled else None
+        self._xcheck = CrossCheck(config.crosscheck) if config.crosscheck.enabled else None
         self._published_s: float | None = None  # vehicle time of the last difference published
         now = time.monotonic()
         self._next_tick = now

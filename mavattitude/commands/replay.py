@@ -283,11 +283,10 @@ def _compass_columns(figures: Any, result: LogResult) -> None:
 
 def _cross_check(ours: np.ndarray, autopilot: np.ndarray, job: Job, result: LogResult) -> None:
     """The service's cross-check over the log: its warnings (vehicle time) and figures, as live."""
-    from mavattitude.estimation.crosscheck import CrossCheckSettings, cross_check_log
+    from mavattitude.estimation.crosscheck import cross_check_log
 
-    c = job.config.crosscheck
     check, _, events = cross_check_log(
-        ours[:, 0], ours[:, 1:5], autopilot[:, 0], autopilot[:, 1:5], CrossCheckSettings(c.threshold_deg, c.hold_s)
+        ours[:, 0], ours[:, 1:5], autopilot[:, 0], autopilot[:, 1:5], job.config.crosscheck
     )
     for event in events:
         if event.disagree:
@@ -296,7 +295,7 @@ def _cross_check(ours: np.ndarray, autopilot: np.ndarray, job: Job, result: LogR
                 job.log,
                 event.time_s,
                 event.total_deg,
-                c.hold_s,
+                job.config.crosscheck.hold_s,
             )
         else:
             log.info("%s: t=%.1f s: our attitude agrees with the autopilot's again", job.log, event.time_s)

@@ -48,17 +48,23 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
-from .conventions import quat_from_rotvec_parts, quat_multiply_parts, quat_normalize_parts, rotation_matrix_parts
+from mavattitude.fields import described, ranged
 
-Vec3 = tuple[float, float, float]
+from .conventions import (
+    STANDARD_GRAVITY_MPS2,
+    Vec3,
+    quat_from_rotvec_parts,
+    quat_multiply_parts,
+    quat_normalize_parts,
+    rotation_matrix_parts,
+)
 
-STANDARD_GRAVITY_MPS2 = 9.80665
 NOISE_SIGMAS = 3.0  # k: a window mean this many per-sample σ off is not noise
 CLEAR_FRACTION = 0.75  # consistent again below this fraction of the thresholds
 FIRST_PERIOD_S = 60.0  # "over the first minute": from the first judged sample, vehicle time
@@ -88,24 +94,17 @@ def rms_sigma(std: Vec3) -> float:
     return math.sqrt((std[0] ** 2 + std[1] ** 2 + std[2] ** 2) / 3.0)
 
 
-def _setting(default: float, doc: str, lo: float, hi: float, lo_open: bool = False) -> Any:
-    """A field in ``[lo, hi]`` (``(lo, hi]`` with ``lo_open``) with its description: the config checks it."""
-    return field(default=default, metadata={"doc": doc, "range": (lo, hi, lo_open)})
-
-
 @dataclass(frozen=True)
 class CompassSettings:
     """How the monitor judges (see the module docstring): the config's ``compass`` section itself."""
 
-    enabled: bool = field(
-        default=True, metadata={"doc": "judge the compass (dip, |B|); off, IGN takes only heading from it"}
-    )
-    window_s: float = _setting(10.0, "sliding window of the dip and |B| figures, s", 1.0, 3600.0)
-    low_accel_fraction: float = _setting(0.05, "samples with ||a| − g| below this · g count", 0.0, 0.5, True)
-    max_rate_dps: float = _setting(60.0, "and rotating slower than this, deg/s", 0.0, 2000.0, True)
-    dip_allowance_deg: float = _setting(10.0, "dip error calibration and field model explain, deg", 0.0, 90.0)
-    field_allowance: float = _setting(0.15, "|B| error calibration and field model explain, fraction", 0.0, 1.0)
-    turn_allowance: float = _setting(0.2, "share of the field's turn it may make unlike the gyroscope", 0.0, 10.0)
+    enabled: bool = described(True, "judge the compass (dip, |B|); off, IGN takes only heading from it")
+    window_s: float = ranged(10.0, "sliding window of the dip and |B| figures, s", 1.0, 3600.0)
+    low_accel_fraction: float = ranged(0.05, "samples with ||a| − g| below this · g count", 0.0, 0.5, lo_open=True)
+    max_rate_dps: float = ranged(60.0, "and rotating slower than this, deg/s", 0.0, 2000.0, lo_open=True)
+    dip_allowance_deg: float = ranged(10.0, "dip error calibration and field model explain, deg", 0.0, 90.0)
+    field_allowance: float = ranged(0.15, "|B| error calibration and field model explain, fraction", 0.0, 1.0)
+    turn_allowance: float = ranged(0.2, "share of the field's turn it may make unlike the gyroscope", 0.0, 10.0)
     min_samples: ClassVar[int] = 25  # quiet samples in the window before judging (0.5 s at 50 Hz)
 
 

@@ -23,7 +23,14 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+# The package's array and plain-float types: arrays are float64; a vector, quaternion or matrix as plain floats is
+# a tuple (a matrix as its rows, as a config file writes it).
 Array = NDArray[np.float64]
+Vec3 = tuple[float, float, float]
+Quat = tuple[float, float, float, float]
+Mat3 = tuple[Vec3, Vec3, Vec3]
+
+STANDARD_GRAVITY_MPS2 = 9.80665  # the g of "mG" in MAVLink and of ArduPilot's GRAVITY_MSS
 
 #: ``| |q|² − 1 |`` at or beyond this is a numerical failure, not an attitude: float64 rounding leaves a
 #: normalised quaternion within ~1e-15 of unit, and an estimate gone wrong (a diverged solve, a filter

@@ -16,13 +16,11 @@ evaluated at the measured unit vectors ``ŵᵢ`` with ``R_unit,i`` of Eq. 9; the
 
 from __future__ import annotations
 
-import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from . import kernel
+from .conventions import Array
 from .noise import NoiseModel, sym_to_matrix, unit_parts
-
-Array = NDArray[np.float64]
 
 
 def _sensor(raw: ArrayLike, var: tuple) -> tuple:

@@ -18,8 +18,11 @@ import bisect
 import math
 from collections import deque
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
+
+from mavattitude.fields import described, ranged
 
 from .conventions import angle_between, euler_from_quat
 
@@ -30,9 +33,14 @@ MAX_WAITING = 100  # autopilot attitudes waiting for our output (10 s at 10 Hz)
 
 @dataclass(frozen=True)
 class CrossCheckSettings:
-    threshold_deg: float = 5.0
-    hold_s: float = 3.0
-    max_gap_s: float = 0.5  # our outputs further apart are not interpolated between
+    """The config's ``crosscheck`` section: whether and how often to compare, and the verdict's rule."""
+
+    enabled: bool = described(True, "compare with the autopilot's ATTITUDE and publish the difference")
+    attitude_rate_hz: float = ranged(10.0, "ATTITUDE rate asked of the autopilot, Hz", 0.0, 100.0, lo_open=True)
+    publish_rate_hz: float = ranged(2.0, "NAMED_VALUE_FLOAT rate of the difference, Hz", 0.0, 50.0, lo_open=True)
+    threshold_deg: float = ranged(5.0, "warn when the total difference stays above", 0.0, 180.0, lo_open=True)
+    hold_s: float = ranged(3.0, "... for this long (and clear after as long below), s", 0.0, 600.0)
+    max_gap_s: ClassVar[float] = 0.5  # our outputs further apart are not interpolated between
 
 
 @dataclass(frozen=True)

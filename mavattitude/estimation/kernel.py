@@ -40,7 +40,7 @@ from .conventions import quat_multiply_parts, rotate_ned_to_body_parts, rotation
 Scalar = Any
 Vec = tuple[Scalar, Scalar, Scalar]
 Sym = tuple[Scalar, Scalar, Scalar, Scalar, Scalar, Scalar]
-Quat = tuple[Scalar, Scalar, Scalar, Scalar]
+QuatParts = tuple[Scalar, Scalar, Scalar, Scalar]
 
 
 def norm(v: Vec) -> Scalar:
@@ -214,7 +214,7 @@ def triad(w_acc: Vec, w_mag: Vec, v_acc: Vec, v_mag: Vec, s_body: Scalar, s_ref:
     )  # fmt: skip
 
 
-def scalar_weight_step(q: Quat, obs: tuple, newton: Scalar = False) -> tuple[Quat, Scalar]:
+def scalar_weight_step(q: QuatParts, obs: tuple, newton: Scalar = False) -> tuple[QuatParts, Scalar]:
     """One IGN/CGN iteration, Eq. 34–35, for ``obs = ((ŵ₁, v₁, a₁), (ŵ₂, v₂, a₂))`` (unit vectors).
 
     Returns the corrected, normalised quaternion and the correction's angle ``|δ|`` (rad). Written out
@@ -263,7 +263,7 @@ def scalar_weight_step(q: Quat, obs: tuple, newton: Scalar = False) -> tuple[Qua
     return _normalised(q_next), (d0 * d0 + d1 * d1 + d2 * d2) ** 0.5
 
 
-def matrix_weight_step(q: Quat, obs: tuple, newton: Scalar = True) -> tuple[Quat, Scalar]:
+def matrix_weight_step(q: QuatParts, obs: tuple, newton: Scalar = True) -> tuple[QuatParts, Scalar]:
     """One maximum-likelihood Newton iteration for ``obs = ((ŵ₁, v₁, W₁), (ŵ₂, v₂, W₂))`` (:func:`ml_weight`).
 
     Cost ``½ Σ rᵢᵀ Wᵢ rᵢ`` with ``rᵢ(δ) = ŵᵢ − A(q ⊗ exp δ)vᵢ = rᵢ − [uᵢ×]δ − ½ δ×(δ×uᵢ) + …`` in the body
@@ -396,7 +396,7 @@ def triad_covariance(e: Vec, r_p: Sym, u: Vec, r_s: Sym) -> Sym:
     return tuple(b - x + k * y for b, x, y in zip(base, mixed, ee, strict=True))  # type: ignore[return-value]
 
 
-def wahba_loss(q: Quat, obs: tuple, matrix_weights: bool) -> Scalar:
+def wahba_loss(q: QuatParts, obs: tuple, matrix_weights: bool) -> Scalar:
     """Eq. 11 at ``q``: ``½ Σ aᵢ |ŵᵢ − A(q)vᵢ|²``, or ``½ Σ rᵢᵀ Wᵢ rᵢ`` with matrix weights (ML)."""
     r = rotation_matrix_parts(q)
     loss = 0.0
@@ -428,6 +428,6 @@ def converged(step: Scalar, previous: Scalar, tolerance: float) -> Scalar:
     return (step <= tolerance) | ((step < previous) & (step * step <= tolerance * (previous - step)))
 
 
-def _normalised(q: Quat) -> Quat:
+def _normalised(q: QuatParts) -> QuatParts:
     k = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]) ** -0.5
     return (q[0] * k, q[1] * k, q[2] * k, q[3] * k)

@@ -30,10 +30,9 @@ from numpy.typing import NDArray
 
 from mavattitude.config import Config
 from mavattitude.errors import DataFileError
+from mavattitude.estimation.conventions import Array
 from mavattitude.link.source import AutopilotAttitude, MessageSource, PositionFix, Received, Sender
 from mavattitude.sensors.units import ImuSample, Position
-
-Array = NDArray[np.float64]
 
 #: The sender of every item from a log the autopilot wrote itself (DataFlash, ULog): it holds one vehicle.
 LOG_VEHICLE: Sender = (1, 1)

@@ -19,13 +19,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from mavattitude.errors import CalibrationError
+from mavattitude.estimation.conventions import Array, Mat3, Vec3
 
-Array = NDArray[np.float64]
-Vec3 = tuple[float, float, float]
-Mat3 = tuple[Vec3, Vec3, Vec3]
 IDENTITY: Mat3 = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 ZERO: Vec3 = (0.0, 0.0, 0.0)
 

@@ -28,10 +28,9 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from mavattitude.estimation.conventions import quat_from_euler
+from mavattitude.estimation.conventions import Array, quat_from_euler
 from mavattitude.sensors.units import MILLIGAUSS_UT
 
-Array = NDArray[np.float64]
 Table = dict[str, NDArray]
 
 #: SI per logged unit of each time field, and its wrap period (s; None: a uint64 of µs never wraps).

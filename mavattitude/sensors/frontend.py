@@ -59,6 +59,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from mavattitude.estimation.conventions import Array, Vec3
 from mavattitude.sensors.calibration import Calibration, sensor_affines
 from mavattitude.sensors.clock import ClockEvent, VehicleClock
 from mavattitude.sensors.lowpass import butter2, filter_batch
@@ -66,9 +67,6 @@ from mavattitude.sensors.mounting import mounting_matrix
 from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2, ImuSample
 
 log = logging.getLogger(__name__)
-
-Array = NDArray[np.float64]
-Vec3 = tuple[float, float, float]
 
 
 class SampleFlag(IntFlag):

@@ -22,8 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mavattitude.errors import SensorError
-
-Array = NDArray[np.float64]
+from mavattitude.estimation.conventions import Array
 
 #: A cutoff at or above Nyquist cannot be designed; a slower input than 2.5 × cutoff is filtered at this
 #: fraction of its rate instead (its sampling has already removed what lies above).

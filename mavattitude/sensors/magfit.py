@@ -23,8 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from mavattitude.errors import CalibrationError
-
-Array = NDArray[np.float64]
+from mavattitude.estimation.conventions import Array
 
 MIN_SAMPLES = 50
 MIN_COVERAGE = 0.6  # fraction of the 26 direction cells holding a sample

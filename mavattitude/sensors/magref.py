@@ -22,10 +22,10 @@ from dataclasses import dataclass
 from typing import Any
 
 from mavattitude.errors import ConfigError, SensorError
+from mavattitude.estimation.conventions import Vec3
 
 log = logging.getLogger(__name__)
 
-Vec3 = tuple[float, float, float]
 EARTH_RADIUS_KM = 6371.0088
 WMM_COEFFICIENTS = "wmm/WMM_2025.COF"
 WMM_FIRST_DAY, WMM_LAST_DAY = dt.date(2025, 1, 1), dt.date(2029, 12, 31)  # WMM2025's span

@@ -13,11 +13,9 @@ import re
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from mavattitude.errors import ConfigError
-
-Array = NDArray[np.float64]
+from mavattitude.estimation.conventions import Array
 
 #: ArduPilot's Rotation enum (value → name without the ROTATION_ prefix), 0–43.
 ARDUPILOT_ROTATIONS: dict[int, str] = dict(

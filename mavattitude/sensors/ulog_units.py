@@ -28,9 +28,9 @@ import datetime as dt
 import numpy as np
 from numpy.typing import NDArray
 
+from mavattitude.estimation.conventions import Array
 from mavattitude.sensors.units import GAUSS_UT
 
-Array = NDArray[np.float64]
 Topic = dict[str, NDArray]
 
 TIMESTAMP_S = 1e-6  # µs → s

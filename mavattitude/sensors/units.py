@@ -29,10 +29,9 @@ from functools import cached_property
 from typing import Any
 
 from mavattitude.errors import SensorError
+from mavattitude.estimation.conventions import STANDARD_GRAVITY_MPS2, Vec3
+from mavattitude.fields import ranged
 
-Vec3 = tuple[float, float, float]
-
-STANDARD_GRAVITY_MPS2 = 9.80665  # the g of "mG" in MAVLink and of ArduPilot's GRAVITY_MSS
 MG_MPS2 = STANDARD_GRAVITY_MPS2 * 1e-3
 MILLIGAUSS_UT = 0.1
 GAUSS_UT = 100.0
@@ -149,7 +148,7 @@ PROFILE_NAMES = (*PROFILES, "custom")
 
 def _scale(doc: str) -> Any:
     """An ``input.custom`` scale: a positive number of SI units per raw unit, or unset."""
-    return field(default=None, metadata={"doc": doc, "range": (0.0, math.inf, True)})
+    return ranged(None, doc, 0.0, math.inf, lo_open=True)
 
 
 @dataclass(frozen=True)

@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from mavattitude.estimation.conventions import Array
 from mavattitude.sensors import dataflash_units as du
 from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2
 
-Array = NDArray[np.float64]
 HEADER = b"\xa3\x95"
 FMT_TYPE = 0x80
 _NUMPY = {"Q": "<u8", "I": "<u4", "B": "u1", "f": "<f4", "h": "<i2", "L": "<i4"}

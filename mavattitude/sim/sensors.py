@@ -18,11 +18,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mavattitude.errors import InputError
-from mavattitude.estimation.conventions import Array
+from mavattitude.estimation.conventions import Array, Mat3, Vec3
 from mavattitude.sim.trajectory import Script
 
-Vec3 = tuple[float, float, float]
-Mat3 = tuple[Vec3, Vec3, Vec3]
 _IDENTITY: Mat3 = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 
 

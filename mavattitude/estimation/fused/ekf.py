@@ -28,6 +28,8 @@ from __future__ import annotations
 import math
 
 from mavattitude.estimation.conventions import (
+    Quat,
+    Vec3,
     quat_from_rotvec_parts,
     quat_multiply_parts,
     quat_normalize_parts,
@@ -35,9 +37,8 @@ from mavattitude.estimation.conventions import (
 )
 
 from . import mat3 as m3
-from .mat3 import ZERO3, Mat3, Vec3
+from .mat3 import ZERO3, Block
 
-Quat = tuple[float, float, float, float]
 IDENTITY_Q: Quat = (1.0, 0.0, 0.0, 0.0)
 
 
@@ -50,15 +51,15 @@ class ErrorStateFilter:
         self.q: Quat = IDENTITY_Q
         self.q_gyro: Quat = IDENTITY_Q
         self.bias: Vec3 = (0.0, 0.0, 0.0)
-        self.p_tt: Mat3 = ZERO3
-        self.p_tb: Mat3 = ZERO3
-        self.p_bb: Mat3 = ZERO3
+        self.p_tt: Block = ZERO3
+        self.p_tb: Block = ZERO3
+        self.p_bb: Block = ZERO3
         self.dx = [0.0] * 6  # the error state estimated since the last reset: [δθ, δb]
         self.dq: Quat = IDENTITY_Q  # rotation since the last propagation
         self.duration_s = 0.0
         self.angle_rad = 0.0
 
-    def start(self, q: Quat, p_tt: Mat3, p_bb: Mat3 | None = None) -> None:
+    def start(self, q: Quat, p_tt: Block, p_bb: Block | None = None) -> None:
         """(Re)initialise the attitude and its covariance; ``p_bb`` None keeps the bias and its covariance."""
         self.q = self.q_gyro = quat_normalize_parts(q)
         self.p_tt, self.p_tb = p_tt, ZERO3
@@ -164,7 +165,7 @@ class ErrorStateFilter:
 _ZERO_V: Vec3 = (0.0, 0.0, 0.0)
 
 
-def _rank2(p: Mat3, a: Vec3, b: Vec3, c: Vec3, d: Vec3) -> Mat3:
+def _rank2(p: Block, a: Vec3, b: Vec3, c: Vec3, d: Vec3) -> Block:
     """``p + a bᵀ − c dᵀ``."""
     a0, a1, a2 = a
     b0, b1, b2 = b
@@ -183,7 +184,7 @@ def _rank2(p: Mat3, a: Vec3, b: Vec3, c: Vec3, d: Vec3) -> Mat3:
     )
 
 
-def _sym_rank2(p: Mat3, w: Vec3, k: Vec3, u: Vec3) -> Mat3:
+def _sym_rank2(p: Block, w: Vec3, k: Vec3, u: Vec3) -> Block:
     """The symmetric part of ``p + w kᵀ − k uᵀ`` (``p`` symmetric): the covariance block after an update."""
     w0, w1, w2 = w
     k0, k1, k2 = k

@@ -51,6 +51,8 @@ from mavattitude.errors import InputError
 from mavattitude.estimation import NoiseModel, solve
 from mavattitude.estimation.conventions import (
     Array,
+    Quat,
+    Vec3,
     quat_from_rotvec_parts,
     quat_multiply_parts,
     quat_normalize_parts,
@@ -59,9 +61,9 @@ from mavattitude.estimation.conventions import (
 )
 from mavattitude.sensors.lowpass import butter2
 
-from .ekf import ErrorStateFilter, Quat
+from .ekf import ErrorStateFilter
 from .magnetic import MagneticChecks
-from .mat3 import Vec3, cross, dot, symmetric
+from .mat3 import cross, dot, symmetric
 from .mat3 import matvec as _matvec
 from .rest import RestDetector
 from .settings import FusedSettings

@@ -29,7 +29,8 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from .mat3 import Vec3, dot
+from ..conventions import Vec3
+from .mat3 import dot
 from .settings import FusedSettings
 
 

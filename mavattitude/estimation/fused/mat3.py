@@ -8,12 +8,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-Mat3 = tuple[float, float, float, float, float, float, float, float, float]
-Vec3 = tuple[float, float, float]
-ZERO3: Mat3 = (0.0,) * 9  # type: ignore[assignment]
+from ..conventions import Vec3
+
+Block = tuple[float, float, float, float, float, float, float, float, float]  # a 3×3 block, row-major
+ZERO3: Block = (0.0,) * 9  # type: ignore[assignment]
 
 
-def mm(a: Mat3, b: Mat3, k: float = 0.0, c: Mat3 | None = None) -> Mat3:
+def mm(a: Block, b: Block, k: float = 0.0, c: Block | None = None) -> Block:
     """``a b + k c`` (one call where the propagation needs both: a call costs as much as the sum)."""
     a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
     b0, b1, b2, b3, b4, b5, b6, b7, b8 = b
@@ -31,11 +32,11 @@ def mm(a: Mat3, b: Mat3, k: float = 0.0, c: Mat3 | None = None) -> Mat3:
     )
 
 
-def transpose(a: Mat3) -> Mat3:
+def transpose(a: Block) -> Block:
     return (a[0], a[3], a[6], a[1], a[4], a[7], a[2], a[5], a[8])
 
 
-def axpy(a: Mat3, k: float, b: Mat3) -> Mat3:
+def axpy(a: Block, k: float, b: Block) -> Block:
     """``a + k b``."""
     return (
         a[0] + k * b[0],
@@ -50,13 +51,13 @@ def axpy(a: Mat3, k: float, b: Mat3) -> Mat3:
     )
 
 
-def symmetric(a: Mat3, diag: float = 0.0) -> Mat3:
+def symmetric(a: Block, diag: float = 0.0) -> Block:
     """``(a + aᵀ)/2 + diag I``: removes the rounding asymmetry of a covariance update."""
     xy, xz, yz = 0.5 * (a[1] + a[3]), 0.5 * (a[2] + a[6]), 0.5 * (a[5] + a[7])
     return (a[0] + diag, xy, xz, xy, a[4] + diag, yz, xz, yz, a[8] + diag)
 
 
-def matvec(a: Mat3, x: Sequence[float]) -> Vec3:
+def matvec(a: Block, x: Sequence[float]) -> Vec3:
     return (
         a[0] * x[0] + a[1] * x[1] + a[2] * x[2],
         a[3] * x[0] + a[4] * x[1] + a[5] * x[2],
@@ -64,7 +65,7 @@ def matvec(a: Mat3, x: Sequence[float]) -> Vec3:
     )
 
 
-def tmatvec(a: Mat3, x: Sequence[float]) -> Vec3:
+def tmatvec(a: Block, x: Sequence[float]) -> Vec3:
     """``aᵀ x``."""
     return (
         a[0] * x[0] + a[3] * x[1] + a[6] * x[2],

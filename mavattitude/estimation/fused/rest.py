@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 
-from .mat3 import Vec3
+from ..conventions import Vec3
 from .settings import FusedSettings
 
 

@@ -11,14 +11,10 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any
 
 from mavattitude.errors import InputError
-
-
-def _setting(default: float, doc: str, lo: float = 0.0, hi: float = 1e6, *, lo_open: bool = False) -> Any:
-    """A field whose value must be finite and in ``[lo, hi]`` (``(lo, hi]`` with ``lo_open``)."""
-    return dataclasses.field(default=default, metadata={"doc": doc, "range": (lo, hi, lo_open)})
+from mavattitude.estimation.conventions import STANDARD_GRAVITY_MPS2
+from mavattitude.fields import ranged
 
 
 @dataclass(frozen=True)
@@ -30,53 +26,53 @@ class FusedSettings:
     a data sheet's figures. ``docs/fused.md`` has the equations and what each value was tuned on.
     """
 
-    gyro_noise_radps: float = _setting(0.003, "σ_g: gyro angle random walk, rad/s/√Hz (effective)")
-    gyro_scale_fraction: float = _setting(0.005, "s_g: gyro scale-factor error, per rad turned", hi=0.5)
-    gyro_bias_walk_radps2: float = _setting(2e-5, "σ_b: gyro bias random walk, rad/s/√s")
-    gyro_bias_init_radps: float = _setting(0.02, "σ_b0: start-up gyro bias uncertainty, rad/s")
-    accel_std_mps2: float = _setting(0.1333, "σ_a: pre-filtered specific force σ per axis, m/s²", lo_open=True)
-    accel_lowpass_s: float = _setting(
+    gyro_noise_radps: float = ranged(0.003, "σ_g: gyro angle random walk, rad/s/√Hz (effective)")
+    gyro_scale_fraction: float = ranged(0.005, "s_g: gyro scale-factor error, per rad turned", hi=0.5)
+    gyro_bias_walk_radps2: float = ranged(2e-5, "σ_b: gyro bias random walk, rad/s/√s")
+    gyro_bias_init_radps: float = ranged(0.02, "σ_b0: start-up gyro bias uncertainty, rad/s")
+    accel_std_mps2: float = ranged(0.1333, "σ_a: pre-filtered specific force σ per axis, m/s²", lo_open=True)
+    accel_lowpass_s: float = ranged(
         1.333, "τ_a: the earth-frame accelerometer pre-filter the tilt measures, s (0: off)", hi=60.0
     )
-    accel_rejection_lowpass_s: float = _setting(
+    accel_rejection_lowpass_s: float = ranged(
         0.7,
         "τ_j: the same pre-filter for the ‖a‖ the rejection watches (shorter: sees an acceleration sooner), s",
         hi=60.0,
     )
-    accel_lag_gain: float = _setting(3.0, "k_d: σ_a added per m/s² between the two pre-filters' outputs")
-    accel_norm_gain: float = _setting(8.0, "k_n: σ_a added per m/s² of ‖a‖ − g (of the short pre-filter)")
-    accel_residual_gain: float = _setting(0.0, "k_r: σ_a added per g·rad of the acc/mag angle error")
-    mag_std_uT: float = _setting(5.25, "σ_m: magnetometer σ per axis, µT", lo_open=True)
-    mag_norm_tolerance_fraction: float = _setting(
+    accel_lag_gain: float = ranged(3.0, "k_d: σ_a added per m/s² between the two pre-filters' outputs")
+    accel_norm_gain: float = ranged(8.0, "k_n: σ_a added per m/s² of ‖a‖ − g (of the short pre-filter)")
+    accel_residual_gain: float = ranged(0.0, "k_r: σ_a added per g·rad of the acc/mag angle error")
+    mag_std_uT: float = ranged(5.25, "σ_m: magnetometer σ per axis, µT", lo_open=True)
+    mag_norm_tolerance_fraction: float = ranged(
         0.1, "τ_n: ‖B‖ off its learnt value by this fraction is a disturbance", hi=10.0, lo_open=True
     )
-    mag_dip_tolerance_deg: float = _setting(
+    mag_dip_tolerance_deg: float = ranged(
         10.0, "τ_δ: dip off its reference by this much is a disturbance, deg", hi=90.0
     )
-    mag_reference_s: float = _setting(
+    mag_reference_s: float = ranged(
         20.0, "τ_ref: ‖B‖ is learnt over this much clean field from the start, s", lo_open=True
     )
-    mag_relearn_s: float = _setting(
+    mag_relearn_s: float = ranged(
         60.0, "T_new: a field disturbed this long without a break is adopted (it sets heading only), s", lo_open=True
     )
-    mag_soft_fraction: float = _setting(0.5, "d₀: σ_m inflation scale below the disturbance threshold", lo_open=True)
-    mag_recovery_factor: float = _setting(10.0, "ρ₀: σ_m² multiplier just after a long disturbance", lo=1.0)
-    mag_recovery_s: float = _setting(3.0, "T_r: the recovery ramp's length, s", hi=3600.0)
-    mag_offset_window_s: float = _setting(
+    mag_soft_fraction: float = ranged(0.5, "d₀: σ_m inflation scale below the disturbance threshold", lo_open=True)
+    mag_recovery_factor: float = ranged(10.0, "ρ₀: σ_m² multiplier just after a long disturbance", lo=1.0)
+    mag_recovery_s: float = ranged(3.0, "T_r: the recovery ramp's length, s", hi=3600.0)
+    mag_offset_window_s: float = ranged(
         3.0,
         "a disturbance this long, turning, with a constant body-frame residual: learnt as hard iron, s (0: off)",
         hi=3600.0,
     )
-    mag_offset_turn_fraction: float = _setting(
+    mag_offset_turn_fraction: float = ranged(
         0.05, "the turn the offset needs: 1 − ‖mean predicted field direction‖ over the window", hi=1.0
     )
-    rest_gyro_threshold_radps: float = _setting(math.radians(2.0), "rest: gyro deviation and rate below this, rad/s")
-    rest_accel_threshold_mps2: float = _setting(0.5, "rest: accelerometer deviation below this, m/s²")
-    rest_min_s: float = _setting(1.5, "rest: still for this long before the zero-rate update, s", hi=3600.0)
-    rest_filter_s: float = _setting(0.5, "τ_r: the rest detector's low-pass time constant, s", hi=60.0, lo_open=True)
-    rest_gyro_std_radps: float = _setting(0.002, "σ_r: the zero-rate update's σ, rad/s (0: off)")
-    gravity_mps2: float = _setting(9.80665, "g, m/s²", lo=1.0, hi=100.0)
-    update_rate_hz: float = _setting(50.0, "measurement updates per second, Hz", hi=1000.0, lo_open=True)
+    rest_gyro_threshold_radps: float = ranged(math.radians(2.0), "rest: gyro deviation and rate below this, rad/s")
+    rest_accel_threshold_mps2: float = ranged(0.5, "rest: accelerometer deviation below this, m/s²")
+    rest_min_s: float = ranged(1.5, "rest: still for this long before the zero-rate update, s", hi=3600.0)
+    rest_filter_s: float = ranged(0.5, "τ_r: the rest detector's low-pass time constant, s", hi=60.0, lo_open=True)
+    rest_gyro_std_radps: float = ranged(0.002, "σ_r: the zero-rate update's σ, rad/s (0: off)")
+    gravity_mps2: float = ranged(STANDARD_GRAVITY_MPS2, "g, m/s²", lo=1.0, hi=100.0)
+    update_rate_hz: float = ranged(50.0, "measurement updates per second, Hz", hi=1000.0, lo_open=True)
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
