@@ -39,8 +39,10 @@ from mavattitude.estimation.compass import CompassSettings
 from mavattitude.estimation.conventions import Mat3, Vec3
 from mavattitude.estimation.crosscheck import CrossCheckSettings
 from mavattitude.estimation.fused.settings import FusedSettings
+from mavattitude.estimation.solve import MAX_ITERATIONS, MIN_ANGLE_DEG, TOLERANCE_RAD
 from mavattitude.sensors.calibration import Calibration
 from mavattitude.sensors.magref import MagneticReference
+from mavattitude.sensors.mounting import mounting_matrix
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES, CustomScales
 
 ENV_VAR = "MAVATTITUDE_CONFIG"
@@ -137,9 +139,10 @@ def _rotation(value: Any, path: str) -> str | Mat3:
     if isinstance(value, str):
         return _text(value, path).upper()
     m = _mat3(value, path)
-    gram_error = max(abs(sum(m[i][k] * m[j][k] for k in range(3)) - (i == j)) for i in range(3) for j in range(3))
-    if gram_error > 1e-6 or _det(m) < 0:
-        _fail(path, "a mounting matrix must be a rotation (orthonormal, determinant +1)")
+    try:
+        mounting_matrix(m)  # the front end's rule: a proper rotation
+    except ConfigError as exc:
+        _fail(path, str(exc))
     return m
 
 
@@ -269,16 +272,16 @@ class EstimatorConfig:
         default="ign", metadata=_meta(_choice(*METHODS), "solver: ign, cgn, ml, triad, or fused (gyro-aided)")
     )
     max_iterations: int = field(
-        default=10, metadata=_meta(_number(1, 100, integer=True), "Gauss–Newton iteration bound")
+        default=MAX_ITERATIONS, metadata=_meta(_number(1, 100, integer=True), "Gauss–Newton iteration bound")
     )
     tolerance: float = field(
-        default=1e-12,
+        default=TOLERANCE_RAD,
         metadata=_meta(
             _number(0.0, 1e-3, lo_open=True), "converged when a Gauss–Newton correction is below this angle, rad"
         ),
     )
     min_angle_deg: float = field(
-        default=5.0, metadata=_meta(_number(0.0, 90.0), "refuse acc/mag closer than this to collinear, deg")
+        default=MIN_ANGLE_DEG, metadata=_meta(_number(0.0, 90.0), "refuse acc/mag closer than this to collinear, deg")
     )
     fused: FusedSettings = field(default_factory=FusedSettings)  # the gyro-aided filter (method: fused)
 

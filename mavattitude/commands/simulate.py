@@ -24,8 +24,6 @@ HELP = "run the scripted fake vehicle (a MAVLink 2 autopilot peer) on a connecti
 
 log = logging.getLogger(__name__)
 
-DEFAULT_MESSAGE = {"ardupilot": "RAW_IMU", "px4": "HIGHRES_IMU", "adis16405": "RAW_IMU"}
-
 
 def add_vehicle_arguments(parser: argparse.ArgumentParser, default_duration_s: float) -> None:
     """The options that describe the fake vehicle (shared with `mavattitude demo`)."""
@@ -80,7 +78,7 @@ def vehicle_from_args(args: argparse.Namespace, connect: str, stream_on_start: b
     config = VehicleConfig(
         connect,
         profile=args.profile,
-        message=args.message or DEFAULT_MESSAGE[args.profile],
+        message=args.message or PROFILES[args.profile].default_message,
         stream_on_start=stream_on_start,
         fly_when_asked=True,  # the script (and --duration) starts when the IMU is first asked for
         seed=args.seed,

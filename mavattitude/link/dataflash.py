@@ -64,9 +64,6 @@ class _Reader:
         self.damage = _unindexed(self.df, self.size)
         self._bytes = np.frombuffer(self.df.data_map, dtype=np.uint8)
 
-    def has(self, name: str) -> bool:
-        return name in self.df.name_to_id and len(self.df.offsets[self.df.name_to_id[name]]) > 0
-
     def table(self, name: str) -> dict[str, np.ndarray]:
         """Every complete record of ``name`` as columns, DFReader's multipliers applied (empty if none)."""
         if name not in self.df.name_to_id:

@@ -34,7 +34,6 @@ Sender = tuple[int, int]  # MAVLink (system id, component id)
 Received = tuple[float, Sender, Any]  # (t_rx, sender, item): see the module docstring
 
 POSITION_MESSAGES = ("GLOBAL_POSITION_INT", "GPS_RAW_INT")
-ATTITUDE_MESSAGES = ("ATTITUDE", "ATTITUDE_QUATERNION")
 
 
 @dataclass(frozen=True, slots=True)

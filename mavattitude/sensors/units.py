@@ -112,7 +112,11 @@ class UnitProfile:
     """The messages one kind of sender emits and the units of each."""
 
     name: str
-    messages: Mapping[str, MessageScale]
+    messages: Mapping[str, MessageScale]  # the first is the one its sender streams by default
+
+    @property
+    def default_message(self) -> str:
+        return next(iter(self.messages))
 
     def scale(self, message: str) -> MessageScale:
         try:

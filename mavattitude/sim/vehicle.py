@@ -19,7 +19,7 @@ It behaves like an autopilot on a companion-computer link:
 
 The vehicle clock is the script clock scaled by ``speed`` (an accelerated soak runs faster than real
 time); ``time_boot_ms``/``time_usec`` count from the last (simulated) boot. Faults are injected through
-methods: :meth:`FakeVehicle.send_bytes`, :meth:`send_imu`, :meth:`inject` (a function over the next
+methods: :meth:`FakeVehicle.send_bytes`, :meth:`inject` (a function over the next
 samples: bad values, repeated or shifted times), :meth:`jump_clock`, :meth:`reboot`, :meth:`pause_imu`,
 and by changing stream rates.
 """
@@ -305,19 +305,6 @@ class FakeVehicle:
         """Raw bytes on the link (garbage, truncated or corrupted frames)."""
         with self._send_lock:
             self.conn.write(data)
-
-    def send_imu(
-        self,
-        acc_mps2: Array,
-        gyr_radps: Array,
-        mag_uT: Array | None,
-        vehicle_time_s: float,
-        message: str | None = None,
-    ) -> None:
-        """One IMU message with the given SI values and vehicle time (any values: NaN, zero, saturated)."""
-        mag = None if mag_uT is None else _vec(mag_uT)
-        sample = ImuSample(vehicle_time_s, _vec(acc_mps2), _vec(gyr_radps), mag)
-        self.send(self.encode(sample, message))
 
     def encode(self, sample: ImuSample, message: str | None = None) -> Any:
         """The MAVLink ``message`` (default: the configured one) of an SI sample in this vehicle's profile."""
