@@ -8,6 +8,7 @@ is the message's integer quantisation (1 mG, 1 mgauss).
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import logging
 import math
@@ -132,6 +133,18 @@ def lock_on(vehicle: Autopilot) -> None:
     vehicle.wait_for("HEARTBEAT", condition=lambda m: m.get_srcComponent() == 191)
 
 
+def first_output(vehicle: Autopilot, samples: int = 100) -> None:
+    """Lock the service on, stream ``samples`` IMU messages and wait for its first attitude."""
+    lock_on(vehicle)
+    vehicle.stream(samples)
+    vehicle.wait_for("ATTITUDE_QUATERNION")
+
+
+def own_lines(caplog: pytest.LogCaptureFixture, running: Running) -> list[str]:
+    """The log lines of this service's thread (another test's service, left running, logs into caplog too)."""
+    return [r.getMessage() for r in caplog.records if r.thread == running.thread.ident]
+
+
 def test_locks_on_requests_the_input_and_reads_the_ack(served):
     running, vehicle = served
     vehicle.send(vehicle.heartbeat())
@@ -193,9 +206,7 @@ def test_emits_attitude_quaternion_for_the_vehicle_time(served):
 
 def test_input_loss_is_reported_once_and_output_resumes(served):
     running, vehicle = served
-    lock_on(vehicle)
-    vehicle.stream(100)
-    vehicle.wait_for("ATTITUDE_QUATERNION")
+    first_output(vehicle)
     lost = vehicle.wait_for("STATUSTEXT", condition=lambda m: "output stopped" in m.text)
     assert lost.severity == mavlink2.MAV_SEVERITY_WARNING
     # two more heartbeats (1 Hz) of silence: still said only once
@@ -249,13 +260,11 @@ def test_automatic_magnetic_reference_waits_for_the_vehicle_position(caplog):
 def test_counters_line_logged_periodically_and_at_the_end(served, caplog):
     running, vehicle = served
     caplog.set_level(logging.INFO, logger="mavattitude.service")
-    lock_on(vehicle)
-    vehicle.stream(100)
-    vehicle.wait_for("ATTITUDE_QUATERNION")
-    wait_until(vehicle, lambda: any(r.getMessage().startswith("counters: ") for r in caplog.records))
+    first_output(vehicle)
+    wait_until(vehicle, lambda: any(m.startswith("counters: ") for m in own_lines(caplog, running)))
     wait_until(vehicle, lambda: running.service.counters.received == 100)
     running.finish()
-    final = [r.getMessage() for r in caplog.records if r.getMessage().startswith("counters (final): ")]
+    final = [m for m in own_lines(caplog, running) if m.startswith("counters (final): ")]
     assert len(final) == 1
     pairs = dict(item.split("=") for item in final[0].split(": ", 1)[1].split())
     assert int(pairs["received"]) == 100
@@ -267,13 +276,8 @@ def test_counters_line_logged_periodically_and_at_the_end(served, caplog):
 def test_periodic_counters_lines_say_what_changed_the_whole_line_at_debug(served, caplog):
     running, vehicle = served
     caplog.set_level(logging.DEBUG, logger="mavattitude.service")
-    lock_on(vehicle)
-    vehicle.stream(100)
-    vehicle.wait_for("ATTITUDE_QUATERNION")
-
-    def ours() -> list[str]:  # this service's lines (its thread's), should another test's still run
-        return [r.getMessage() for r in caplog.records if r.thread == running.thread.ident]
-
+    first_output(vehicle)
+    ours = functools.partial(own_lines, caplog, running)
     wait_until(vehicle, lambda: any(m.startswith("counters: received=100 ") for m in ours()))
     mark = len(ours())
     # Three more periods (0.2 s each) with no more input: the DEBUG line is whole, the INFO line holds only
