@@ -414,12 +414,13 @@ def _to_plain(value: Any) -> Any:
     return value
 
 
-def _merge(low: Mapping[str, Any], high: Mapping[str, Any], path: str = "") -> dict[str, Any]:
+def merge(low: Mapping[str, Any], high: Mapping[str, Any], path: str = "") -> dict[str, Any]:
+    """Raw config data ``high`` over ``low``, key by key (a layer's rule; see the module docstring)."""
     out = dict(low)
     for key, value in high.items():
         sub = f"{path}.{key}" if path else str(key)
         if isinstance(value, Mapping) and isinstance(out.get(key), Mapping) and sub not in REPLACE_WHOLE:
-            out[key] = _merge(out[key], value, sub)
+            out[key] = merge(out[key], value, sub)
         else:
             out[key] = value
     return out
@@ -562,7 +563,7 @@ def merge_layers(found: list[tuple[str, dict[str, Any]]]) -> Config:
     merged: dict[str, Any] = {}
     for source, data in found:
         from_dict(data, source, cross_check=False)
-        merged = _merge(merged, data)
+        merged = merge(merged, data)
     return from_dict(merged, found[0][0] if len(found) == 1 else "effective config")
 
 

@@ -17,7 +17,7 @@ from mavattitude.cli import EXIT_INTERRUPTED
 from mavattitude.commands.simulate import add_vehicle_arguments, vehicle_from_args
 from mavattitude.errors import MavAttitudeError
 from mavattitude.estimation import METHODS
-from mavattitude.sim.daemon import ServiceProcess, config_for
+from mavattitude.sim.daemon import START_TIMEOUT_S, ServiceProcess, config_for
 from mavattitude.sim.scoring import Score
 from mavattitude.sim.vehicle import FakeVehicle
 
@@ -25,8 +25,6 @@ NAME = "demo"
 HELP = "run the service against the fake vehicle on loopback and print a live attitude error table"
 
 log = logging.getLogger(__name__)
-
-_START_TIMEOUT_S = 20.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -73,7 +71,7 @@ def _demo(args: argparse.Namespace) -> int:
 
 
 def _table(vehicle: FakeVehicle, service: ServiceProcess, duration_s: float, interval_s: float) -> None:
-    if not vehicle.wait_for_outputs(1, _START_TIMEOUT_S):
+    if not vehicle.wait_for_outputs(1, START_TIMEOUT_S):
         raise MavAttitudeError("the service sent no attitude in time; its log:\n" + service.log_tail())
     print("     t " + Score.header().replace("\n", "\n       "))
     start = len(vehicle.attitude_log)

@@ -22,6 +22,7 @@ from typing import Any
 
 import yaml
 
+from mavattitude.config import merge
 from mavattitude.errors import MavAttitudeError
 from mavattitude.sim.vehicle import FakeVehicle
 
@@ -29,6 +30,7 @@ log = logging.getLogger(__name__)
 
 # The service's counters line: "counters: received=123 rejected.nan=0 ... latency_p99_ms=1.2".
 _COUNTERS_MARK = "counters"
+START_TIMEOUT_S = 20.0  # a cold daemon start to its first attitude on a loaded 2-core CI machine (≈ 1 s idle)
 _PAIR = re.compile(r"([A-Za-z_][\w.\-]*)=([-+0-9.eE]+|nan|inf)")
 
 
@@ -38,16 +40,6 @@ def parse_counters(line: str) -> dict[str, float] | None:
         return None
     pairs = {k: float(v) for k, v in _PAIR.findall(line.split(_COUNTERS_MARK, 1)[1])}
     return pairs or None
-
-
-def deep_merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
-    out = dict(base)
-    for key, value in over.items():
-        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
-            out[key] = deep_merge(out[key], value)
-        else:
-            out[key] = value
-    return out
 
 
 class ServiceProcess:
@@ -182,7 +174,7 @@ def service_config(vehicle_port: int, **sections: Mapping[str, Any]) -> dict[str
         "link": {"connect": f"udpout:127.0.0.1:{vehicle_port}", "vehicle_system_id": 0},
         "output": {"stats_interval_s": 1.0},
     }
-    return deep_merge(base, sections)
+    return merge(base, sections)
 
 
 def config_for(vehicle: FakeVehicle, **sections: Mapping[str, Any]) -> dict[str, Any]:
@@ -204,4 +196,4 @@ def config_for(vehicle: FakeVehicle, **sections: Mapping[str, Any]) -> dict[str,
             "accel_std_mps2": [max(float(s), 0.003) for s in sensors.accel.noise_std],
             "mag_std_uT": [max(float(s), 0.03) for s in sensors.mag.noise_std],
         }
-    return service_config(vehicle.port, **deep_merge(matched, sections))
+    return service_config(vehicle.port, **merge(matched, sections))

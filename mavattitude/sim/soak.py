@@ -18,14 +18,13 @@ from typing import Any
 
 import numpy as np
 
+from mavattitude.config import merge
 from mavattitude.errors import MavAttitudeError
 from mavattitude.sim import scenarios
-from mavattitude.sim.daemon import ServiceProcess, deep_merge, service_config
+from mavattitude.sim.daemon import START_TIMEOUT_S, ServiceProcess, service_config
 from mavattitude.sim.scoring import Score
 from mavattitude.sim.trajectory import Rotate, Script
 from mavattitude.sim.vehicle import FakeVehicle, VehicleConfig
-
-_START_TIMEOUT_S = 20.0
 
 
 @dataclass(frozen=True)
@@ -98,7 +97,7 @@ def run_soak(
     vehicle_cfg = VehicleConfig("udpin:127.0.0.1:0", speed=speed, seed=seed, fly_when_asked=True)
     report = SoakReport(duration_s, rate_hz, speed, 0.0)
     with FakeVehicle(script, scenarios.consumer_sensors(rate_hz), vehicle_cfg) as vehicle:
-        overrides = deep_merge(
+        overrides = merge(
             {
                 "link": {"request_rate_hz": rate_hz},
                 "reference": {"magnetic": {"field_ned_uT": list(scenarios.DEFAULT_MAG_NED_UT)}},
@@ -109,7 +108,7 @@ def run_soak(
         )
         with ServiceProcess(service_config(vehicle.port, **overrides)) as service:
             wall0 = time.monotonic()
-            if not vehicle.wait_for_outputs(1, _START_TIMEOUT_S):
+            if not vehicle.wait_for_outputs(1, START_TIMEOUT_S):
                 raise MavAttitudeError("soak: the service sent no attitude:\n" + service.log_tail())
             first_index = 0
             end_s = 0.0  # windows on the script clock, which starts with the IMU stream

@@ -18,13 +18,13 @@ from typing import Any
 import numpy as np
 import pytest
 
-from mavattitude.sim.daemon import ServiceProcess, config_for, deep_merge
+from mavattitude.config import merge
+from mavattitude.sim.daemon import START_TIMEOUT_S, ServiceProcess, config_for
 from mavattitude.sim.scoring import UNIT_NORM_TOLERANCE
 from mavattitude.sim.sensors import SensorModel
 from mavattitude.sim.trajectory import Script
 from mavattitude.sim.vehicle import FakeVehicle, VehicleConfig
 
-START_TIMEOUT_S = 20.0  # a cold daemon start on a loaded 2-core CI machine (≈ 1 s when idle)
 EVENT_TIMEOUT_S = 10.0
 # Fast counters and re-requests keep the waits short; short input time-out keeps the silence case short.
 FAST_SERVICE: dict[str, Any] = {
@@ -38,7 +38,7 @@ Flight = tuple[FakeVehicle, ServiceProcess]
 def merged(*layers: Mapping[str, Any]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for layer in layers:
-        out = deep_merge(out, layer)
+        out = merge(out, layer)
     return out
 
 

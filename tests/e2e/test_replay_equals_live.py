@@ -20,13 +20,12 @@ from mavattitude.estimation.conventions import angle_between
 from mavattitude.link.source import MavlinkDecoder
 from mavattitude.link.tlog import TlogSource
 from mavattitude.replay import replay
-from mavattitude.sim.daemon import ServiceProcess
+from mavattitude.sim.daemon import START_TIMEOUT_S, ServiceProcess
 from tests.commands.test_replay import DECL, INCL, write_tlog
 from tests.link.peer import UdpPeer
 
 pytestmark = pytest.mark.e2e
 
-START_TIMEOUT_S = 20.0  # a cold daemon start on a loaded 2-core machine
 # float32 quaternion components (ATTITUDE_QUATERNION): ~6e-8 each, ~1.2e-7 rad of angle; 1e-6 rad bounds it
 SAME_RAD = 1e-6
 
