@@ -93,19 +93,21 @@ def quat_normalize(q: ArrayLike) -> Array:
 
 def quat_normalize_parts(q: tuple) -> tuple[float, float, float, float]:
     """Scalar (plain-float) twin of :func:`quat_normalize`: unit, ``w ≥ 0``."""
-    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    if q[0] < 0.0:
+    w, x, y, z = q
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    if w < 0.0:
         n = -n
-    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
+    return (w / n, x / n, y / n, z / n)
 
 
 def rotation_matrix_parts(q: tuple) -> tuple:
     """``R(q)`` of a unit quaternion on components, row-major ``(r00, r01, ..., r22)``."""
     w, x, y, z = q
+    xx, yy, zz, xy, xz, yz, wx, wy, wz = x * x, y * y, z * z, x * y, x * z, y * z, w * x, w * y, w * z
     return (
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+        1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy),
+        2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx),
+        2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy),
     )  # fmt: skip
 
 
@@ -117,10 +119,11 @@ def rotation_matrix(q: ArrayLike) -> Array:
 
 def rotate_ned_to_body_parts(r: tuple, v: tuple) -> tuple:
     """``A v = R(q)ᵀ v`` (Eq. 27) on components, given ``r = rotation_matrix_parts(q)``."""
+    x, y, z = v
     return (
-        r[0] * v[0] + r[3] * v[1] + r[6] * v[2],
-        r[1] * v[0] + r[4] * v[1] + r[7] * v[2],
-        r[2] * v[0] + r[5] * v[1] + r[8] * v[2],
+        r[0] * x + r[3] * y + r[6] * z,
+        r[1] * x + r[4] * y + r[7] * z,
+        r[2] * x + r[5] * y + r[8] * z,
     )
 
 

@@ -54,7 +54,7 @@ class ErrorStateFilter:
         self.p_tt: Block = ZERO3
         self.p_tb: Block = ZERO3
         self.p_bb: Block = ZERO3
-        self.dx = [0.0] * 6  # the error state estimated since the last reset: [δθ, δb]
+        self.dx = _ZERO_DX  # the error state estimated since the last reset: [δθ, δb]
         self.dq: Quat = IDENTITY_Q  # rotation since the last propagation
         self.duration_s = 0.0
         self.angle_rad = 0.0
@@ -83,16 +83,17 @@ class ErrorStateFilter:
     def propagate(self) -> None:
         """Move the interval's rotation into ``q`` (and ``q_gyro``) and propagate ``P`` over it (``Φ``)."""
         t = self.duration_s
-        r = rotation_matrix_parts(self.dq)  # R(Δq), row-major; A(Δq) = R(Δq)ᵀ
-        a, c = m3.transpose(r), -0.5 * t
+        r, c = rotation_matrix_parts(self.dq), -0.5 * t  # R(Δq), row-major; A(Δq) = R(Δq)ᵀ
         # Φ = [[A, c (I + A)], [0, I]] by blocks: with X = [A, c (I + A)] P = A Y + c [P_θbᵀ, P_bb],
         # Y = [P_θθ + c P_θbᵀ, P_θb + c P_bb]: P_θb ← X_b, P_θθ ← (X_θ + c X_b) Aᵀ + c X_b.
         tt, tb, bb = self.p_tt, self.p_tb, self.p_bb
-        bt = m3.transpose(tb)
-        x_t = m3.mm(a, m3.axpy(tt, c, bt), c, bt)
-        x_b = m3.mm(a, m3.axpy(tb, c, bb), c, bb)
+        x_t = m3.tmm_shift(r, tt, c, m3.transpose(tb))
+        x_b = m3.tmm_shift(r, tb, c, bb)
         noise2, scale2, walk2 = self._q_noise
-        self.p_tt = m3.symmetric(m3.mm(m3.axpy(x_t, c, x_b), r, c, x_b), noise2 * t + scale2 * self.angle_rad**2)
+        # (X_θ + c X_b) Aᵀ + c X_b is the transpose of A (X_θᵀ + c X_bᵀ) + c X_bᵀ, term for term, and the
+        # symmetric part of a matrix is that of its transpose: one written-out product serves both steps.
+        p_tt = m3.tmm_shift(r, m3.transpose(x_t), c, m3.transpose(x_b))
+        self.p_tt = m3.symmetric(p_tt, noise2 * t + scale2 * self.angle_rad**2)
         self.p_tb = x_b
         self.p_bb = m3.symmetric(bb, walk2 * t)
         self.q = self.current_q()
@@ -112,43 +113,52 @@ class ErrorStateFilter:
         """One scalar measurement ``z ≈ h_θᵀ δθ + h_bᵀ δb + ν`` (module docstring) of the error against the
         nominal state as it was at the last :meth:`reset`; ``on``/``off`` restrict the gain (unit vectors).
         Call :meth:`propagate` first (``q`` must carry the whole interval) and :meth:`reset` after the last."""
-        tt, tb, bb, dx = self.p_tt, self.p_tb, self.p_bb, self.dx
-        u_t, u_b, s = _ZERO_V, _ZERO_V, r
+        tt, tb, bb = self.p_tt, self.p_tb, self.p_bb
+        d0, d1, d2, d3, d4, d5 = self.dx
+        # The matrix-vector products written out: a call costs as much as the arithmetic (3 updates per tick).
         if h_theta is not None:
-            u_t, u_b = m3.matvec(tt, h_theta), m3.tmatvec(tb, h_theta)
-            s += h_theta[0] * u_t[0] + h_theta[1] * u_t[1] + h_theta[2] * u_t[2]
-            z -= h_theta[0] * dx[0] + h_theta[1] * dx[1] + h_theta[2] * dx[2]
+            h0, h1, h2 = h_theta
+            a0, a1, a2, a3, a4, a5, a6, a7, a8 = tt
+            ut0, ut1, ut2 = a0 * h0 + a1 * h1 + a2 * h2, a3 * h0 + a4 * h1 + a5 * h2, a6 * h0 + a7 * h1 + a8 * h2
+            u_t = (ut0, ut1, ut2)
+            a0, a1, a2, a3, a4, a5, a6, a7, a8 = tb
+            u_b = (a0 * h0 + a3 * h1 + a6 * h2, a1 * h0 + a4 * h1 + a7 * h2, a2 * h0 + a5 * h1 + a8 * h2)
+            s = r + (h0 * ut0 + h1 * ut1 + h2 * ut2)
+            z -= h0 * d0 + h1 * d1 + h2 * d2
+        else:
+            u_t, u_b, s = _ZERO_V, _ZERO_V, r
         if h_bias is not None:
-            z -= h_bias[0] * dx[3] + h_bias[1] * dx[4] + h_bias[2] * dx[5]
+            z -= h_bias[0] * d3 + h_bias[1] * d4 + h_bias[2] * d5
             v_t, v_b = m3.matvec(tb, h_bias), m3.matvec(bb, h_bias)
             s += m3.dot(h_bias, v_b) + 2.0 * m3.dot(h_theta, v_t) if h_theta is not None else m3.dot(h_bias, v_b)
             u_t = (u_t[0] + v_t[0], u_t[1] + v_t[1], u_t[2] + v_t[2])
             u_b = (u_b[0] + v_b[0], u_b[1] + v_b[1], u_b[2] + v_b[2])
         inv_s = 1.0 / s
-        k_t = (u_t[0] * inv_s, u_t[1] * inv_s, u_t[2] * inv_s)
-        k_b = (u_b[0] * inv_s, u_b[1] * inv_s, u_b[2] * inv_s)
+        kt0, kt1, kt2 = u_t[0] * inv_s, u_t[1] * inv_s, u_t[2] * inv_s
+        kb0, kb1, kb2 = u_b[0] * inv_s, u_b[1] * inv_s, u_b[2] * inv_s
         if on is None and off is None:  # the optimal gain: P ← P − K uᵀ
+            k_t, k_b = (kt0, kt1, kt2), (kb0, kb1, kb2)
             self.p_tt = _sym_rank2(tt, _ZERO_V, k_t, u_t)
             self.p_tb = _rank2(tb, _ZERO_V, k_b, k_t, u_b)
             self.p_bb = _sym_rank2(bb, _ZERO_V, k_b, u_b)
         else:
             if on is not None:
-                c_t, c_b = m3.dot(on, k_t), m3.dot(on, k_b)
-                k_t, k_b = (on[0] * c_t, on[1] * c_t, on[2] * c_t), (on[0] * c_b, on[1] * c_b, on[2] * c_b)
+                o0, o1, o2 = on
+                c_t, c_b = o0 * kt0 + o1 * kt1 + o2 * kt2, o0 * kb0 + o1 * kb1 + o2 * kb2
+                kt0, kt1, kt2, kb0, kb1, kb2 = o0 * c_t, o1 * c_t, o2 * c_t, o0 * c_b, o1 * c_b, o2 * c_b
             if off is not None:
-                c = m3.dot(off, k_t)
-                k_t = (k_t[0] - c * off[0], k_t[1] - c * off[1], k_t[2] - c * off[2])
-            w_t = (s * k_t[0] - u_t[0], s * k_t[1] - u_t[1], s * k_t[2] - u_t[2])
-            w_b = (s * k_b[0] - u_b[0], s * k_b[1] - u_b[1], s * k_b[2] - u_b[2])
+                o0, o1, o2 = off
+                c = o0 * kt0 + o1 * kt1 + o2 * kt2
+                kt0, kt1, kt2 = kt0 - c * o0, kt1 - c * o1, kt2 - c * o2
+            k_t, k_b = (kt0, kt1, kt2), (kb0, kb1, kb2)
+            ut0, ut1, ut2 = u_t
+            ub0, ub1, ub2 = u_b
+            w_t = (s * kt0 - ut0, s * kt1 - ut1, s * kt2 - ut2)
+            w_b = (s * kb0 - ub0, s * kb1 - ub1, s * kb2 - ub2)
             self.p_tt = _sym_rank2(tt, w_t, k_t, u_t)
             self.p_tb = _rank2(tb, w_t, k_b, k_t, u_b)
             self.p_bb = _sym_rank2(bb, w_b, k_b, u_b)
-        dx[0] += k_t[0] * z
-        dx[1] += k_t[1] * z
-        dx[2] += k_t[2] * z
-        dx[3] += k_b[0] * z
-        dx[4] += k_b[1] * z
-        dx[5] += k_b[2] * z
+        self.dx = (d0 + kt0 * z, d1 + kt1 * z, d2 + kt2 * z, d3 + kb0 * z, d4 + kb1 * z, d5 + kb2 * z)
 
     def reset(self) -> None:
         """Move the estimated error state ``[δθ, δb]`` into the nominal ``q`` and ``b``."""
@@ -159,10 +169,11 @@ class ErrorStateFilter:
         self.q = quat_normalize_parts(quat_multiply_parts(self.q, correction))
         b = self.bias
         self.bias = (b[0] + dx[3], b[1] + dx[4], b[2] + dx[5])
-        self.dx = [0.0] * 6
+        self.dx = _ZERO_DX
 
 
 _ZERO_V: Vec3 = (0.0, 0.0, 0.0)
+_ZERO_DX: tuple[float, ...] = (0.0,) * 6
 
 
 def _rank2(p: Block, a: Vec3, b: Vec3, c: Vec3, d: Vec3) -> Block:

@@ -233,7 +233,7 @@ class FusedFilter:
         d = mag_norm = math.inf
         if mag is not None:
             d, mag_norm = self._check_field(mag, r, time_s)
-        if mag is not None and d < 1.0:
+        if mag is not None and d < 1.0 and s.accel_residual_gain > 0.0:  # a zero gain adds exactly 0.0
             residual = self._vector_residual(acc, acc_norm, mag, mag_norm)
             sigma_a2 += (s.accel_residual_gain * s.gravity_mps2 * residual) ** 2
         # Past half a radian of direction noise the accelerometer tells nothing the gyro does not know.
@@ -272,13 +272,15 @@ class FusedFilter:
 
     def _tilt_update(self, acc: Vec3, acc_norm: float, sigma_a: float, r: Sequence[float]) -> None:
         """The accelerometer direction, along the two axes it measures; its gain is kept off the heading."""
-        h = rotate_ned_to_body_parts(r, self._v_acc)
-        d = (acc[0] / acc_norm - h[0], acc[1] / acc_norm - h[1], acc[2] / acc_norm - h[2])  # u − h
-        e1 = _unit(cross(h, (1.0, 0.0, 0.0) if abs(h[0]) < 0.6 else (0.0, 1.0, 0.0)))
+        h0, h1, h2 = h = rotate_ned_to_body_parts(r, self._v_acc)
+        d0, d1, d2 = acc[0] / acc_norm - h0, acc[1] / acc_norm - h1, acc[2] / acc_norm - h2  # u − h
+        e1 = _unit(cross(h, (1.0, 0.0, 0.0) if abs(h0) < 0.6 else (0.0, 1.0, 0.0)))
         e2 = cross(h, e1)
         var = (sigma_a / acc_norm) ** 2
-        self._ekf.update(dot(e1, d), cross(e1, h), var, off=h)
-        self._ekf.update(dot(e2, d), cross(e2, h), var, off=h)
+        update = self._ekf.update
+        # e × h and e · (u − h) written out: the cross and dot products cost as much as calls as in arithmetic.
+        for a0, a1, a2 in (e1, e2):
+            update(a0 * d0 + a1 * d1 + a2 * d2, (a1 * h2 - a2 * h1, a2 * h0 - a0 * h2, a0 * h1 - a1 * h0), var, off=h)
 
     def _heading_update(self, mag: Vec3, mag_norm: float, sigma_m2: float, r: Sequence[float]) -> bool:
         """The field's horizontal direction against the reference's (``r``: R(q)): heading only. False if the
@@ -365,14 +367,15 @@ class EarthFrameLowpass:
             return x
         if self._state is None:
             self._state = (x, x, x, x)  # x₋₁, x₋₂, y₋₁, y₋₂ at steady state
-        x1, x2, y1, y2 = self._state
+        (p0, p1, p2), (q0, q1, q2), (y0, y1, y2), (z0, z1, z2) = self._state  # x₋₁, x₋₂, y₋₁, y₋₂
+        x0, x1, x2 = x
         b0, b1, b2, a1, a2 = bq.b0, bq.b1, bq.b2, bq.a1, bq.a2
         y = (
-            b0 * x[0] + b1 * x1[0] + b2 * x2[0] - a1 * y1[0] - a2 * y2[0],
-            b0 * x[1] + b1 * x1[1] + b2 * x2[1] - a1 * y1[1] - a2 * y2[1],
-            b0 * x[2] + b1 * x1[2] + b2 * x2[2] - a1 * y1[2] - a2 * y2[2],
+            b0 * x0 + b1 * p0 + b2 * q0 - a1 * y0 - a2 * z0,
+            b0 * x1 + b1 * p1 + b2 * q1 - a1 * y1 - a2 * z1,
+            b0 * x2 + b1 * p2 + b2 * q2 - a1 * y2 - a2 * z2,
         )
-        self._state = (x, x1, y, y1)
+        self._state = (x, self._state[0], y, self._state[2])
         return y
 
 

@@ -14,41 +14,37 @@ Block = tuple[float, float, float, float, float, float, float, float, float]  # 
 ZERO3: Block = (0.0,) * 9  # type: ignore[assignment]
 
 
-def mm(a: Block, b: Block, k: float = 0.0, c: Block | None = None) -> Block:
-    """``a b + k c`` (one call where the propagation needs both: a call costs as much as the sum)."""
-    a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
-    b0, b1, b2, b3, b4, b5, b6, b7, b8 = b
-    c0, c1, c2, c3, c4, c5, c6, c7, c8 = ZERO3 if c is None else c
+def tmm_shift(r: Block, y: Block, k: float, e: Block) -> Block:
+    """``rᵀ (y + k e) + k e`` written out (the covariance propagation, once per update)."""
+    r0, r1, r2, r3, r4, r5, r6, r7, r8 = r
+    e0, e1, e2, e3, e4, e5, e6, e7, e8 = e
+    y0, y1, y2, y3, y4, y5, y6, y7, y8 = y
+    z0, z1, z2, z3, z4, z5, z6, z7, z8 = (
+        y0 + k * e0,
+        y1 + k * e1,
+        y2 + k * e2,
+        y3 + k * e3,
+        y4 + k * e4,
+        y5 + k * e5,
+        y6 + k * e6,
+        y7 + k * e7,
+        y8 + k * e8,
+    )
     return (
-        a0 * b0 + a1 * b3 + a2 * b6 + k * c0,
-        a0 * b1 + a1 * b4 + a2 * b7 + k * c1,
-        a0 * b2 + a1 * b5 + a2 * b8 + k * c2,
-        a3 * b0 + a4 * b3 + a5 * b6 + k * c3,
-        a3 * b1 + a4 * b4 + a5 * b7 + k * c4,
-        a3 * b2 + a4 * b5 + a5 * b8 + k * c5,
-        a6 * b0 + a7 * b3 + a8 * b6 + k * c6,
-        a6 * b1 + a7 * b4 + a8 * b7 + k * c7,
-        a6 * b2 + a7 * b5 + a8 * b8 + k * c8,
+        r0 * z0 + r3 * z3 + r6 * z6 + k * e0,
+        r0 * z1 + r3 * z4 + r6 * z7 + k * e1,
+        r0 * z2 + r3 * z5 + r6 * z8 + k * e2,
+        r1 * z0 + r4 * z3 + r7 * z6 + k * e3,
+        r1 * z1 + r4 * z4 + r7 * z7 + k * e4,
+        r1 * z2 + r4 * z5 + r7 * z8 + k * e5,
+        r2 * z0 + r5 * z3 + r8 * z6 + k * e6,
+        r2 * z1 + r5 * z4 + r8 * z7 + k * e7,
+        r2 * z2 + r5 * z5 + r8 * z8 + k * e8,
     )
 
 
 def transpose(a: Block) -> Block:
     return (a[0], a[3], a[6], a[1], a[4], a[7], a[2], a[5], a[8])
-
-
-def axpy(a: Block, k: float, b: Block) -> Block:
-    """``a + k b``."""
-    return (
-        a[0] + k * b[0],
-        a[1] + k * b[1],
-        a[2] + k * b[2],
-        a[3] + k * b[3],
-        a[4] + k * b[4],
-        a[5] + k * b[5],
-        a[6] + k * b[6],
-        a[7] + k * b[7],
-        a[8] + k * b[8],
-    )
 
 
 def symmetric(a: Block, diag: float = 0.0) -> Block:
@@ -62,15 +58,6 @@ def matvec(a: Block, x: Sequence[float]) -> Vec3:
         a[0] * x[0] + a[1] * x[1] + a[2] * x[2],
         a[3] * x[0] + a[4] * x[1] + a[5] * x[2],
         a[6] * x[0] + a[7] * x[1] + a[8] * x[2],
-    )
-
-
-def tmatvec(a: Block, x: Sequence[float]) -> Vec3:
-    """``aᵀ x``."""
-    return (
-        a[0] * x[0] + a[3] * x[1] + a[6] * x[2],
-        a[1] * x[0] + a[4] * x[1] + a[7] * x[2],
-        a[2] * x[0] + a[5] * x[1] + a[8] * x[2],
     )
 
 
