@@ -41,6 +41,7 @@ the attitude carried to the tick with the current rate.
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -59,7 +60,7 @@ from mavattitude.estimation.conventions import (
     rotate_ned_to_body_parts,
     rotation_matrix_parts,
 )
-from mavattitude.sensors.lowpass import butter2
+from mavattitude.sensors.lowpass import Biquad, butter2
 
 from .ekf import ErrorStateFilter
 from .magnetic import MagneticChecks
@@ -80,6 +81,12 @@ COUNTERS = (
     "skipped_updates",
 )
 _MAX_UNIT_STD = 0.5  # rad: the largest direction noise handed to a measurement update
+# The update pace is the mean of the last PACE_WINDOW update intervals, measured once PACE_MIN_INTERVALS are
+# in (the first interval, from a start, is up to one input period long); the per-update filters are designed
+# again when it moves by more than PACE_TOLERANCE (as the front end's low-pass: jitter does not re-design).
+PACE_WINDOW = 32
+PACE_MIN_INTERVALS = 4
+PACE_TOLERANCE = 0.1
 _MIN_HORIZONTAL = math.sin(math.radians(5.0))  # |m_h| / |m| below this: no heading from the field
 
 
@@ -121,6 +128,8 @@ class FusedFilter:
         self._rest = RestDetector(s, self._update_period_s)
         self._lp_measure = EarthFrameLowpass(s.accel_lowpass_s, s.update_rate_hz)
         self._lp_reject = EarthFrameLowpass(s.accel_rejection_lowpass_s, s.update_rate_hz)
+        self._design_period_s = self._update_period_s  # the update interval the per-update filters are for
+        self._update_times: deque[float] = deque(maxlen=PACE_WINDOW + 1)
         self._noise = NoiseModel(accel_std=(s.accel_std_mps2,) * 3, mag_std=(s.mag_std_uT,) * 3)
         self._t_last = 0.0
         self._gyr_last: Vec3 = (0.0, 0.0, 0.0)
@@ -211,10 +220,28 @@ class FusedFilter:
     # --- measurement updates ------------------------------------------------------------------------
     def _update(self, acc_mps2: ArrayLike, mag_uT: ArrayLike | None, time_s: float) -> None:
         """Propagate ``P`` to now, then the zero-rate, tilt and heading updates (module docstring), then the reset."""
+        self._pace(time_s)
         self._ekf.propagate()
         self._measure(acc_mps2, mag_uT, time_s)
         self._ekf.reset()
         self._arrays = None
+
+    def _pace(self, time_s: float) -> None:
+        """Keep the per-update filters (the two pre-filters, the rest detector, the field learning) designed
+        for the interval updates really come at: ``1 / update_rate_hz`` from a faster input, the input's own
+        from a slower one (a log's 25 Hz IMU: every sample is an update, and filters designed for 50 Hz would
+        take twice their time constants)."""
+        times = self._update_times
+        times.append(time_s)
+        if len(times) <= PACE_MIN_INTERVALS:
+            return
+        period = (time_s - times[0]) / (len(times) - 1)
+        if abs(period - self._design_period_s) > PACE_TOLERANCE * self._design_period_s:
+            self._design_period_s = period
+            self._lp_measure.design(1.0 / period)
+            self._lp_reject.design(1.0 / period)
+            self._rest.set_period(period)
+            self._mag.period_s = period
 
     def _measure(self, acc_mps2: ArrayLike, mag_uT: ArrayLike | None, time_s: float) -> None:
         """The update's measurements, each accumulated into the error state."""
@@ -325,6 +352,7 @@ class FusedFilter:
         self._arrays = None
         self._lp_measure.reset()
         self._lp_reject.reset()
+        self._update_times.clear()
         self._t_last = time_s
         self._gyr_last = gyr
         self._next_update_s = time_s + self._update_period_s
@@ -355,8 +383,15 @@ class EarthFrameLowpass:
     (τ = 0: the input as it is); it starts at steady state on its first input."""
 
     def __init__(self, tau_s: float, rate_hz: float) -> None:
-        self._bq = butter2(math.sqrt(2.0) / (2.0 * math.pi * tau_s), rate_hz) if tau_s > 0.0 else None
+        self._tau_s = tau_s
+        self._bq: Biquad | None = None
+        self.design(rate_hz)
         self._state: tuple[Vec3, Vec3, Vec3, Vec3] | None = None
+
+    def design(self, rate_hz: float) -> None:
+        """(Re-)design for inputs at ``rate_hz``; the state (the last inputs and outputs) carries on."""
+        if self._tau_s > 0.0:
+            self._bq = butter2(math.sqrt(2.0) / (2.0 * math.pi * self._tau_s), rate_hz)
 
     def reset(self) -> None:
         self._state = None

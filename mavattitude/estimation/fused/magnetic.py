@@ -39,7 +39,7 @@ class MagneticChecks:
 
     def __init__(self, settings: FusedSettings, period_s: float) -> None:
         self.s = settings
-        self._period_s = period_s
+        self.period_s = period_s  # the interval between updates (the filter keeps it to the measured one)
         self.norm_ref = 1.0
         self.dip_ref = 0.0
         self.north: tuple[float, float] = (1.0, 0.0)  # horizontal direction of the reference, NED
@@ -97,7 +97,7 @@ class MagneticChecks:
         relearned = disturbed and time_s - self._disturbed_since_s >= self.s.mag_relearn_s
         if relearned:
             self._disturbed_since_s, self._field_n, self.dip_ref = time_s, 0.0, dip
-        if (disturbed and not relearned) or self._field_n * self._period_s >= self.s.mag_reference_s:
+        if (disturbed and not relearned) or self._field_n * self.period_s >= self.s.mag_reference_s:
             return relearned
         self._field_n += 1.0
         self.norm_ref += (norm - self.norm_ref) / self._field_n

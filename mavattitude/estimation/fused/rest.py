@@ -18,12 +18,17 @@ class RestDetector:
     """Called once per update with the latest gyro and accelerometer samples."""
 
     def __init__(self, settings: FusedSettings, period_s: float) -> None:
-        self._alpha = 1.0 - math.exp(-period_s / settings.rest_filter_s)
+        self._tau_s = settings.rest_filter_s
+        self.set_period(period_s)
         self._gyro2 = settings.rest_gyro_threshold_radps**2
         self._accel2 = settings.rest_accel_threshold_mps2**2
         self._min_s = settings.rest_min_s
         self._lp: tuple[float, ...] | None = None
         self._still_since_s = math.inf
+
+    def set_period(self, period_s: float) -> None:
+        """The interval between calls, s (the low-passes' step)."""
+        self._alpha = 1.0 - math.exp(-period_s / self._tau_s)
 
     def rate(self, gyr: Vec3, acc: Vec3, bias: Vec3, time_s: float) -> Vec3 | None:
         """``ḡ − b`` once at rest for ``rest_min_s``, else None."""
