@@ -18,8 +18,12 @@ log replayed offline and the same messages arriving live give the same attitudes
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
 
 from mavattitude.errors import MavAttitudeError
 from mavattitude.link.source import AutopilotAttitude, Heartbeat, PositionFix, Received, Sender, Undecodable
@@ -114,10 +118,36 @@ class Dispatcher:
             if self.wants_position:
                 self._on_position(item)
         elif kind is Undecodable:
-            self.counters.received += 1
-            self._reject("decode", item.error)
+            self.undecodable(item.error)
         elif kind is not Heartbeat and item is not None:
             self.listener.on_message(item, t_rx)
+
+    def follow(self, senders: NDArray[np.int64], heartbeats: Iterable[tuple[int, Received]]) -> NDArray[np.bool_]:
+        """:meth:`handle`'s lock-on and sender rule for a log read as arrays: which of its records it takes.
+
+        ``senders`` holds every record's sender (``system << 8 | component``) in log order, ``heartbeats``
+        the HEARTBEAT items with their record's place, in order. They go through :meth:`handle` until it
+        locks; the records after the one it locked on, from the vehicle, are taken, and the others counted
+        ignored, as :meth:`handle` counts them (the locking heartbeat excepted).
+        """
+        locked_at, fed = -1, 0
+        for index, received in heartbeats:
+            if self.vehicle is not None:
+                break
+            self.handle(received)
+            locked_at, fed = index, fed + 1
+        if self.vehicle is None:
+            taken = np.zeros(len(senders), dtype=bool)
+        else:
+            taken = senders == (self.vehicle[0] << 8 | self.vehicle[1])
+            taken[: locked_at + 1] = False
+        self.counters.ignored += len(senders) - int(np.count_nonzero(taken)) - fed
+        return taken
+
+    def undecodable(self, error: BaseException, count: int = 1) -> None:
+        """``count`` input messages from the vehicle that could not be decoded (``error`` says why)."""
+        self.counters.received += count
+        self._reject("decode", error, count)
 
     def _lock(self, vehicle: Sender) -> None:
         self.vehicle = vehicle
@@ -141,6 +171,6 @@ class Dispatcher:
         self.counters.positions += 1
         self.pipeline.set_position(p.lat_deg, p.lon_deg, p.alt_m, fix.date)  # a new reference is logged there
 
-    def _reject(self, reason: str, exc: BaseException) -> None:
-        self.counters.rejected[reason] = self.counters.rejected.get(reason, 0) + 1
+    def _reject(self, reason: str, exc: BaseException, count: int = 1) -> None:
+        self.counters.rejected[reason] = self.counters.rejected.get(reason, 0) + count
         self.listener.on_reject(reason, exc)

@@ -102,25 +102,24 @@ def replay(
     result = Replayed([], [], DispatchCounters(), pipeline, None)
     if not at_once:
         return _replay_items(source, result, progress)
-    streams = getattr(source, "streams", None)
-    vehicle = source.vehicle
-    if not isinstance(streams, LogStreams) or vehicle is None:
+    streams_for = getattr(source, "streams_for", None)
+    if streams_for is not None:  # a log read as arrays: the dispatcher's rules choose its vehicle's rows
+        streams = streams_for(_dispatcher(source, None, result))
+    else:
         streams = _gather(source, result, progress)
-        vehicle = result.vehicle
-    if vehicle is not None and _one_reference(streams, pipeline):
-        return _replay_arrays(streams, result, vehicle)
-    from mavattitude.link.logs import StreamSource  # the gathered streams, one by one
+    if result.vehicle is not None and _one_reference(streams, pipeline):
+        return _replay_arrays(streams, result, result.vehicle)
+    from mavattitude.link.logs import StreamSource  # the vehicle's streams, one by one
 
-    ignored = result.counters.ignored
-    result = Replayed([], [], DispatchCounters(ignored=ignored), AttitudePipeline(config), None)
+    c = result.counters
+    counters = DispatchCounters(c.rejected["decode"], c.ignored, dict(c.rejected))  # what reading the log counted
+    result = Replayed([], [], counters, AttitudePipeline(config), None)
     return _replay_items(StreamSource(source.name, streams), result, progress)
 
 
-def _dispatch(
-    source: MessageSource, sink: Any, result: Replayed, progress: Callable[[MessageSource], None] | None
-) -> None:
+def _dispatcher(source: MessageSource, sink: Any, result: Replayed) -> Dispatcher:
     config = result.pipeline.config
-    dispatcher = Dispatcher(
+    return Dispatcher(
         sink,
         _Collector(result),
         system_id=config.link.vehicle_system_id,
@@ -128,7 +127,12 @@ def _dispatch(
         counters=result.counters,
         wants_position=config.reference.magnetic.mode == "auto",
     )
-    handle = dispatcher.handle
+
+
+def _dispatch(
+    source: MessageSource, sink: Any, result: Replayed, progress: Callable[[MessageSource], None] | None
+) -> None:
+    handle = _dispatcher(source, sink, result).handle
     while not source.finished:
         for received in source.recv(0.0):
             handle(received)
@@ -189,7 +193,7 @@ def _gather(source: MessageSource, result: Replayed, progress: Callable[[Message
     _dispatch(source, gathered, result, progress)
     streams = gathered.streams(result.autopilot)
     result.autopilot = []  # _replay_arrays takes them from the streams
-    result.counters.received = 0
+    result.counters.received = result.counters.rejected["decode"]  # the samples: counted as they are replayed
     return streams
 
 
@@ -222,7 +226,7 @@ def _replay_arrays(s: LogStreams, result: Replayed, vehicle: Sender) -> Replayed
     result.outputs = pipeline.push_batch(
         s.imu_t_s, s.acc_mps2, s.gyr_radps, mag, carried >= 0, s.time_wrap_s, reference_after_s
     )
-    counters.received = len(s.imu_t_s)
+    counters.received += len(s.imu_t_s)
     if len(s.imu_t_s):
         result.first_sample_s, result.last_sample_s = float(s.imu_t_s[0]), float(s.imu_t_s[-1])
     result.autopilot = [

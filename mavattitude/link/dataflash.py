@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import re
 import struct
 import sys
 import tempfile
@@ -24,13 +23,9 @@ import numpy as np
 from pymavlink import DFReader
 
 from mavattitude.errors import DataFileError
-from mavattitude.link.logs import LogStreams
+from mavattitude.link.logs import LogStreams, struct_dtype
 from mavattitude.sensors import dataflash_units as du
 
-_STRUCT_TO_NUMPY = {
-    "b": "i1", "B": "u1", "h": "i2", "H": "u2", "i": "i4", "I": "u4", "q": "i8", "Q": "u8",
-    "f": "f4", "d": "f8", "e": "f2",
-}  # fmt: skip
 GPS_FIX_3D = 3
 
 
@@ -40,14 +35,6 @@ class _Index(DFReader.DFReader_binary):
 
     def init_clock(self) -> None:
         self.clock = None
-
-
-def _dtype(fmt: Any) -> np.dtype:
-    """A numpy record type from DFReader's struct layout (``<QBffffffIIfBBHH``, strings as ``4s``)."""
-    fields = []
-    for name, code in zip(fmt.columns, re.findall(r"\d*[a-zA-Z]", fmt.msg_struct.lstrip("<")), strict=True):
-        fields.append((name, f"S{code[:-1]}" if code.endswith("s") else "<" + _STRUCT_TO_NUMPY[code]))
-    return np.dtype(fields)
 
 
 class _Reader:
@@ -76,7 +63,7 @@ class _Reader:
             self.damage = self.damage or f"truncated: the {name} record at byte {first_cut} is incomplete"
             offsets = offsets[complete]
         body = self._bytes[offsets[:, None] + np.arange(3, fmt.len)]
-        records = body.view(_dtype(fmt)).ravel()
+        records = body.view(struct_dtype(fmt.columns, fmt.msg_struct)).ravel()
         return {
             column: records[column] * mult if mult is not None else records[column]
             for column, mult in zip(fmt.columns, fmt.msg_mults, strict=True)

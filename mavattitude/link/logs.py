@@ -22,8 +22,11 @@ from __future__ import annotations
 
 import datetime as dt
 import functools
+import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -34,11 +37,35 @@ from mavattitude.estimation.conventions import Array
 from mavattitude.link.source import AutopilotAttitude, MessageSource, PositionFix, Received, Sender
 from mavattitude.sensors.units import ImuSample, Position
 
+if TYPE_CHECKING:
+    from mavattitude.dispatch import Dispatcher
+
 #: The sender of every item from a log the autopilot wrote itself (DataFlash, ULog): it holds one vehicle.
 LOG_VEHICLE: Sender = (1, 1)
 CHUNK_ITEMS = 8192  # items per recv(): large enough to amortise the call, small enough for progress
 ULOG_MAGIC = b"ULog\x01\x12\x35"
 DATAFLASH_MAGIC = b"\xa3\x95\x80"  # a message header and the FMT message's type: every DataFlash log starts so
+
+
+_STRUCT_TO_NUMPY = {
+    "b": "i1", "B": "u1", "h": "i2", "H": "u2", "i": "i4", "I": "u4", "q": "i8", "Q": "u8",
+    "f": "f4", "d": "f8", "e": "f2",
+}  # fmt: skip
+
+
+def struct_dtype(names: Sequence[str], struct_format: str) -> np.dtype:
+    """The numpy record type of a little-endian ``struct`` layout (``<QBff4f16s``: arrays and strings as one
+    field each), its fields named ``names``: how DataFlash and MAVLink records are unpacked as columns."""
+    fields: list[tuple] = []
+    codes = re.findall(r"(\d*)([a-zA-Z])", struct_format.lstrip("<"))
+    for name, (count, code) in zip(names, codes, strict=True):
+        if code == "s":
+            fields.append((name, f"S{count}"))
+        elif count and int(count) > 1:
+            fields.append((name, "<" + _STRUCT_TO_NUMPY[code], (int(count),)))
+        else:
+            fields.append((name, "<" + _STRUCT_TO_NUMPY[code]))
+    return np.dtype(fields)
 
 
 @dataclass
@@ -102,6 +129,10 @@ class StreamSource:
         self.damage = streams.damage
         self.finished = False
         self._next = 0
+
+    def streams_for(self, dispatcher: Dispatcher) -> LogStreams:
+        """The log's streams: all of them its vehicle's, which ``dispatcher`` follows from the start."""
+        return self.streams
 
     @functools.cached_property
     def _items(self) -> tuple[list[float], list[int], list[int]]:

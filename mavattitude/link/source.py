@@ -34,6 +34,7 @@ Sender = tuple[int, int]  # MAVLink (system id, component id)
 Received = tuple[float, Sender, Any]  # (t_rx, sender, item): see the module docstring
 
 POSITION_MESSAGES = ("GLOBAL_POSITION_INT", "GPS_RAW_INT")
+ATTITUDE_MESSAGES = ("ATTITUDE", "ATTITUDE_QUATERNION")  # the autopilot's own attitude, as Euler angles or q
 
 
 @dataclass(frozen=True, slots=True)
@@ -118,8 +119,7 @@ class MavlinkDecoder:
         self._routes = {
             self.message: self._imu,
             "HEARTBEAT": _heartbeat,
-            "ATTITUDE": _attitude,
-            "ATTITUDE_QUATERNION": _attitude_quaternion,
+            **dict(zip(ATTITUDE_MESSAGES, (_attitude, _attitude_quaternion), strict=True)),
             **dict.fromkeys(POSITION_MESSAGES, self._position),
             "SYSTEM_TIME": self._system_time,
         }

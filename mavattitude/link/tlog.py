@@ -1,44 +1,456 @@
-"""Telemetry logs (.tlog) read with pymavlink: a message source, and plain message iteration.
+"""Telemetry logs (.tlog) read as arrays: a message source, and plain message iteration.
 
-A .tlog is what MAVProxy and ground stations record: each MAVLink packet preceded by its receive time
-(64-bit big-endian µs since 1970). :class:`TlogSource` hands its messages out decoded, as the live link
-does (:mod:`mavattitude.link.source`), with the log's receive time as ``t_rx``.
+A .tlog is what MAVProxy and ground stations record: each MAVLink packet (1 or 2, signed or not) preceded
+by its receive time (64-bit big-endian µs since 1970). :class:`TlogSource` frames the records once, keeps
+the message types its :class:`~mavattitude.link.source.MavlinkDecoder` reads, checks every frame's CRC
+(X.25 with pymavlink's ``crc_extra`` per message) and unpacks each type's payloads into columns with numpy,
+by pymavlink's own message definitions (field order and struct layout; a MAVLink 2 payload shortened by
+its trailing zeros is zero-padded, as pymavlink does). Units are converted by :mod:`mavattitude.sensors.units`.
+
+The source hands its records out two ways, both through the one :class:`~mavattitude.dispatch.Dispatcher`:
+
+- :meth:`TlogSource.recv`: every record as the live link's item, with its sender and the log's receive
+  time, for the dispatcher to lock onto the autopilot and route one by one;
+- :meth:`TlogSource.streams_for`: the autopilot's IMU, attitude and position rows as
+  :class:`~mavattitude.link.logs.LogStreams`, the records chosen by :meth:`Dispatcher.follow` (the same
+  lock-on and sender rule); what replay feeds :meth:`AttitudePipeline.push_batch`.
+
+A record whose CRC fails is skipped and counted (:attr:`TlogSource.bad_records`); bytes where no record
+starts are skipped up to the next MAVLink magic; a last record cut short ends the log. Each is
+:attr:`TlogSource.damage`.
 """
 
 from __future__ import annotations
 
 import datetime as dt
+import functools
+import logging
 from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from mavattitude.errors import DataFileError
-from mavattitude.link.source import MavlinkDecoder, Received, Sender
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+from numpy.typing import NDArray
+
+from mavattitude.errors import DataFileError, SensorError
+from mavattitude.link.logs import LogStreams, struct_dtype
+from mavattitude.link.mavlink2 import mavlink2
+from mavattitude.link.source import (
+    ATTITUDE_MESSAGES,
+    POSITION_MESSAGES,
+    AutopilotAttitude,
+    Heartbeat,
+    MavlinkDecoder,
+    PositionFix,
+    Received,
+    Sender,
+    Undecodable,
+    euler_attitude,
+)
+from mavattitude.sensors import units
+
+if TYPE_CHECKING:
+    from mavattitude.dispatch import Dispatcher
+
+log = logging.getLogger(__name__)
 
 CHUNK_MESSAGES = 4096  # messages per recv(): large enough to amortise the call, small enough for progress
-MAGIC_V2 = 0xFD
+TIME_LEN = 8  # the record's receive time before each frame
+MAGIC_V1, MAGIC_V2 = 0xFE, 0xFD
+HEADER_LEN = {MAGIC_V1: 6, MAGIC_V2: 10}  # magic to message id inclusive
+CRC_LEN = 2
 SIGNATURE_LEN = 13
+IFLAG_SIGNED = 0x01
+MIN_RECORD = TIME_LEN + 3  # enough to read a frame's length and flags
+PAD = 300  # zero bytes after the data: more than the longest frame, so reading any frame's bytes stays inside
 
 
-def _open(path: Path, dialect: str) -> Any:
-    from pymavlink import mavutil
+def _crc_table() -> NDArray[np.uint16]:
+    """The byte table of MAVLink's X.25 CRC (pymavlink ``x25crc.accumulate``): crc' = crc>>8 ^ T[(crc ^ b) & 0xFF]."""
+    b = np.arange(256, dtype=np.int64)
+    tmp = (b ^ (b << 4)) & 0xFF
+    return ((tmp << 8) ^ (tmp << 3) ^ (tmp >> 4)).astype(np.uint16)
 
-    if not path.is_file():
-        raise DataFileError(f"{path}: no such telemetry log")
-    try:
-        return mavutil.mavlink_connection(str(path), dialect=dialect, robust_parsing=True, notimestamps=False)
-    except Exception as exc:  # pymavlink indexes the file on open, and fails on a damaged one with anything
-        raise DataFileError(f"{path}: not a readable telemetry log ({type(exc).__name__}: {exc})") from exc
+
+CRC_TABLE = _crc_table()
+
+
+def x25_crc(columns: NDArray[np.uint8], extra: NDArray[np.uint8]) -> NDArray[np.uint16]:
+    """The CRC of many equally long byte strings at once: ``columns`` (length, n) byte ``j`` of each string
+    in row ``j``, then each string's ``extra`` byte (the message's ``crc_extra``)."""
+    crc = np.full(columns.shape[1], 0xFFFF, dtype=np.uint16)
+    for byte in (*columns, extra):
+        crc = (crc >> 8) ^ CRC_TABLE[(crc ^ byte) & 0xFF]
+    return crc
+
+
+def _frame(data: bytes) -> tuple[list[int], int, int, int]:
+    """Where each record starts; the bytes skipped (no MAVLink magic where a record should start), the first
+    of them (-1: none); and where framing stopped (``len(data)``: at the end)."""
+    starts: list[int] = []
+    append = starts.append
+    n = len(data)
+    ofs = skipped = 0
+    first_skip = -1
+    while ofs + MIN_RECORD <= n:
+        magic = data[ofs + TIME_LEN]
+        if magic == MAGIC_V2:
+            end = ofs + 20 + data[ofs + 9] + (SIGNATURE_LEN if data[ofs + 10] & IFLAG_SIGNED else 0)
+        elif magic == MAGIC_V1:
+            end = ofs + 16 + data[ofs + 9]
+        else:
+            found = [p for p in (data.find(b"\xfd", ofs + 9), data.find(b"\xfe", ofs + 9)) if p >= 0]
+            resume = min(found) - TIME_LEN if found else n
+            first_skip = ofs if first_skip < 0 else first_skip
+            skipped += resume - ofs
+            ofs = resume
+            continue
+        if end > n:
+            break
+        append(ofs)
+        ofs = end
+    return starts, skipped, first_skip, ofs
+
+
+@dataclass
+class _Table:
+    """The records of one message type that passed their CRC: their place in the log and their columns."""
+
+    name: str
+    index: NDArray[np.int64]  # position among the kept records (log order)
+    sender: NDArray[np.int64]  # system << 8 | component
+    t_rx: NDArray[np.float64]  # the log's receive time, s since 1970
+    fields: dict[str, NDArray[Any]]
+
+
+def _sender(code: int) -> Sender:
+    return (code >> 8, code & 0xFF)
+
+
+class TlogSource:
+    """A telemetry log as a message source (see the module docstring)."""
+
+    vehicle: Sender | None = None  # a ground station's log holds every system it heard: lock on as live
+
+    def __init__(self, path: str | Path, decoder: MavlinkDecoder) -> None:
+        self.path = Path(path)
+        self.name = str(path)
+        self.decoder = decoder
+        self.finished = False
+        self.damage: str | None = None
+        self.bad_records = 0
+        self._next = 0
+        if not self.path.is_file():
+            raise DataFileError(f"{path}: no such telemetry log")
+        try:
+            data = self.path.read_bytes()
+        except OSError as exc:
+            raise DataFileError(f"{path}: cannot read: {exc.strerror or exc}") from exc
+        self.size_bytes = len(data)
+        self.tables, self.count = self._read(data)
+
+    def _read(self, data: bytes) -> tuple[dict[str, _Table], int]:
+        starts, skipped, first_skip, stop = _frame(data)
+        if stop < len(data):
+            self.damage = f"truncated: the record at byte {stop} is incomplete ({len(data) - stop} bytes)"
+        if skipped:
+            self.damage = f"damaged: {skipped} byte(s) skipped, the first at byte {first_skip}"
+        frames = _Frames(data, np.asarray(starts, dtype=np.int64))
+        ids = {mavlink2.mavlink_map[i].msgname: i for i in frames.ids_of(self.decoder.types)}
+        frames.keep(np.isin(frames.msgid, list(ids.values())))
+        good = frames.crc_ok()
+        if not good.all():
+            self.bad_records = int(np.count_nonzero(~good))
+            first = int(frames.start[~good][0])
+            self.damage = self.damage or f"damaged: the record at byte {first} does not decode (CRC)"
+        frames.keep(good)
+        tables = {name: frames.table(name, msg_id) for name, msg_id in ids.items()}
+        return {name: t for name, t in tables.items() if len(t.index)}, len(frames.start)
+
+    # --- one by one, as the live link --------------------------------------------------------------
+
+    @functools.cached_property
+    def _items(self) -> list[tuple[float, Sender, Any]]:
+        """Every record as the live link's item, in log order; built at the first recv."""
+        out: list[Any] = [None] * self.count
+        for table in self.tables.values():
+            senders = [_sender(c) for c in table.sender.tolist()]
+            items = self._decode_items(table)
+            for i, t_rx, sender, item in zip(table.index.tolist(), table.t_rx.tolist(), senders, items, strict=True):
+                out[i] = (t_rx, sender, item)
+        return out
+
+    def _decode_items(self, table: _Table) -> list[Any]:
+        name, f = table.name, table.fields
+        if name == "HEARTBEAT":
+            return [Heartbeat(bool(a)) for a in _autopilot_heartbeats(table).tolist()]
+        if name in ATTITUDE_MESSAGES:
+            return _attitudes(name, f)
+        if name in POSITION_MESSAGES:
+            valid, position = units.decode_position_columns(name, f)
+            dates = self._dates(table)
+            return [
+                PositionFix(units.Position(*p), d) if ok else None
+                for ok, p, d in zip(valid.tolist(), position.tolist(), dates, strict=True)
+            ]
+        if name == self.decoder.message:
+            try:
+                imu = units.decode_columns(name, f, self.decoder.profile)
+            except SensorError as exc:
+                return [Undecodable(exc)] * len(table.index)
+            return [Undecodable(imu.error(i)) if s is None else s for i, s in enumerate(imu.samples())]
+        return [None] * len(table.index)  # SYSTEM_TIME: its date goes with the positions
+
+    @property
+    def total(self) -> int:
+        """Records the source hands out in all (progress: :attr:`done` of them)."""
+        return self.count
+
+    @property
+    def done(self) -> int:
+        return self._next
+
+    def recv(self, timeout_s: float = 0.0) -> list[Received]:
+        items = self._items
+        start, stop = self._next, min(self._next + CHUNK_MESSAGES, len(items))
+        self._next = stop
+        self.finished = stop >= len(items)
+        return items[start:stop]
+
+    # --- all at once, for replay ---------------------------------------------------------------------
+
+    def streams_for(self, dispatcher: Dispatcher) -> LogStreams:
+        """The rows of the autopilot ``dispatcher`` follows (:meth:`Dispatcher.follow`) as arrays, in SI;
+        what it would count (ignored senders, undecodable input) is counted on it."""
+        code = np.full(self.count, -1, dtype=np.int64)
+        for table in self.tables.values():
+            code[table.index] = table.sender
+        taken = dispatcher.follow(code, self._heartbeat_items())
+        return self._streams({name: _rows(t, taken[t.index]) for name, t in self.tables.items()}, dispatcher)
+
+    def _heartbeat_items(self) -> Iterator[tuple[int, Received]]:
+        table = self.tables.get("HEARTBEAT")
+        if table is None:
+            return
+        autopilot = _autopilot_heartbeats(table).tolist()
+        for i, t_rx, code, ap in zip(
+            table.index.tolist(), table.t_rx.tolist(), table.sender.tolist(), autopilot, strict=True
+        ):
+            yield i, (t_rx, _sender(code), Heartbeat(ap))
+
+    def _streams(self, tables: dict[str, _Table], dispatcher: Dispatcher) -> LogStreams:
+        empty1, empty3 = np.empty(0), np.empty((0, 3))
+        t, acc, gyr, mag_t, mag, carried, wrap = empty1, empty3, empty3, empty1, empty3, None, None
+        imu_index = np.empty(0, dtype=np.int64)
+        imu_table = tables.get(self.decoder.message)
+        imu = self._imu_columns(imu_table, dispatcher) if imu_table is not None else None
+        if imu is not None:
+            ok = ~imu.refused
+            imu_index = imu_table.index[ok]  # type: ignore[union-attr]
+            t, acc, gyr, wrap = imu.time_s[ok], imu.acc_mps2[ok], imu.gyr_radps[ok], imu.time_wrap_s
+            has_mag = imu.has_mag[ok]
+            mag_t, mag = t[has_mag], imu.mag_uT[ok][has_mag]
+            carried = np.where(has_mag, np.cumsum(has_mag) - 1, -1)  # each message carries its own reading
+        att_t, att_q = self._attitudes(tables)
+        pos_t, pos, date = self._positions(tables, imu_index, t)
+        return LogStreams(t, acc, gyr, mag_t, mag, att_t, att_q, pos_t, pos, date, wrap, self.damage, carried)
+
+    def _imu_columns(self, table: _Table, dispatcher: Dispatcher) -> units.ImuColumns | None:
+        """The vehicle's IMU messages decoded; what cannot be is counted as the dispatcher counts it."""
+        try:
+            imu = units.decode_columns(table.name, table.fields, self.decoder.profile)
+        except SensorError as exc:
+            dispatcher.undecodable(exc, len(table.index))
+            return None
+        refused = int(np.count_nonzero(imu.refused))
+        if refused:
+            dispatcher.undecodable(imu.error(int(np.flatnonzero(imu.refused)[0])), refused)
+        return imu
+
+    def _attitudes(self, tables: dict[str, _Table]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        found = [(t.index, _attitudes(name, t.fields)) for name, t in tables.items() if name in ATTITUDE_MESSAGES]
+        if not found:
+            return np.empty(0), np.empty((0, 4))
+        order = np.argsort(np.concatenate([index for index, _ in found]), kind="stable")
+        attitudes = [a for _, items in found for a in items]
+        return (
+            np.array([attitudes[i].time_s for i in order], dtype=float),
+            np.array([attitudes[i].q for i in order], dtype=float).reshape(-1, 4),
+        )
+
+    def _positions(
+        self, tables: dict[str, _Table], imu_index: NDArray[np.int64], imu_t: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], dt.date | None]:
+        """The vehicle's positions, each at the time of the first IMU sample after it; the date of the first."""
+        parts = []
+        for name in POSITION_MESSAGES:
+            if name in tables:
+                valid, position = units.decode_position_columns(name, tables[name].fields)
+                parts.append((tables[name], valid, position))
+        if not parts:
+            return np.empty(0), np.empty((0, 3)), None
+        index = np.concatenate([t.index[v] for t, v, _ in parts])
+        order = np.argsort(index, kind="stable")
+        index = index[order]
+        position = np.concatenate([p[v] for _, v, p in parts])[order]
+        after = np.searchsorted(imu_index, index)  # the samples before each position
+        pos_t = np.append(imu_t, np.inf)[after]
+        t_rx = np.concatenate([t.t_rx[v] for t, v, _ in parts])[order]
+        date = self._date_at(int(index[0]), float(t_rx[0])) if len(index) else None
+        return pos_t, position, date
+
+    @functools.cached_property
+    def _vehicle_times(self) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+        """The records that carry the vehicle's GPS time (any sender, as the decoder takes them), in log order."""
+        parts = [
+            (t.index, units.utc_time_columns(name, t.fields))
+            for name, t in self.tables.items()
+            if name in ("SYSTEM_TIME", "GPS_RAW_INT")
+        ]
+        if not parts:
+            return np.empty(0, dtype=np.int64), np.empty(0)
+        index = np.concatenate([i for i, _ in parts])
+        unix_s = np.concatenate([u for _, u in parts])
+        keep = ~np.isnan(unix_s)
+        order = np.argsort(index[keep], kind="stable")
+        return index[keep][order], unix_s[keep][order]
+
+    def _date_at(self, record: int, t_rx: float) -> dt.date:
+        """The date a position at ``record`` (received at ``t_rx``) is given, as :class:`MavlinkDecoder`
+        gives it: the vehicle's latest GPS date at or before it, else the day the log recorded it."""
+        index, unix_s = self._vehicle_times
+        before = int(np.searchsorted(index, record, side="right")) - 1
+        return _utc_date(float(unix_s[before]) if before >= 0 else t_rx)
+
+    def _dates(self, table: _Table) -> list[dt.date]:
+        return [self._date_at(i, t) for i, t in zip(table.index.tolist(), table.t_rx.tolist(), strict=True)]
+
+
+def _utc_date(unix_s: float) -> dt.date:
+    return dt.datetime.fromtimestamp(unix_s, dt.timezone.utc).date()
+
+
+def _autopilot_heartbeats(table: _Table) -> NDArray[np.bool_]:
+    """Which HEARTBEATs are a flight controller's (:meth:`MavlinkLink.is_autopilot_heartbeat`, as columns)."""
+    from mavattitude.link.connection import NOT_AUTOPILOT_TYPES
+
+    f = table.fields
+    return (
+        (f["autopilot"] != mavlink2.MAV_AUTOPILOT_INVALID)
+        & ~np.isin(f["type"], list(NOT_AUTOPILOT_TYPES))
+        & ((table.sender >> 8) != 255)
+    )
+
+
+def _attitudes(name: str, f: dict[str, NDArray[Any]]) -> list[AutopilotAttitude]:
+    """The autopilot's attitudes, each as the live decoder makes it."""
+    t = (f["time_boot_ms"] * 1e-3).tolist()
+    if name == "ATTITUDE":
+        rpy = zip(t, f["roll"].tolist(), f["pitch"].tolist(), f["yaw"].tolist(), strict=True)
+        return [euler_attitude(*row) for row in rpy]
+    q = np.column_stack([f["q1"], f["q2"], f["q3"], f["q4"]]).astype(float).tolist()
+    return [AutopilotAttitude(ti, tuple(qi)) for ti, qi in zip(t, q, strict=True)]  # type: ignore[arg-type]
+
+
+def _rows(table: _Table, keep: NDArray[np.bool_]) -> _Table:
+    return _Table(
+        table.name,
+        table.index[keep],
+        table.sender[keep],
+        table.t_rx[keep],
+        {k: v[keep] for k, v in table.fields.items()},
+    )
+
+
+class _Frames:
+    """The framed records of a log as columns: where each frame starts, its header fields, payload and CRC."""
+
+    def __init__(self, data: bytes, start: NDArray[np.int64]) -> None:
+        self.buf = np.frombuffer(data + bytes(PAD), dtype=np.uint8)  # reads past a short last frame find zeros
+        self.start = start
+        self._header()
+
+    def _at(self, offsets: NDArray[np.int64]) -> NDArray[np.int64]:
+        return self.buf[offsets].astype(np.int64)
+
+    def _windows(self, offsets: NDArray[np.int64], length: int) -> NDArray[np.uint8]:
+        """The ``length`` bytes from each offset, (n, length)."""
+        return sliding_window_view(self.buf, length)[offsets]
+
+    def _header(self) -> None:
+        f = self.start + TIME_LEN
+        v2 = self._at(f) == MAGIC_V2
+        self.v2 = v2
+        self.length = self._at(f + 1)
+        self.system = np.where(v2, self._at(f + 5), self._at(f + 3))
+        self.component = np.where(v2, self._at(f + 6), self._at(f + 4))
+        self.msgid = np.where(v2, self._at(f + 7) | self._at(f + 8) << 8 | self._at(f + 9) << 16, self._at(f + 5))
+        self.payload = f + np.where(v2, HEADER_LEN[MAGIC_V2], HEADER_LEN[MAGIC_V1])
+
+    def keep(self, mask: NDArray[np.bool_]) -> None:
+        for name in ("start", "v2", "length", "system", "component", "msgid", "payload"):
+            setattr(self, name, getattr(self, name)[mask])
+
+    @staticmethod
+    def ids_of(names: Iterable[str]) -> list[int]:
+        return [
+            int(getattr(mavlink2, f"MAVLINK_MSG_ID_{n}")) for n in names if hasattr(mavlink2, f"MAVLINK_MSG_ID_{n}")
+        ]
+
+    def crc_ok(self) -> NDArray[np.bool_]:
+        """Whether each frame's CRC (header after the magic, payload, the message's crc_extra) matches."""
+        extra = np.zeros(int(self.msgid.max(initial=0)) + 1, dtype=np.uint8)
+        for msg_id in np.unique(self.msgid).tolist():
+            extra[msg_id] = mavlink2.mavlink_map[msg_id].crc_extra
+        first = self.start + TIME_LEN + 1
+        span = self.payload + self.length - first
+        stored = self._at(self.payload + self.length) | self._at(self.payload + self.length + 1) << 8
+        ok = np.zeros(len(self.start), dtype=bool)
+        for n in np.unique(span).tolist():
+            rows = np.flatnonzero(span == n)
+            columns = np.ascontiguousarray(self._windows(first[rows], n).T)
+            ok[rows] = x25_crc(columns, extra[self.msgid[rows]]) == stored[rows]
+        return ok
+
+    def table(self, name: str, msg_id: int) -> _Table:
+        """The frames of one message type, payloads unpacked by pymavlink's definition of it."""
+        rows = np.flatnonzero(self.msgid == msg_id)
+        cls = mavlink2.mavlink_map[msg_id]
+        size = cls.unpacker.size
+        body = self._windows(self.payload[rows], size)
+        short = self.length[rows] < size
+        if short.any():  # MAVLink 2 drops a payload's trailing zeros: put them back
+            body[short] = np.where(np.arange(size) < self.length[rows][short, None], body[short], 0)
+        records = np.ascontiguousarray(body).view(struct_dtype(cls.ordered_fieldnames, cls.unpacker.format)).ravel()
+        t_us = self._windows(self.start[rows], TIME_LEN).view(">u8").ravel()
+        return _Table(
+            name,
+            rows.astype(np.int64),
+            (self.system[rows] << 8) | self.component[rows],
+            t_us * 1e-6,
+            {field: records[field] for field in cls.ordered_fieldnames},
+        )
 
 
 def read_messages(
     path: str | Path, types: Iterable[str], *, system_id: int | None = None, dialect: str = "ardupilotmega"
 ) -> Iterator[Any]:
-    """Yield the messages of ``types`` (e.g. ``{"RAW_IMU"}``) in log order, optionally from one system.
+    """Yield the messages of ``types`` (e.g. ``{"RAW_IMU"}``) in log order, optionally from one system,
+    as pymavlink decodes them.
 
     Raises :class:`DataFileError` when the file cannot be opened; bad packets are skipped by pymavlink.
     """
-    log = _open(Path(path), dialect)
+    from pymavlink import mavutil
+
+    path = Path(path)
+    if not path.is_file():
+        raise DataFileError(f"{path}: no such telemetry log")
+    try:
+        log = mavutil.mavlink_connection(str(path), dialect=dialect, robust_parsing=True, notimestamps=False)
+    except Exception as exc:  # pymavlink indexes the file on open, and fails on a damaged one with anything
+        raise DataFileError(f"{path}: not a readable telemetry log ({type(exc).__name__}: {exc})") from exc
     wanted = sorted(set(types))
     try:
         while True:
@@ -50,80 +462,3 @@ def read_messages(
             yield msg
     finally:
         log.close()
-
-
-def _log_date(msg: Any) -> dt.date:
-    return dt.datetime.fromtimestamp(msg._timestamp, dt.timezone.utc).date()
-
-
-class TlogSource:
-    """A telemetry log as a message source: the messages the decoder reads, decoded, in log order.
-
-    pymavlink's memory-mapped reader indexes the log by message type; only the records of the types the
-    decoder reads are then decoded (CRC checked) by pymavlink's MAVLink 2 parser, one by one, without the
-    per-message bookkeeping of its connection objects (a copy of every message per type and system).
-    A record whose CRC fails is skipped and counted; a last record cut short is :attr:`damage`.
-    """
-
-    vehicle: Sender | None = None  # a ground station's log holds every system it heard: lock on as live
-
-    def __init__(self, path: str | Path, decoder: MavlinkDecoder, dialect: str = "ardupilotmega") -> None:
-        self.path = Path(path)
-        self.name = str(path)
-        self.decoder = MavlinkDecoder(decoder.message, decoder.profile, _log_date)
-        self.finished = False
-        self.damage: str | None = None
-        self.bad_records = 0
-        log = _open(self.path, dialect)
-        self._data = log.data_map if getattr(log, "data_map", None) is not None else b""
-        self.size_bytes = len(self._data)
-        offsets = getattr(log, "offsets", {})
-        wanted = [log.name_to_id[name] for name in self.decoder.types if name in getattr(log, "name_to_id", {})]
-        self._offsets = sorted(o for msg_id in wanted for o in offsets[msg_id])
-        self._mav = log.mav
-        self._log = log
-        self._next = 0
-
-    @property
-    def total(self) -> int:
-        """Records the source hands out in all (progress: :attr:`done` of them)."""
-        return len(self._offsets)
-
-    @property
-    def done(self) -> int:
-        return self._next
-
-    def recv(self, timeout_s: float = 0.0) -> list[Received]:
-        out: list[Received] = []
-        data, decode_frame, decode = self._data, self._mav.decode, self.decoder
-        stop = min(self._next + CHUNK_MESSAGES, len(self._offsets))
-        for ofs in self._offsets[self._next : stop]:
-            end = ofs + _frame_end(data, ofs)
-            if end > len(data):
-                self.damage = f"truncated: the record at byte {ofs} is incomplete"
-                continue
-            try:
-                msg = decode_frame(bytearray(data[ofs + 8 : end]))
-            except Exception as exc:  # pymavlink raises MAVError (and struct errors) on a damaged frame
-                self._bad(ofs, exc)
-                continue
-            t = int.from_bytes(data[ofs : ofs + 8], "big") * 1e-6
-            msg._timestamp = t
-            out.append((t, (msg.get_srcSystem(), msg.get_srcComponent()), decode(msg)))
-        self._next = stop
-        if stop >= len(self._offsets) and not self.finished:
-            self.finished = True
-            self._log.close()
-        return out
-
-    def _bad(self, ofs: int, exc: Exception) -> None:
-        self.bad_records += 1
-        if self.damage is None:
-            self.damage = f"damaged: the record at byte {ofs} does not decode ({exc})"
-
-
-def _frame_end(data: Any, ofs: int) -> int:
-    """The length of the record at ``ofs``: the 8-byte time, then a MAVLink 2 (0xFD) or 1 (0xFE) frame."""
-    if data[ofs + 8] == MAGIC_V2:
-        return 8 + 12 + data[ofs + 9] + (SIGNATURE_LEN if data[ofs + 10] & 1 else 0)
-    return 8 + 8 + data[ofs + 9]

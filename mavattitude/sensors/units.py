@@ -28,6 +28,9 @@ from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
+
 from mavattitude.errors import SensorError
 from mavattitude.estimation.conventions import STANDARD_GRAVITY_MPS2, Vec3
 from mavattitude.fields import ranged
@@ -240,6 +243,84 @@ def decode(msg: Any, profile: UnitProfile) -> ImuSample:
 
 
 _NONE_SATURATED: frozenset[str] = frozenset()
+_SENSORS = ("acc", "gyr", "mag")
+
+
+@dataclass
+class ImuColumns:
+    """Many IMU messages of one kind decoded at once (:func:`decode_columns`): what :func:`decode` gives each.
+
+    ``mag_uT`` rows are NaN where ``has_mag`` is false; ``saturated`` (n, 3) flags acc, gyr, mag at their
+    integer limit; ``refused`` rows are what :func:`decode` raises for (:meth:`error` says why).
+    """
+
+    kind: str
+    profile: UnitProfile
+    time_s: NDArray[np.float64]
+    acc_mps2: NDArray[np.float64]
+    gyr_radps: NDArray[np.float64]
+    mag_uT: NDArray[np.float64]
+    has_mag: NDArray[np.bool_]
+    saturated: NDArray[np.bool_]
+    refused: NDArray[np.bool_]
+    field_uT: NDArray[np.float64]
+
+    @property
+    def time_wrap_s(self) -> float | None:
+        return TIME_FIELDS[self.kind][2]
+
+    def error(self, row: int) -> SensorError:
+        return _implausible(self.kind, self.profile, float(self.field_uT[row]))
+
+    def samples(self) -> list[ImuSample | None]:
+        """Each row as :func:`decode` returns it; ``None`` for a refused row."""
+        wrap = self.time_wrap_s
+        sat = [frozenset(n for n, s in zip(_SENSORS, row, strict=True) if s) for row in self.saturated.tolist()]
+        mag = [tuple(m) if has else None for m, has in zip(self.mag_uT.tolist(), self.has_mag.tolist(), strict=True)]
+        rows = zip(self.time_s.tolist(), self.acc_mps2.tolist(), self.gyr_radps.tolist(), mag, sat, strict=True)
+        return [
+            None if bad else ImuSample(t, tuple(a), tuple(g), m, wrap, s or _NONE_SATURATED)  # type: ignore[arg-type]
+            for (t, a, g, m, s), bad in zip(rows, self.refused.tolist(), strict=True)
+        ]
+
+
+def decode_columns(kind: str, fields: Mapping[str, NDArray[Any]], profile: UnitProfile) -> ImuColumns:
+    """:func:`decode` for many messages of ``kind`` at once, ``fields`` the message's columns: the same
+    numbers, the same units (a log read as arrays). Raises :class:`SensorError` if the profile does not read
+    ``kind``."""
+    scale = profile.scale(kind)
+    values = np.empty((len(fields[_ACC[0]]), 9))
+    for i, name in enumerate((*_ACC, *_GYR, *_MAG)):
+        values[:, i] = fields[name]
+    time_field, unit_s, _ = TIME_FIELDS[kind]
+    time_s = fields[time_field] * unit_s
+    if kind == "HIGHRES_IMU":
+        has_mag = (fields["fields_updated"] & HIGHRES_MAG_UPDATED) != 0
+        saturated = np.zeros((len(values), 3), dtype=bool)
+    else:
+        bits = scale.count_bits
+        if bits is not None:
+            counts = values.astype(np.int64) & ((1 << bits) - 1)
+            values = (counts - np.where(counts >> (bits - 1), 1 << bits, 0)).astype(np.float64)
+        lo, hi = scale.limits
+        saturated = ((values <= lo) | (values >= hi)).reshape(-1, 3, 3).any(axis=2)
+        has_mag = np.any(values[:, 6:] != 0.0, axis=1)
+    mag = values[:, 6:] * scale.mag_uT
+    field_uT = np.sqrt(np.einsum("ij,ij->i", mag, mag))
+    mag[~has_mag] = np.nan
+    field_uT[~has_mag] = 0.0
+    return ImuColumns(
+        kind,
+        profile,
+        time_s,
+        values[:, :3] * scale.acc_mps2,
+        values[:, 3:6] * scale.gyr_radps,
+        mag,
+        has_mag,
+        saturated,
+        field_uT > MAX_PLAUSIBLE_FIELD_UT,
+        field_uT,
+    )
 
 
 def _saturated(acc: tuple, gyr: tuple, mag: tuple, lo: int, hi: int) -> frozenset[str]:
@@ -324,6 +405,17 @@ def decode_position(msg: Any) -> Position | None:
     return Position(lat_deg=msg.lat * 1e-7, lon_deg=msg.lon * 1e-7, alt_m=msg.alt * 1e-3)
 
 
+def decode_position_columns(kind: str, fields: Mapping[str, NDArray[Any]]) -> tuple[NDArray[np.bool_], NDArray[Any]]:
+    """:func:`decode_position` for many messages of ``kind``: which rows are a position, and every row's
+    latitude °, longitude °, altitude m (n, 3)."""
+    lat, lon = fields["lat"], fields["lon"]
+    valid = ~((lat == 0) & (lon == 0))
+    if kind == "GPS_RAW_INT":
+        valid &= fields["fix_type"] >= GPS_FIX_3D
+    position = np.column_stack([lat * 1e-7, lon * 1e-7, fields["alt"] * 1e-3])
+    return valid, position
+
+
 # A Unix time before this is not a GPS date: ArduPilot's GPS_RAW_INT.time_usec counts from boot, and
 # SYSTEM_TIME.time_unix_usec is 0 until the autopilot knows the time.
 EARLIEST_UNIX_S = 1_420_070_400  # 2015-01-01
@@ -342,3 +434,13 @@ def decode_utc_date(msg: Any) -> dt.date | None:
     if usec < EARLIEST_UNIX_S * 1_000_000:
         return None
     return dt.datetime.fromtimestamp(usec * 1e-6, dt.timezone.utc).date()
+
+
+def utc_time_columns(kind: str, fields: Mapping[str, NDArray[Any]]) -> NDArray[np.float64]:
+    """:func:`decode_utc_date` for many messages of ``kind``: each row's Unix time in s, NaN where it carries
+    no date (a message of another kind, or a time since boot)."""
+    name = {"SYSTEM_TIME": "time_unix_usec", "GPS_RAW_INT": "time_usec"}.get(kind)
+    if name is None:
+        return np.full(len(next(iter(fields.values()))), np.nan)
+    usec = fields[name]
+    return np.where(usec >= EARLIEST_UNIX_S * 1_000_000, usec * 1e-6, np.nan)

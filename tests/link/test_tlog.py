@@ -5,11 +5,14 @@ from __future__ import annotations
 import struct
 from pathlib import Path
 
+import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavattitude.errors import DataFileError
-from mavattitude.link.tlog import read_messages
+from mavattitude.estimation.conventions import angle_between
+from mavattitude.link.source import PositionFix
+from mavattitude.link.tlog import TlogSource, read_messages, x25_crc
 
 
 def write_tlog(path: Path, packets: list[tuple[int, str, dict]]) -> None:
@@ -43,3 +46,172 @@ def test_reads_the_requested_types_in_order_and_filters_the_system(tmp_path: Pat
 def test_missing_file_is_a_data_file_error(tmp_path: Path) -> None:
     with pytest.raises(DataFileError, match="no such telemetry log"):
         list(read_messages(tmp_path / "nope.tlog", {"RAW_IMU"}))
+
+
+# --- the array reader: every frame kind a ground station records, against pymavlink's decode of the file ---
+
+SIGNING_KEY = bytes(range(32))
+
+
+def _mixed_log(path: Path) -> list[tuple]:
+    """MAVLink 1 and 2 frames, signed and unsigned, payloads shortened by their trailing zeros, from two
+    autopilots and a ground station; returns (system, message, byte offset) of each record."""
+    from pymavlink.dialects.v10 import ardupilotmega as mavlink1
+
+    v2 = {s: mavlink2.MAVLink(None, srcSystem=s, srcComponent=1) for s in (1, 2, 255)}
+    v1 = mavlink1.MAVLink(None, srcSystem=1, srcComponent=1)
+    signed = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    signed.signing.secret_key, signed.signing.sign_outgoing, signed.signing.timestamp = SIGNING_KEY, True, 1
+    written: list[tuple] = []
+    records = []
+
+    def add(mav, system: int, name: str, **fields) -> None:
+        if mav is v1:  # MAVLink 1 has no extension fields: read back as zero
+            fields = {k: v for k, v in fields.items() if k not in ("id", "temperature")}
+        msg = getattr(mav, f"{name.lower()}_encode")(**fields)
+        records.append(msg.pack(mav))
+        written.append((system, name))
+
+    add(v2[255], 255, "HEARTBEAT", **{**HEARTBEAT, "autopilot": 8, "type": 6})
+    add(v2[2], 2, "HEARTBEAT", **HEARTBEAT)
+    add(v2[1], 1, "HEARTBEAT", **HEARTBEAT)
+    for i in range(60):
+        fields = _raw(i) | {"zmag": 0 if i % 3 == 0 else 400, "temperature": 0 if i % 2 else 2500}
+        mav = (v2[1], v1, signed)[i % 3]
+        add(mav, 1, "RAW_IMU", **fields)
+        add(v2[2], 2, "RAW_IMU", **_raw(1000 + i))
+        if i % 10 == 0:
+            add(v1 if i % 20 else signed, 1, "ATTITUDE", time_boot_ms=10 * i, roll=0.1, pitch=-0.2 * i, yaw=3.0,
+                rollspeed=0.0, pitchspeed=0.0, yawspeed=0.0)  # fmt: skip
+            add(v2[1], 1, "GLOBAL_POSITION_INT", time_boot_ms=10 * i, lat=474000000 + i, lon=85000000, alt=450000,
+                relative_alt=0, vx=0, vy=0, vz=0, hdg=0)  # fmt: skip
+    offset = 0
+    with path.open("wb") as f:
+        for i, buf in enumerate(records):
+            f.write(struct.pack(">Q", 1_700_000_000_000_000 + 5000 * i) + buf)
+            written[i] += (offset,)
+            offset += 8 + len(buf)
+    return written
+
+
+def _config(**settings):
+    from mavattitude.config import load_config
+
+    return load_config(
+        None, {"reference.magnetic": {"declination_deg": 0.0, "inclination_deg": 60.0}, **settings}, env={}
+    )
+
+
+def _source(path: Path, config) -> TlogSource:
+    from mavattitude.link.source import MavlinkDecoder
+
+    return TlogSource(path, MavlinkDecoder.from_config(config))
+
+
+def test_the_columns_are_pymavlinks_decode_of_every_frame_kind(tmp_path: Path) -> None:
+    path = tmp_path / "mixed.tlog"
+    written = _mixed_log(path)
+    source = _source(path, _config())
+    assert source.count == len(written) and source.bad_records == 0 and source.damage is None
+    names = ["HEARTBEAT", "RAW_IMU", "ATTITUDE", "GLOBAL_POSITION_INT"]
+    theirs = list(read_messages(path, names))
+    assert len(theirs) == len(written)
+    for name in names:
+        table = source.tables[name]
+        msgs = [m for m in theirs if m.get_type() == name]
+        assert [(m.get_srcSystem(), m.get_srcComponent()) for m in msgs] == [(c >> 8, c & 0xFF) for c in table.sender]
+        for field in msgs[0].get_fieldnames():
+            assert table.fields[field].tolist() == [getattr(m, field) for m in msgs], (name, field)  # exact
+
+
+def test_each_record_is_the_live_decoders_item(tmp_path: Path) -> None:
+    """recv() hands out what the live link's decoder makes of pymavlink's messages, with the same senders."""
+    from mavattitude.link.source import MavlinkDecoder
+
+    path = tmp_path / "mixed.tlog"
+    _mixed_log(path)
+    config = _config()
+    source = _source(path, config)
+    ours = []
+    while not source.finished:
+        ours += source.recv(0.0)
+    decode = MavlinkDecoder.from_config(config, lambda m: None)
+    theirs = list(read_messages(path, decode.types))
+    assert [s for _, s, _ in ours] == [(m.get_srcSystem(), m.get_srcComponent()) for m in theirs]
+    positions = 0
+    for (_, _, item), msg in zip(ours, theirs, strict=True):
+        expected = decode(msg)
+        if isinstance(item, PositionFix):  # the log's day: the decoder here was given none
+            positions += 1
+            assert item.position == expected.position and str(item.date) == "2023-11-14"
+        else:
+            assert item == expected
+    assert positions == 6
+
+
+def test_the_vehicle_is_chosen_by_the_dispatchers_rules(tmp_path: Path) -> None:
+    """At once, as one by one: the first autopilot heartbeat (not the ground station's), or the configured
+    system; every other record counted ignored."""
+    from mavattitude.replay import replay
+
+    path = tmp_path / "mixed.tlog"
+    written = _mixed_log(path)
+    for system in (0, 1):
+        config = _config(**{"link.vehicle_system_id": system})
+        at_once = replay(_source(path, config), config)
+        one_by_one = replay(_source(path, config), config, at_once=False)
+        vehicle = system or 2  # system 2's heartbeat comes first
+        mine = [n for s, n, _ in written if s == vehicle and n == "RAW_IMU"]
+        assert at_once.vehicle == one_by_one.vehicle == (vehicle, 1)
+        assert at_once.counters.received == one_by_one.counters.received == len(mine)
+        lock = next(i for i, (s, n, _) in enumerate(written) if s == vehicle and n == "HEARTBEAT")
+        taken = sum(1 for s, _, _ in written[lock + 1 :] if s == vehicle)
+        assert at_once.counters.ignored == one_by_one.counters.ignored == len(written) - taken - 1  # - the lock
+        a, b = at_once.output_array(), one_by_one.output_array()
+        assert len(a) >= 3 and np.array_equal(a[:, 0], b[:, 0])  # 60 samples 1 ms apart: 50 Hz output
+        assert np.max(angle_between(a[:, 1:], b[:, 1:])) < 1e-9  # the vectorised front end: equal to rounding
+
+
+def test_a_frame_that_fails_its_crc_is_counted_and_skipped(tmp_path: Path) -> None:
+    path = tmp_path / "mixed.tlog"
+    written = _mixed_log(path)
+    imu = [ofs for s, n, ofs in written if s == 1 and n == "RAW_IMU"]
+    data = bytearray(path.read_bytes())
+    for ofs in imu[4:6]:  # a MAVLink 1 and a signed MAVLink 2 frame: one payload byte each
+        data[ofs + 8 + 12] ^= 0x40
+    path.write_bytes(bytes(data))
+    source = _source(path, _config())
+    assert source.bad_records == 2
+    assert source.damage == f"damaged: the record at byte {imu[4]} does not decode (CRC)"
+    assert len(source.tables["RAW_IMU"].index) == 60 + 60 - 2  # the others read
+
+
+def test_a_truncated_last_record_ends_the_log_and_is_said(tmp_path: Path) -> None:
+    path = tmp_path / "mixed.tlog"
+    written = _mixed_log(path)
+    last = written[-1][2]
+    path.write_bytes(path.read_bytes()[: last + 15])
+    source = _source(path, _config())
+    assert source.damage is not None and source.damage.startswith(f"truncated: the record at byte {last} is incomplete")
+    assert source.count == len(written) - 1 and source.bad_records == 0
+
+
+def test_bytes_that_start_no_record_are_skipped_to_the_next_frame(tmp_path: Path) -> None:
+    path = tmp_path / "mixed.tlog"
+    written = _mixed_log(path)
+    cut = written[10][2]
+    data = path.read_bytes()
+    path.write_bytes(data[:cut] + b"\x00" * 7 + data[cut:])
+    source = _source(path, _config())
+    assert source.damage == f"damaged: 7 byte(s) skipped, the first at byte {cut}"
+    assert source.count == len(written)
+
+
+def test_the_crc_is_mavlinks_x25() -> None:
+    from pymavlink.mavutil import x25crc
+
+    rng = np.random.default_rng(7)
+    strings = rng.integers(0, 256, size=(50, 31), dtype=np.uint8)
+    extra = rng.integers(0, 256, size=50, dtype=np.uint8)
+    ours = x25_crc(np.ascontiguousarray(strings.T), extra)
+    assert ours.tolist() == [x25crc(bytes(s) + bytes([e])).crc for s, e in zip(strings, extra, strict=True)]
