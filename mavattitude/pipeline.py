@@ -260,7 +260,7 @@ class FusedEstimator:
         elif mag_ref_ned_uT is not self._mag_ref and not np.array_equal(self._mag_ref, mag_ref_ned_uT):
             self._filter.set_mag_ref(mag_ref_ned_uT)  # a new WMM field: the state kept (a restart re-inits from IGN)
         self._mag_ref = mag_ref_ned_uT
-        estimates = self._filter.push(sample.time_s, sample.gyr_radps, sample.acc_mps2, sample.mag_uT)
+        estimates = self._filter.push(sample.time_s, sample.gyr_radps, sample.acc_mps2, sample.mag_uT, sample.mag_age_s)
         front = _flag_names(sample.flags) - _RESET  # the filter acts on a reset itself; no output says it
         return [
             AttitudeOutput(

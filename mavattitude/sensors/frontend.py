@@ -27,7 +27,9 @@ Per input sample (:meth:`FrontEnd.push`, plain floats: the per-message cost is w
    interpolation of the filtered stream between the two input samples around it. A gap longer than
    ``input_timeout_s`` restarts the filter and the ticks (never bridged), counted and flagged ``RESET``.
    The magnetometer at a tick is interpolated when samples on both sides are in, else held from the last
-   one (``MAG_HELD``) for at most ``input_timeout_s``, else absent (``NO_MAG``, ``mag_uT`` is ``None``);
+   one (``MAG_HELD``) for at most ``input_timeout_s``, else absent (``NO_MAG``, ``mag_uT`` is ``None``); a
+   held reading's age (the tick's time minus the reading's) goes with it, ``mag_age_s``, so that an estimator
+   that knows the body's rotation can carry it to the tick (a 10 Hz magnetometer's reading is up to 0.1 s old);
 6. screening of the tick: ``| |a| − g | > acc_norm_tolerance · g`` (``ACC_NORM``) or
    ``| |B| − B₀ | > mag_norm_tolerance · B₀`` (``MAG_NORM``, once the expected ``B₀`` is known) are
    flagged, counted and down-weighted: ``acc_std_scale`` / ``mag_std_scale`` (× the σ of the noise model)
@@ -115,6 +117,7 @@ class ProcessedSample:
     flags: SampleFlag
     acc_std_scale: float = 1.0
     mag_std_scale: float = 1.0
+    mag_age_s: float = 0.0  # how long before time_s the magnetometer reading was taken (held), s
 
 
 @dataclass
@@ -428,7 +431,7 @@ class FrontEnd:
             flags = _RESET
             self._pending_reset = False
         acc = (y[0], y[1], y[2])
-        mag, mag_flag = self._mag_at(tk)
+        mag, mag_flag, mag_age_s = self._mag_at(tk)
         flags |= mag_flag
         acc_scale = mag_scale = 1.0
         if acc_suspect(_norm(acc), s):
@@ -444,19 +447,20 @@ class FrontEnd:
             for flag in _COUNTED_FLAGS:
                 if flags & flag:
                     c.flagged[flag.name or ""] += 1
-        return ProcessedSample(tk, acc, mag, (y[3], y[4], y[5]), _FLAGS[flags], acc_scale, mag_scale)
+        return ProcessedSample(tk, acc, mag, (y[3], y[4], y[5]), _FLAGS[flags], acc_scale, mag_scale, mag_age_s)
 
-    def _mag_at(self, tk: float) -> tuple[Vec3 | None, int]:
+    def _mag_at(self, tk: float) -> tuple[Vec3 | None, int, float]:
+        """The magnetometer at a tick, its flag, and its age (the tick's time minus the held reading's)."""
         m = self._mag
         if m.t_last is None:
-            return None, _NO_MAG
+            return None, _NO_MAG, 0.0
         if m.t_last >= tk:
             if m.t_prev is not None and m.t_prev < tk:
-                return _vec(_lerp(m.t_prev, m.y_prev, m.t_last, m.y_last, tk)), 0
-            return _vec(m.y_last), _MAG_HELD
+                return _vec(_lerp(m.t_prev, m.y_prev, m.t_last, m.y_last, tk)), 0, 0.0
+            return _vec(m.y_last), _MAG_HELD, 0.0
         if tk - m.t_last <= self.settings.input_timeout_s:
-            return _vec(m.y_last), _MAG_HELD
-        return None, _NO_MAG
+            return _vec(m.y_last), _MAG_HELD, tk - m.t_last
+        return None, _NO_MAG, 0.0
 
 
 _RESET, _ACC_NORM, _MAG_NORM, _MAG_HELD, _NO_MAG = (
@@ -518,6 +522,7 @@ class BatchOutput:
     flags: NDArray[np.int64]
     acc_std_scale: Array
     mag_std_scale: Array
+    mag_age_s: Array
     counters: FrontEndCounters
 
     def __len__(self) -> int:
@@ -533,10 +538,13 @@ class BatchOutput:
             self.flags,
             self.acc_std_scale,
             self.mag_std_scale,
+            self.mag_age_s,
         )
         return [
-            ProcessedSample(t, tuple(a), None if m[0] != m[0] else tuple(m), tuple(g), _FLAGS[f], sa, sm)  # NaN: no mag
-            for t, a, m, g, f, sa, sm in zip(*(c.tolist() for c in columns), strict=True)
+            ProcessedSample(
+                t, tuple(a), None if m[0] != m[0] else tuple(m), tuple(g), _FLAGS[f], sa, sm, age
+            )  # NaN: no mag
+            for t, a, m, g, f, sa, sm, age in zip(*(c.tolist() for c in columns), strict=True)
         ]
 
 
@@ -745,10 +753,10 @@ def _next_redesign(fs: Array, start: int, fs_d: float, tolerance: float) -> int:
 
 def _batch_epoch(
     s: FrontEndSettings, t: Array, imu: Array, tm: Array, mag: Array, c: FrontEndCounters
-) -> tuple[Array, Array, Array, NDArray[np.int64]]:
-    """Ticks of one boot epoch: (times, IMU values (6, ·), magnetometer (·, 3) NaN-padded, flags)."""
+) -> tuple[Array, Array, Array, NDArray[np.int64], Array]:
+    """Ticks of one boot epoch: (times, IMU values (6, ·), magnetometer (·, 3) NaN-padded, flags, its age)."""
     if len(t) == 0:
-        return np.empty(0), np.empty((6, 0)), np.empty((0, 3)), np.empty(0, dtype=np.int64)
+        return _NO_TICKS
     segments, mag_segments = _segments(t, s.input_timeout_s), _segments(tm, s.input_timeout_s)
     y, _ = _filter_batch_stream(s, t, imu, segments, c)
     ym, segm = _filter_batch_stream(s, tm, mag, mag_segments, c)
@@ -778,11 +786,14 @@ def _batch_epoch(
         idx_all.append(a + idx)
         flags.append(f)
     if not times:
-        return np.empty(0), np.empty((6, 0)), np.empty((0, 3)), np.empty(0, dtype=np.int64)
+        return _NO_TICKS
     tk, idx, f = (np.concatenate(v) for v in (times, idx_all, flags))
     val = np.concatenate(values, axis=1)
-    mag_out = _mag_at_batch(s, tk, t[idx], tm, ym, segm, f)
-    return tk, val, mag_out, f
+    mag_out, age = _mag_at_batch(s, tk, t[idx], tm, ym, segm, f)
+    return tk, val, mag_out, f, age
+
+
+_NO_TICKS = (np.empty(0), np.empty((6, 0)), np.empty((0, 3)), np.empty(0, dtype=np.int64), np.empty(0))
 
 
 def _mag_at_batch(
@@ -793,12 +804,14 @@ def _mag_at_batch(
     ym: Array,
     segm: NDArray[np.int64],
     flags: NDArray[np.int64],
-) -> Array:
-    """The magnetometer at each tick from the samples in by the time the tick is emitted (``t_emit``)."""
+) -> tuple[Array, Array]:
+    """The magnetometer at each tick from the samples in by the time the tick is emitted (``t_emit``), and
+    its age (:meth:`FrontEnd._mag_at`)."""
     out = np.full((len(tk), 3), np.nan)
+    age = np.zeros(len(tk))
     if len(tm) == 0:
         flags |= SampleFlag.NO_MAG
-        return out
+        return out, age
     jl = np.searchsorted(tm, t_emit, side="right") - 1
     none = jl < 0
     jl = np.maximum(jl, 0)
@@ -812,20 +825,20 @@ def _mag_at_batch(
     use_interp, use_held = interp & ~none, held & ~none & ~interp
     out[use_interp] = lerp[use_interp]
     out[use_held] = ym[:, jl[use_held]].T
+    age[use_held & ~after] = (tk - tm[jl])[use_held & ~after]
     flags[use_held] |= SampleFlag.MAG_HELD
     flags[~(use_interp | use_held)] |= SampleFlag.NO_MAG
-    return out
+    return out, age
 
 
-def _concat(pieces: list[tuple[Array, Array, Array, NDArray[np.int64]]], c: FrontEndCounters) -> BatchOutput:
+def _concat(pieces: list[tuple[Array, Array, Array, NDArray[np.int64], Array]], c: FrontEndCounters) -> BatchOutput:
+    tk, val, mag, flags, age = _NO_TICKS
     if pieces:
-        tk, mag, flags = (np.concatenate([piece[k] for piece in pieces]) for k in (0, 2, 3))
+        tk, mag, flags, age = (np.concatenate([piece[k] for piece in pieces]) for k in (0, 2, 3, 4))
         val = np.concatenate([piece[1] for piece in pieces], axis=1)
-    else:
-        tk, val, mag, flags = np.empty(0), np.empty((6, 0)), np.empty((0, 3)), np.empty(0, dtype=np.int64)
     ones = np.ones(len(tk))
     acc, gyr = np.ascontiguousarray(val[:3].T), np.ascontiguousarray(val[3:].T)
-    return BatchOutput(tk, acc, mag, gyr, flags, ones, ones.copy(), c)
+    return BatchOutput(tk, acc, mag, gyr, flags, ones, ones.copy(), age, c)
 
 
 def _screen_batch(s: FrontEndSettings, out: BatchOutput, b0: float | None) -> None:

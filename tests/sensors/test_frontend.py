@@ -258,6 +258,8 @@ def test_slow_magnetometer_is_interpolated_on_its_own_times_and_held_then_droppe
     slope = 5 * 2 * np.pi * 0.5  # µT/s, the wave's steepest
     assert err[False] < 0.03  # interpolated between magnetometer samples: the filter's residual, < 1 %
     assert err[True] < slope * 3 / 250  # held: at most one magnetometer interval (3 IMU samples) old
+    assert all(o.mag_age_s == 0.0 for o in steady if not o.flags & SampleFlag.MAG_HELD)  # interpolated to the tick
+    assert all(0.0 <= o.mag_age_s <= 3 / 250 for o in steady if o.flags & SampleFlag.MAG_HELD)
     # then the magnetometer stops: held for input_timeout_s, then absent
     fe = FrontEnd(FrontEndSettings(input_timeout_s=0.5))
     for s in _samples(t, acc, np.zeros((n, 3)), mag, mag_every=1)[:100]:
@@ -269,6 +271,7 @@ def test_slow_magnetometer_is_interpolated_on_its_own_times_and_held_then_droppe
     held = [o for o in later if o.time_s - t_last_mag <= 0.5]
     gone = [o for o in later if o.time_s - t_last_mag > 0.5]
     assert held and all(o.flags & SampleFlag.MAG_HELD and o.mag_uT is not None for o in held)
+    assert [o.mag_age_s for o in held] == pytest.approx([o.time_s - t_last_mag for o in held], abs=1e-12)
     assert gone and all(o.flags & SampleFlag.NO_MAG and o.mag_uT is None for o in gone)
 
 
@@ -313,6 +316,7 @@ def _assert_same_ticks(got: list[ProcessedSample], stream: list[ProcessedSample]
     magnetometers, values equal to rounding (the two filter forms round differently, by ~1e-13 of the signal)."""
     assert [o.time_s for o in got] == [o.time_s for o in stream]
     assert [o.flags for o in got] == [o.flags for o in stream]
+    assert [o.mag_age_s for o in got] == [o.mag_age_s for o in stream]
     got_v, stream_v = (
         np.array([o.acc_mps2 + o.gyr_radps + (o.mag_uT or (np.nan,) * 3) for o in os]) for os in (got, stream)
     )
