@@ -185,19 +185,26 @@ def quat_from_rotation_matrix(r: ArrayLike) -> Array:
     return quat_normalize(q)
 
 
+def _quat_from_half_angles(cr: float, sr: float, cp: float, sp: float, cy: float, sy: float) -> tuple:
+    """``q_yaw ⊗ q_pitch ⊗ q_roll`` from the cosines and sines of the half angles."""
+    return (
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    )
+
+
 def quat_from_euler(roll_rad: ArrayLike, pitch_rad: ArrayLike, yaw_rad: ArrayLike) -> Array:
     """Quaternion of ZYX Euler angles (yaw, then pitch, then roll), as MAVLink's ATTITUDE uses them."""
     hr, hp, hy = (np.asarray(a, dtype=float) / 2.0 for a in (roll_rad, pitch_rad, yaw_rad))
-    cr, sr, cp, sp, cy, sy = np.cos(hr), np.sin(hr), np.cos(hp), np.sin(hp), np.cos(hy), np.sin(hy)
-    return np.stack(
-        [
-            cr * cp * cy + sr * sp * sy,
-            sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy,
-        ],
-        -1,
-    )
+    return np.stack(_quat_from_half_angles(np.cos(hr), np.sin(hr), np.cos(hp), np.sin(hp), np.cos(hy), np.sin(hy)), -1)
+
+
+def quat_from_euler_parts(roll_rad: float, pitch_rad: float, yaw_rad: float) -> tuple[float, float, float, float]:
+    """Scalar (plain-float) twin of :func:`quat_from_euler`."""
+    hr, hp, hy = 0.5 * roll_rad, 0.5 * pitch_rad, 0.5 * yaw_rad
+    return _quat_from_half_angles(math.cos(hr), math.sin(hr), math.cos(hp), math.sin(hp), math.cos(hy), math.sin(hy))
 
 
 def euler_from_quat(q: ArrayLike) -> Array:
@@ -225,14 +232,6 @@ def quat_from_rotvec_parts(vx: float, vy: float, vz: float) -> tuple[float, floa
     half = 0.5 * math.sqrt(vx * vx + vy * vy + vz * vz)
     s = 0.5 * math.sin(half) / half if half > 1e-9 else 0.5 - half * half / 12.0
     return (math.cos(half), s * vx, s * vy, s * vz)
-
-
-def rotvec_from_quat_parts(q: tuple) -> tuple[float, float, float]:
-    """Scalar (plain-float) twin of :func:`rotvec_from_quat` for a unit quaternion (angle ≤ π)."""
-    w, x, y, z = q if q[0] >= 0.0 else (-q[0], -q[1], -q[2], -q[3])
-    n = math.sqrt(x * x + y * y + z * z)
-    scale = 2.0 * math.atan2(n, w) / n if n > 1e-12 else 2.0
-    return (scale * x, scale * y, scale * z)
 
 
 def rotvec_from_quat(q: ArrayLike) -> Array:

@@ -20,13 +20,13 @@ DataFlash ``.bin``, ULog ``.ulg``: :func:`mavattitude.link.logs.open_log`) all p
 from __future__ import annotations
 
 import datetime as dt
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from mavattitude.config import Config
 from mavattitude.errors import SensorError
+from mavattitude.estimation.conventions import quat_from_euler_parts
 from mavattitude.link.connection import MavlinkLink, Message
 from mavattitude.sensors import units
 
@@ -87,16 +87,7 @@ class MessageSource(Protocol):
 
 def euler_attitude(time_s: float, roll_rad: float, pitch_rad: float, yaw_rad: float) -> AutopilotAttitude:
     """An autopilot attitude given as ZYX Euler angles (MAVLink ATTITUDE, DataFlash ATT)."""
-    cr, sr = math.cos(0.5 * roll_rad), math.sin(0.5 * roll_rad)
-    cp, sp = math.cos(0.5 * pitch_rad), math.sin(0.5 * pitch_rad)
-    cy, sy = math.cos(0.5 * yaw_rad), math.sin(0.5 * yaw_rad)
-    q = (
-        cr * cp * cy + sr * sp * sy,
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-    )
-    return AutopilotAttitude(time_s, q)
+    return AutopilotAttitude(time_s, quat_from_euler_parts(roll_rad, pitch_rad, yaw_rad))
 
 
 @dataclass
