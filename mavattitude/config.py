@@ -41,6 +41,7 @@ from mavattitude.estimation.crosscheck import CrossCheckSettings
 from mavattitude.estimation.fused.settings import FusedSettings
 from mavattitude.estimation.solve import MAX_ITERATIONS, MIN_ANGLE_DEG, TOLERANCE_RAD
 from mavattitude.sensors.calibration import Calibration
+from mavattitude.sensors.frontend import FrontEndSettings
 from mavattitude.sensors.magref import MagneticReference
 from mavattitude.sensors.mounting import mounting_matrix
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES, CustomScales
@@ -159,7 +160,10 @@ def _meta(check: Check, doc: str) -> dict[str, Any]:
     return {"check": check, "doc": doc}
 
 
-# --- the schema -------------------------------------------------------------------------------------------
+# --- the schema (defaults are the domain settings' own where there are some) ---------------------------------
+
+
+_FRONT_END = FrontEndSettings()
 
 
 @dataclass(frozen=True)
@@ -201,7 +205,8 @@ class InputConfig:
     )
     profile: str = field(default="ardupilot", metadata=_meta(_choice(*PROFILE_NAMES), "unit profile of that message"))
     input_timeout_s: float = field(
-        default=0.5, metadata=_meta(_number(0.0, 60.0, lo_open=True), "input gap that stops output, s")
+        default=_FRONT_END.input_timeout_s,
+        metadata=_meta(_number(0.0, 60.0, lo_open=True), "input gap that stops output, s"),
     )
     custom: CustomScales = field(default_factory=CustomScales)
 
@@ -209,18 +214,22 @@ class InputConfig:
 @dataclass(frozen=True)
 class MountingConfig:
     rotation: str | Mat3 = field(
-        default="NONE", metadata=_meta(_rotation, "board → body rotation: ArduPilot name or 3×3 matrix")
+        default=_FRONT_END.mounting, metadata=_meta(_rotation, "board → body rotation: ArduPilot name or 3×3 matrix")
     )
 
 
 @dataclass(frozen=True)
 class FilterConfig:
     enabled: bool = field(
-        default=True, metadata=_meta(_boolean, "low-pass + resample; false solves every input sample as it comes")
+        default=_FRONT_END.filter_enabled,
+        metadata=_meta(_boolean, "low-pass + resample; false solves every input sample as it comes"),
     )
-    cutoff_hz: float = field(default=10.0, metadata=_meta(_positive, "Butterworth cutoff, Hz (< output_rate_hz / 2)"))
+    cutoff_hz: float = field(
+        default=_FRONT_END.cutoff_hz, metadata=_meta(_positive, "Butterworth cutoff, Hz (< output_rate_hz / 2)")
+    )
     output_rate_hz: float = field(
-        default=50.0, metadata=_meta(_number(0.0, 1000.0, lo_open=True), "resampled output rate, Hz")
+        default=_FRONT_END.output_rate_hz,
+        metadata=_meta(_number(0.0, 1000.0, lo_open=True), "resampled output rate, Hz"),
     )
 
 
