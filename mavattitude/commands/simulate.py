@@ -17,6 +17,7 @@ from mavattitude.sensors.units import MESSAGES, PROFILES
 from mavattitude.service import WaitReports
 from mavattitude.sim import scenarios
 from mavattitude.sim.scoring import Score
+from mavattitude.sim.sensors import DEFAULT_RATE_HZ
 from mavattitude.sim.vehicle import FakeVehicle, VehicleConfig
 
 NAME = "simulate"
@@ -55,7 +56,9 @@ def add_vehicle_arguments(parser: argparse.ArgumentParser, default_duration_s: f
         choices=MESSAGES,
         help="IMU message (default: RAW_IMU for ardupilot/adis16405, HIGHRES_IMU for px4)",
     )
-    parser.add_argument("--rate", type=float, default=200.0, metavar="HZ", help="IMU rate, Hz (default 200)")
+    parser.add_argument(
+        "--rate", type=float, default=DEFAULT_RATE_HZ, metavar="HZ", help=f"IMU rate, Hz (default {DEFAULT_RATE_HZ:g})"
+    )
     parser.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
     parser.add_argument(
         "--autopilot-error",

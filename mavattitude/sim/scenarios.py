@@ -20,7 +20,7 @@ import numpy as np
 from mavattitude.errors import InputError
 from mavattitude.estimation.conventions import Array, quat_from_rotation_matrix
 from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2
-from mavattitude.sim.sensors import AxisModel, SensorModel
+from mavattitude.sim.sensors import DEFAULT_RATE_HZ, AxisModel, SensorModel
 from mavattitude.sim.trajectory import Flip, Fly, Hold, Rotate, Script
 
 # Paper, Section 5.1 (docs/paper-notes.md): body vectors and noise.
@@ -146,7 +146,7 @@ GYRO_FULL_SCALE_RADPS = np.radians(2000.0)
 MAG_FULL_SCALE_UT = 490.0
 
 
-def paper_sensors(rate_hz: float = 200.0) -> SensorModel:
+def paper_sensors(rate_hz: float = DEFAULT_RATE_HZ) -> SensorModel:
     """The paper's per-axis noise, no other errors."""
     return SensorModel(
         accel=AxisModel(noise_std=PAPER_ACCEL_STD_MPS2, full_scale=ACCEL_FULL_SCALE_MPS2),
@@ -156,12 +156,12 @@ def paper_sensors(rate_hz: float = 200.0) -> SensorModel:
     )
 
 
-def ideal_sensors(rate_hz: float = 200.0) -> SensorModel:
+def ideal_sensors(rate_hz: float = DEFAULT_RATE_HZ) -> SensorModel:
     """Noise-free and undistorted (only the message encoding's quantisation remains)."""
     return SensorModel(rate_hz=rate_hz)
 
 
-def consumer_sensors(rate_hz: float = 200.0) -> SensorModel:
+def consumer_sensors(rate_hz: float = DEFAULT_RATE_HZ) -> SensorModel:
     """A consumer IMU on an ArduPilot board after its own calibration: noise, small residual errors, jitter."""
     return SensorModel(
         accel=AxisModel.scaled(

@@ -51,6 +51,9 @@ class AxisModel:
         return np.clip(out, -self.full_scale, self.full_scale)
 
 
+DEFAULT_RATE_HZ = 200.0  # the fake vehicle's IMU rate unless told otherwise
+
+
 @dataclass(frozen=True)
 class SensorModel:
     """The vehicle's IMU: three sensors, a rate, jitter and drop-outs."""
@@ -58,7 +61,7 @@ class SensorModel:
     accel: AxisModel = field(default_factory=AxisModel)
     gyro: AxisModel = field(default_factory=AxisModel)
     mag: AxisModel = field(default_factory=AxisModel)
-    rate_hz: float = 200.0
+    rate_hz: float = DEFAULT_RATE_HZ
     jitter_std_s: float = 0.0
     drop_probability: float = 0.0
 

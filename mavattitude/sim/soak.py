@@ -23,6 +23,7 @@ from mavattitude.errors import MavAttitudeError
 from mavattitude.sim import scenarios
 from mavattitude.sim.daemon import START_TIMEOUT_S, ServiceProcess, service_config
 from mavattitude.sim.scoring import Score
+from mavattitude.sim.sensors import DEFAULT_RATE_HZ
 from mavattitude.sim.trajectory import Rotate, Script
 from mavattitude.sim.vehicle import FakeVehicle, VehicleConfig
 
@@ -80,7 +81,7 @@ class SoakReport:
 
 def run_soak(
     duration_s: float = 3600.0,
-    rate_hz: float = 200.0,
+    rate_hz: float = DEFAULT_RATE_HZ,
     speed: float = 20.0,
     window_s: float = 300.0,
     seed: int = 0,
