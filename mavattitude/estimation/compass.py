@@ -62,6 +62,7 @@ from .conventions import (
     quat_from_rotvec_parts,
     quat_multiply_parts,
     quat_normalize_parts,
+    rotate_body_to_ned_parts,
     rotation_matrix_parts,
 )
 
@@ -212,15 +213,6 @@ def _std(n: int, s: float, s2: float) -> float:
     return math.sqrt(max(s2 / n - (s / n) ** 2, 0.0))
 
 
-def _rotate(r: tuple, v: Vec3) -> Vec3:
-    """``R v`` for a row-major rotation matrix 9-tuple (body → the gyroscope's fixed frame)."""
-    return (
-        r[0] * v[0] + r[1] * v[1] + r[2] * v[2],
-        r[3] * v[0] + r[4] * v[1] + r[5] * v[2],
-        r[6] * v[0] + r[7] * v[1] + r[8] * v[2],
-    )
-
-
 class TurnCheck:
     """Whether the field turns in the body as the gyroscope says it should (see the module docstring)."""
 
@@ -251,7 +243,7 @@ class TurnCheck:
             step = quat_from_rotvec_parts(gyr_radps[0] * dt, gyr_radps[1] * dt, gyr_radps[2] * dt)
             self._q = quat_normalize_parts(quat_multiply_parts(self._q, step))
         self._t = time_s
-        fixed = _rotate(rotation_matrix_parts(self._q), mag_uT)
+        fixed = rotate_body_to_ned_parts(rotation_matrix_parts(self._q), mag_uT)  # into the gyroscope's fixed frame
         recent = self._recent
         recent.append((time_s, self._q, fixed, mag_uT))
         while len(recent) > 1 and recent[1][0] <= time_s - TURN_SPAN_S:

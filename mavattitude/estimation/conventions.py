@@ -117,6 +117,15 @@ def rotation_matrix(q: ArrayLike) -> Array:
     return np.stack([np.stack(r[0:3], -1), np.stack(r[3:6], -1), np.stack(r[6:9], -1)], -2)
 
 
+def rotate_body_to_ned_parts(r: tuple, v: tuple) -> tuple:
+    """``R(q) v`` on components, given ``r = rotation_matrix_parts(q)`` (any row-major matrix times ``v``)."""
+    return (
+        r[0] * v[0] + r[1] * v[1] + r[2] * v[2],
+        r[3] * v[0] + r[4] * v[1] + r[5] * v[2],
+        r[6] * v[0] + r[7] * v[1] + r[8] * v[2],
+    )
+
+
 def rotate_ned_to_body_parts(r: tuple, v: tuple) -> tuple:
     """``A v = R(q)ᵀ v`` (Eq. 27) on components, given ``r = rotation_matrix_parts(q)``."""
     x, y, z = v

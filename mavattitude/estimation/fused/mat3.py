@@ -8,10 +8,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from ..conventions import Vec3
+from ..conventions import Vec3, rotate_body_to_ned_parts
 
 Block = tuple[float, float, float, float, float, float, float, float, float]  # a 3×3 block, row-major
 ZERO3: Block = (0.0,) * 9  # type: ignore[assignment]
+matvec = rotate_body_to_ned_parts  # a x
 
 
 def tmm_shift(r: Block, y: Block, k: float, e: Block) -> Block:
@@ -51,14 +52,6 @@ def symmetric(a: Block, diag: float = 0.0) -> Block:
     """``(a + aᵀ)/2 + diag I``: removes the rounding asymmetry of a covariance update."""
     xy, xz, yz = 0.5 * (a[1] + a[3]), 0.5 * (a[2] + a[6]), 0.5 * (a[5] + a[7])
     return (a[0] + diag, xy, xz, xy, a[4] + diag, yz, xz, yz, a[8] + diag)
-
-
-def matvec(a: Block, x: Sequence[float]) -> Vec3:
-    return (
-        a[0] * x[0] + a[1] * x[1] + a[2] * x[2],
-        a[3] * x[0] + a[4] * x[1] + a[5] * x[2],
-        a[6] * x[0] + a[7] * x[1] + a[8] * x[2],
-    )
 
 
 def dot(a: Sequence[float], b: Sequence[float]) -> float:
