@@ -340,6 +340,10 @@ class Config:
         return yaml.safe_dump(self.to_dict(), sort_keys=False, default_flow_style=None)
 
 
+#: The defaults, for help texts that quote them.
+DEFAULTS = Config()
+
+
 # --- building and cross-checks ----------------------------------------------------------------------------
 
 

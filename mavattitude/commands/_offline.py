@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 
-from mavattitude.config import Config, load_config
+from mavattitude.config import DEFAULTS, Config, load_config
 from mavattitude.errors import ConfigError, MavAttitudeError
 from mavattitude.estimation import METHODS
 from mavattitude.files import open_text
@@ -43,7 +43,7 @@ PROGRESS_MIN_SAMPLES = 50_000
 def add_config_arguments(parser: argparse.ArgumentParser) -> None:
     """The flags that override the config (they take precedence over --config and $MAVATTITUDE_CONFIG)."""
     parser.add_argument("--config", metavar="FILE", help="YAML config (see configs/); flags below override it")
-    parser.add_argument("--method", choices=METHODS, help="estimator (config default: ign)")
+    parser.add_argument("--method", choices=METHODS, help=f"estimator (config default: {DEFAULTS.estimator.method})")
     ref = parser.add_mutually_exclusive_group()
     ref.add_argument(
         "--declination",
@@ -57,21 +57,29 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
         "--accel-std",
         type=_std,
         metavar="S",
-        help="accelerometer noise σ, m/s²: one value or three comma-separated (config default: 0.05)",
+        help="accelerometer noise σ, m/s²: one value or three comma-separated "
+        f"(config default: {_sigmas(DEFAULTS.noise.accel_std_mps2)})",
     )
     parser.add_argument(
         "--mag-std",
         type=_std,
         metavar="S",
-        help="magnetometer noise σ, µT: one value or three comma-separated (config default: 0.5)",
+        help="magnetometer noise σ, µT: one value or three comma-separated "
+        f"(config default: {_sigmas(DEFAULTS.noise.mag_std_uT)})",
     )
     parser.add_argument(
         "--filter",
         action=argparse.BooleanOptionalAction,
         default=None,
-        help="low-pass and resample to the output rate (50 Hz by default) as the service does; --no-filter "
-        "solves every input sample (default: --filter)",
+        help=f"low-pass and resample to the output rate ({DEFAULTS.filter.output_rate_hz:g} Hz by default) as the "
+        "service does; --no-filter solves every input sample "
+        f"(default: --{'' if DEFAULTS.filter.enabled else 'no-'}filter)",
     )
+
+
+def _sigmas(std: tuple[float, ...]) -> str:
+    """A per-axis σ as the flags take it: one value when the three are equal."""
+    return f"{std[0]:g}" if len(set(std)) == 1 else ",".join(f"{s:g}" for s in std)
 
 
 def _std(text: str) -> float | list[float]:

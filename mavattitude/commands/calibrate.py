@@ -26,6 +26,7 @@ from typing import Any, TextIO
 import numpy as np
 import yaml
 
+from mavattitude.config import DEFAULTS
 from mavattitude.errors import CalibrationError, DataFileError, SensorError
 from mavattitude.files import LOG_SUFFIXES, MAG_COLUMNS, open_text, reading
 from mavattitude.sensors import magfit, units
@@ -54,15 +55,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", required=True, metavar="OUT.yaml", help="YAML file to write")
     parser.add_argument(
         "--profile",
-        default="ardupilot",
+        default=DEFAULTS.input.profile,
         choices=sorted(units.PROFILES),
-        help="unit profile of the IMU messages in a .tlog or on the link (default ardupilot)",
+        help=f"unit profile of the IMU messages in a .tlog or on the link (default {DEFAULTS.input.profile})",
     )
     parser.add_argument(
         "--message",
         choices=units.MESSAGES,
         help="IMU message to read from a .tlog or the link (default: the first one the profile reads that the "
-        "log holds; RAW_IMU live)",
+        "log holds; live, the one its sender streams by default, e.g. RAW_IMU for ardupilot)",
     )
     parser.add_argument("--system-id", type=int, help="read only this MAVLink system (default: any)")
     parser.add_argument(
@@ -204,7 +205,9 @@ def _log_samples(path: Path, args: argparse.Namespace) -> Iterator[units.ImuSamp
     message = args.message
     if message is None and detect_format(path) == "tlog":
         message = _first_imu_message(path, units.get_profile(args.profile), args.system_id)
-    config = load_config(None, {"input.profile": args.profile, "input.message": message or "RAW_IMU"}, env={})
+    profile = units.get_profile(args.profile)
+    overrides = {"input.profile": args.profile, "input.message": message or profile.default_message}
+    config = load_config(None, overrides, env={})
     source = open_log(path, config)
     readings = _Readings()
     dispatcher = Dispatcher(readings, _Skipped(), system_id=args.system_id or 0, vehicle=source.vehicle)
@@ -230,7 +233,7 @@ def _live_samples(connect: str, args: argparse.Namespace) -> Iterator[units.ImuS
     from mavattitude.link.mavlink2 import message_id
 
     profile = units.get_profile(args.profile)
-    message = args.message or "RAW_IMU"
+    message = args.message or profile.default_message
     now = time.monotonic()
     deadline, next_heartbeat, next_request = now + args.duration, now, float("inf")
     vehicle: tuple[int, int] | None = None

@@ -15,6 +15,7 @@ import time
 
 from mavattitude.cli import EXIT_INTERRUPTED
 from mavattitude.commands.simulate import add_vehicle_arguments, vehicle_from_args
+from mavattitude.config import DEFAULTS
 from mavattitude.errors import MavAttitudeError
 from mavattitude.estimation import METHODS
 from mavattitude.sim.daemon import START_TIMEOUT_S, ServiceProcess, config_for
@@ -30,7 +31,10 @@ log = logging.getLogger(__name__)
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_vehicle_arguments(parser, default_duration_s=20.0)
     parser.add_argument(
-        "--method", default="ign", choices=METHODS, help="the service's estimator (default ign, the paper's)"
+        "--method",
+        default=DEFAULTS.estimator.method,
+        choices=METHODS,
+        help=f"the service's estimator (default {DEFAULTS.estimator.method})",
     )
     parser.add_argument("--interval", type=float, default=1.0, metavar="S", help="table row period, s (default 1)")
 

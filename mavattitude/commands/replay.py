@@ -46,7 +46,7 @@ from mavattitude.commands._offline import (
     summarise,
     write_outputs,
 )
-from mavattitude.config import Config
+from mavattitude.config import DEFAULTS, Config
 from mavattitude.errors import DataFileError, MavAttitudeError
 from mavattitude.files import LOG_SUFFIXES
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
@@ -84,9 +84,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--mag", type=int, default=0, metavar="I", help="magnetometer instance of a .bin/.ulg (default 0)"
     )
     parser.add_argument(
-        "--message", choices=MESSAGES, type=str.upper, help="IMU message of a .tlog (config default: RAW_IMU)"
+        "--message",
+        choices=MESSAGES,
+        type=str.upper,
+        help=f"IMU message of a .tlog (config default: {DEFAULTS.input.message})",
     )
-    parser.add_argument("--profile", choices=PROFILE_NAMES, help="unit profile of a .tlog (config default: ardupilot)")
+    parser.add_argument(
+        "--profile", choices=PROFILE_NAMES, help=f"unit profile of a .tlog (config default: {DEFAULTS.input.profile})"
+    )
     parser.add_argument(
         "--plot", metavar="PNG", help="plot file of a single log (default: the output's name with .png)"
     )

@@ -12,6 +12,7 @@ import logging
 import time
 
 from mavattitude.cli import EXIT_INTERRUPTED
+from mavattitude.config import DEFAULTS
 from mavattitude.errors import MavAttitudeError
 from mavattitude.sensors.units import MESSAGES, PROFILES
 from mavattitude.service import WaitReports
@@ -48,13 +49,18 @@ def add_vehicle_arguments(parser: argparse.ArgumentParser, default_duration_s: f
         help="sensor error preset: paper (the paper's noise), ideal, consumer (default)",
     )
     parser.add_argument(
-        "--profile", default="ardupilot", choices=sorted(PROFILES), help="unit profile (default ardupilot)"
+        "--profile",
+        default=DEFAULTS.input.profile,
+        choices=sorted(PROFILES),
+        help=f"unit profile (default {DEFAULTS.input.profile})",
     )
     parser.add_argument(
         "--message",
         type=str.upper,
         choices=MESSAGES,
-        help="IMU message (default: RAW_IMU for ardupilot/adis16405, HIGHRES_IMU for px4)",
+        help="IMU message (default: the profile's own, "
+        + ", ".join(f"{p.default_message} for {name}" for name, p in PROFILES.items())
+        + ")",
     )
     parser.add_argument(
         "--rate", type=float, default=DEFAULT_RATE_HZ, metavar="HZ", help=f"IMU rate, Hz (default {DEFAULT_RATE_HZ:g})"
