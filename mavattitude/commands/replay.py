@@ -10,7 +10,8 @@ reference.magnetic auto, the World Magnetic Model is evaluated at the log's posi
 One log and OUT ending in .csv (or .csv.gz): the attitude is written there. Several logs, or a
 directory of them: OUT is a directory, with one CSV per log (the columns of `mavattitude solve`), and
 summary.csv, the table also printed: per log its duration, samples, outputs, ours-minus-autopilot
-roll / pitch / yaw RMS and p99 (degrees), rejected inputs and what was wrong with the file, if anything.
+roll / pitch / yaw RMS and p99 (degrees; at each of the autopilot's attitudes, ours interpolated to its
+time, as the service's cross-check pairs them), rejected inputs and what was wrong with the file, if anything.
 -j N replays N logs at a time in worker processes. Where a log holds the autopilot's own attitude, a
 PNG comparison plot is written beside its CSV (needs matplotlib: pip install mavattitude[plot]).
 
@@ -56,8 +57,6 @@ HELP = "the service's pipeline over flight logs (.tlog, DataFlash .bin, ULog .ul
 
 log = logging.getLogger(__name__)
 
-# Autopilot attitudes further apart than this are not interpolated between.
-MAX_ATTITUDE_GAP_S = 0.5
 SNAPSHOT_NOTE = (
     "{method} uses the accelerometer and magnetometer only: in accelerations it reads specific force as gravity, "
     "so its roll/pitch differ from the gyro-aided autopilot's there (--method fused follows it)"
@@ -238,8 +237,6 @@ def replay_log(job: Job) -> LogResult:
         _compass_columns(replayed.pipeline.compass.figures(), result)
     if replayed.autopilot:
         _compare(replayed.output_array(), replayed.autopilot_array(), job, result)
-        if job.config.crosscheck.enabled:
-            _cross_check(replayed.output_array(), replayed.autopilot_array(), job, result)
     else:
         log.info("%s holds no attitude from the autopilot: no comparison", job.log)
     return result
@@ -286,13 +283,8 @@ def _compass_columns(figures: Any, result: LogResult) -> None:
     }
 
 
-def _cross_check(ours: np.ndarray, autopilot: np.ndarray, job: Job, result: LogResult) -> None:
+def _report_cross_check(check: Any, events: list[Any], job: Job, result: LogResult) -> None:
     """The service's cross-check over the log: its warnings (vehicle time) and figures, as live."""
-    from mavattitude.estimation.crosscheck import cross_check_log
-
-    check, _, events = cross_check_log(
-        ours[:, 0], ours[:, 1:5], autopilot[:, 0], autopilot[:, 1:5], job.config.crosscheck
-    )
     for event in events:
         if event.disagree:
             log.warning(
@@ -353,48 +345,33 @@ def _write_summary(path: Path, results: list[LogResult]) -> None:
         writer.writerows(rows)
 
 
-def compare(ours: np.ndarray, autopilot: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Ours (rows ``t_s, qw, qx, qy, qz``) against the autopilot's attitude (rows ``t_s, qw, qx, qy, qz``).
-
-    Returns the times compared, the autopilot's quaternions there, and our-minus-theirs differences in
-    degrees ``(roll, pitch, yaw wrapped to ±180, total angle)``, at our output times that fall between two
-    autopilot attitudes at most ``MAX_ATTITUDE_GAP_S`` apart.
-    """
-    from mavattitude.estimation.conventions import angle_between, euler_from_quat
-
-    t_ap = autopilot[:, 0]
-    q_ap = autopilot[:, 1:5]
-    t = ours[:, 0]
-    after = np.searchsorted(t_ap, t)
-    inside = (after > 0) & (after < len(t_ap))
-    after = np.clip(after, 1, len(t_ap) - 1)
-    inside &= (t_ap[after] - t_ap[after - 1]) <= MAX_ATTITUDE_GAP_S
-    t, q, after = t[inside], ours[inside, 1:5], after[inside]
-    q0, q1 = q_ap[after - 1], q_ap[after]
-    q1 = np.where(np.sum(q0 * q1, axis=1, keepdims=True) < 0, -q1, q1)  # the shorter way round
-    frac = ((t - t_ap[after - 1]) / (t_ap[after] - t_ap[after - 1]))[:, None]
-    q_ref = q0 + (q1 - q0) * frac
-    q_ref /= np.linalg.norm(q_ref, axis=1, keepdims=True)
-    diff = np.degrees(euler_from_quat(q) - euler_from_quat(q_ref))
-    diff[:, 2] = (diff[:, 2] + 180.0) % 360.0 - 180.0
-    total = np.degrees(angle_between(q, q_ref))
-    return t, q_ref, np.column_stack([diff, total])
-
-
 def comparison_table(diff_deg: np.ndarray) -> str:
     lines = [f"{'ours − autopilot (deg)':<24}{'mean':>9}{'rms':>9}{'p95 |.|':>9}{'max |.|':>9}"]
     for name, d in zip(("roll", "pitch", "yaw", "total angle"), diff_deg.T, strict=True):
         a = np.abs(d)
         lines.append(f"{name:<24}{d.mean():9.3f}{np.sqrt(np.mean(d**2)):9.3f}{np.percentile(a, 95):9.3f}{a.max():9.3f}")
-    lines.append(f"{len(diff_deg)} output samples compared with the autopilot's attitude")
+    lines.append(f"{len(diff_deg)} autopilot attitudes compared with ours (interpolated to their times)")
     return "\n".join(lines)
 
 
 def _compare(ours: np.ndarray, autopilot: np.ndarray, job: Job, result: LogResult) -> None:
-    t, q_ref, diff = compare(ours, autopilot) if len(ours) else (np.empty(0), np.empty((0, 4)), np.empty((0, 4)))
-    if len(t) == 0:
-        log.warning("%s: no output sample falls within the autopilot's attitude times: no comparison", job.log)
+    """Ours (rows ``t_s, qw, qx, qy, qz``) against the autopilot's attitude (the same rows), paired as the
+    service's cross-check pairs them (:mod:`mavattitude.estimation.crosscheck`): at each autopilot attitude's
+    time, ours interpolated between the two outputs around it. The summary's RMS and p99 of ours minus theirs,
+    the table, the plot, and the cross-check's own figures and warnings when it is enabled."""
+    from mavattitude.estimation.crosscheck import cross_check_log
+
+    check, pairs, events = cross_check_log(
+        ours[:, 0], ours[:, 1:5], autopilot[:, 0], autopilot[:, 1:5], job.config.crosscheck
+    )
+    if job.config.crosscheck.enabled:
+        _report_cross_check(check, events, job, result)
+    if not pairs:
+        log.warning("%s: no autopilot attitude falls within our output times: no comparison", job.log)
         return
+    t = np.array([d.time_s for d in pairs])
+    diff = np.array([(d.roll_deg, d.pitch_deg, d.yaw_deg, d.total_deg) for d in pairs])
+    q_ref = autopilot[np.searchsorted(autopilot[:, 0], t), 1:5]
     result.rms_deg = tuple(float(v) for v in np.sqrt(np.mean(diff[:, :3] ** 2, axis=0)))  # type: ignore[assignment]
     result.p99_deg = tuple(float(v) for v in np.percentile(np.abs(diff[:, :3]), 99.0, axis=0))  # type: ignore[assignment]
     if job.table:

@@ -117,7 +117,7 @@ def test_replay_writes_the_attitude_and_compares_with_the_autopilot(tmp_path, ca
     mean_yaw = float(yaw.split()[1])
     # Ours is the truth, the autopilot's is the truth + 2°: −2° within the error bound.
     assert abs(mean_yaw + AUTOPILOT_YAW_OFFSET_DEG) < MAX_ERR_DEG / 2
-    assert "output samples compared with the autopilot's attitude" in table
+    assert "autopilot attitudes compared with ours (interpolated to their times)" in table
     png = out.with_suffix(".png")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "other system or component" in captured.err  # vehicle 2 and the ground station were skipped

@@ -43,7 +43,7 @@ def test_one_dataflash_log_of_either_generation(tmp_path, capsys, new):
     rows = read_rows(out)
     assert len(rows) == pytest.approx(150, abs=2)  # 3 s at 50 Hz
     assert errors_deg(rows[10:]).max() < MAX_ERR_DEG
-    assert "compared with the autopilot's attitude" in capsys.readouterr().out
+    assert "autopilot attitudes compared with ours" in capsys.readouterr().out
 
 
 def test_a_directory_of_logs_with_bad_ones_among_them(tmp_path, capsys):
