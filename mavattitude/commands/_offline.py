@@ -53,20 +53,17 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
     )
     ref.add_argument("--mag-ref-ned", type=float, nargs=3, metavar=("N", "E", "D"), help="magnetic field in NED, µT")
     parser.add_argument("--inclination", type=float, metavar="DEG", help="magnetic inclination (dip), degrees down")
-    parser.add_argument(
-        "--accel-std",
-        type=_std,
-        metavar="S",
-        help="accelerometer noise σ, m/s²: one value or three comma-separated "
-        f"(config default: {_sigmas(DEFAULTS.noise.accel_std_mps2)})",
-    )
-    parser.add_argument(
-        "--mag-std",
-        type=_std,
-        metavar="S",
-        help="magnetometer noise σ, µT: one value or three comma-separated "
-        f"(config default: {_sigmas(DEFAULTS.noise.mag_std_uT)})",
-    )
+    noise = DEFAULTS.noise
+    for flag, sensor, unit, std in (
+        ("--accel-std", "accelerometer", "m/s²", noise.accel_std_mps2),
+        ("--mag-std", "magnetometer", "µT", noise.mag_std_uT),
+    ):
+        parser.add_argument(
+            flag,
+            type=_std,
+            metavar="S",
+            help=f"{sensor} noise σ, {unit}: one value or three comma-separated (config default: {_sigmas(std)})",
+        )
     parser.add_argument(
         "--filter",
         action=argparse.BooleanOptionalAction,
