@@ -6,11 +6,11 @@ through the same pipeline, keeping every attitude output and the autopilot's own
 
 The pipeline takes the samples at once (:meth:`AttitudePipeline.push_batch`: the vectorised front end,
 then the same estimator step per tick), which is what makes replay fast: a DataFlash or ULog log already
-holds its streams as arrays, from one vehicle; from a telemetry log the dispatcher's sink gathers the
-samples of the autopilot it locked onto into the same arrays. That needs one magnetic reference for the
-whole log (fixed, or the WMM's at the log's first position when the vehicle stays within the distance
-after which the service would look it up again); otherwise, and with ``at_once=False``, the samples go
-into the pipeline one by one as they would live.
+holds its streams as arrays, from one vehicle; a telemetry log is read as arrays too, its rows those of
+the autopilot the dispatcher's lock-on chooses (:meth:`~mavattitude.dispatch.Dispatcher.follow`). That
+needs one magnetic reference for the whole log (fixed, or the WMM's at the log's first position when the
+vehicle stays within the distance after which the service would look it up again); otherwise, and with
+``at_once=False``, the samples go into the pipeline one by one as they would live.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import numpy as np
 
 from mavattitude.config import Config
 from mavattitude.dispatch import DispatchCounters, Dispatcher
-from mavattitude.link.logs import LogStreams
+from mavattitude.link.logs import LogSource, LogStreams
 from mavattitude.link.source import AutopilotAttitude, MessageSource, Sender
 from mavattitude.pipeline import AttitudeOutput, AttitudePipeline
 from mavattitude.sensors.magref import distance_km
@@ -92,7 +92,7 @@ class _Collector:
 
 
 def replay(
-    source: MessageSource,
+    source: LogSource,
     config: Config,
     progress: Callable[[MessageSource], None] | None = None,
     at_once: bool = True,
@@ -102,11 +102,7 @@ def replay(
     result = Replayed([], [], DispatchCounters(), pipeline, None)
     if not at_once:
         return _replay_items(source, result, progress)
-    streams_for = getattr(source, "streams_for", None)
-    if streams_for is not None:  # a log read as arrays: the dispatcher's rules choose its vehicle's rows
-        streams = streams_for(_dispatcher(source, None, result))
-    else:
-        streams = _gather(source, result, progress)
+    streams = source.streams_for(_dispatcher(source, None, result))  # the dispatcher's rules choose the rows
     if result.vehicle is not None and _one_reference(streams, pipeline):
         return _replay_arrays(streams, result, result.vehicle)
     from mavattitude.link.logs import StreamSource  # the vehicle's streams, one by one
@@ -148,53 +144,6 @@ def _replay_items(
     if result.internal_errors:  # offline, a bug is reported, not served around
         raise result.internal_errors[0]
     return result
-
-
-class _Gathered:
-    """The dispatcher's sink while a telemetry log is read: the vehicle's samples and positions, in order."""
-
-    mag_ref_ned_uT = None
-
-    def __init__(self) -> None:
-        self.samples: list[ImuSample] = []
-        self.positions: list[tuple[int, float, float, float, Any]] = []  # (samples before it, lat, lon, alt, date)
-
-    def push(self, sample: ImuSample) -> list[AttitudeOutput]:
-        self.samples.append(sample)
-        return []
-
-    def set_position(self, lat_deg: float, lon_deg: float, alt_m: float, when: Any = None) -> bool:
-        self.positions.append((len(self.samples), lat_deg, lon_deg, alt_m, when))
-        return False
-
-    def streams(self, autopilot: list[AutopilotAttitude]) -> LogStreams:
-        """The gathered samples as a log's arrays; a position's time is that of the first sample after it."""
-        samples = self.samples
-        t = np.array([x.time_s for x in samples], dtype=float)
-        acc = np.array([x.acc_mps2 for x in samples], dtype=float).reshape(-1, 3)
-        gyr = np.array([x.gyr_radps for x in samples], dtype=float).reshape(-1, 3)
-        with_mag = [i for i, x in enumerate(samples) if x.mag_uT is not None]
-        mag = np.array([samples[i].mag_uT for i in with_mag], dtype=float).reshape(-1, 3)
-        carried = np.full(len(samples), -1, dtype=np.int64)
-        carried[with_mag] = np.arange(len(with_mag))
-        after = [i for i, *_ in self.positions]
-        pos_t = np.array([t[i] if i < len(t) else math.inf for i in after], dtype=float)
-        pos = np.array([p[1:4] for p in self.positions], dtype=float).reshape(-1, 3)
-        att_t = np.array([a.time_s for a in autopilot], dtype=float)
-        att_q = np.array([a.q for a in autopilot], dtype=float).reshape(-1, 4)
-        date = self.positions[0][4] if self.positions else None
-        wrap = samples[0].time_wrap_s if samples else None
-        return LogStreams(t, acc, gyr, t[with_mag], mag, att_t, att_q, pos_t, pos, date, wrap, imu_mag_index=carried)
-
-
-def _gather(source: MessageSource, result: Replayed, progress: Callable[[MessageSource], None] | None) -> LogStreams:
-    """The vehicle's samples, positions and attitudes of a source, through the dispatcher (lock-on, routing)."""
-    gathered = _Gathered()
-    _dispatch(source, gathered, result, progress)
-    streams = gathered.streams(result.autopilot)
-    result.autopilot = []  # _replay_arrays takes them from the streams
-    result.counters.received = result.counters.rejected["decode"]  # the samples: counted as they are replayed
-    return streams
 
 
 def _one_reference(streams: LogStreams, pipeline: AttitudePipeline) -> bool:

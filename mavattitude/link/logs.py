@@ -26,7 +26,7 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -210,7 +210,13 @@ def detect_format(path: Path) -> str:
     )
 
 
-def open_log(path: str | Path, config: Config, imu_instance: int = 0, mag_instance: int = 0) -> MessageSource:
+class LogSource(MessageSource, Protocol):
+    """A log file as a message source: its items one by one, or the followed vehicle's rows at once."""
+
+    def streams_for(self, dispatcher: Dispatcher) -> LogStreams: ...
+
+
+def open_log(path: str | Path, config: Config, imu_instance: int = 0, mag_instance: int = 0) -> LogSource:
     """The message source of one log file, its format recognised from its content (see the module docstring)."""
     from mavattitude.link.source import MavlinkDecoder
 

@@ -18,10 +18,10 @@ from mavattitude.estimation.conventions import (
     rotvec_from_quat,
 )
 from mavattitude.estimation.crosscheck import CrossCheckSettings, cross_check_log
+from mavattitude.link.logs import LogStreams
 from mavattitude.link.source import MavlinkDecoder
 from mavattitude.link.tlog import TlogSource
 from mavattitude.replay import replay
-from mavattitude.sensors.units import ImuSample
 from tests.shared import shared_path
 
 FLIP_Z = np.diag([1.0, 1.0, -1.0])  # a compass mounted upside down
@@ -41,17 +41,9 @@ class _Misoriented:
         self.source, self.rotation = source, rotation
         self.name, self.vehicle = source.name, source.vehicle
 
-    @property
-    def finished(self) -> bool:
-        return self.source.finished
-
-    def recv(self, timeout_s: float) -> list:
-        out = []
-        for t_rx, sender, item in self.source.recv(timeout_s):
-            if type(item) is ImuSample and item.mag_uT is not None:
-                item = dataclasses.replace(item, mag_uT=tuple((self.rotation @ np.array(item.mag_uT)).tolist()))
-            out.append((t_rx, sender, item))
-        return out
+    def streams_for(self, dispatcher) -> LogStreams:
+        streams = self.source.streams_for(dispatcher)
+        return dataclasses.replace(streams, mag_uT=streams.mag_uT @ self.rotation.T)
 
 
 def _replay(method: str, rotation: np.ndarray | None = None):
