@@ -34,7 +34,6 @@ from mavattitude.sensors.units import GAUSS_UT
 Topic = dict[str, NDArray]
 
 TIMESTAMP_S = 1e-6  # µs → s
-GAUSS_SI = GAUSS_UT
 GPS_FIX_3D = 3
 MAG_FIELD = "magnetometer_ga"
 #: The position fields of vehicle_gps_position by generation: (lat, lon, alt, scale of lat/lon, scale of alt → m).
@@ -58,7 +57,7 @@ def imu(sensor_combined: Topic) -> tuple[Array, Array, Array]:
 
 def mag(topic: Topic) -> tuple[Array, Array]:
     """vehicle_magnetometer → times (s) and field (µT)."""
-    return times_s(topic), vectors(topic, MAG_FIELD, GAUSS_SI)
+    return times_s(topic), vectors(topic, MAG_FIELD, GAUSS_UT)
 
 
 def combined_mag(sensor_combined: Topic) -> tuple[Array, Array]:
@@ -69,7 +68,7 @@ def combined_mag(sensor_combined: Topic) -> tuple[Array, Array]:
     """
     topic = sensor_combined
     t = times_s(topic) + np.asarray(topic["magnetometer_timestamp_relative"], dtype=float) * TIMESTAMP_S
-    field = vectors(topic, MAG_FIELD, GAUSS_SI)
+    field = vectors(topic, MAG_FIELD, GAUSS_UT)
     new = np.ones(len(t), dtype=bool)
     new[1:] = np.any(np.diff(field, axis=0) != 0.0, axis=1)
     keep = new & (t > 0.0)
