@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 from pymavlink import DFReader
 
 from mavattitude.errors import DataFileError
@@ -62,7 +63,7 @@ class _Reader:
             first_cut = int(offsets[~complete][0])
             self.damage = self.damage or f"truncated: the {name} record at byte {first_cut} is incomplete"
             offsets = offsets[complete]
-        body = self._bytes[offsets[:, None] + np.arange(3, fmt.len)]
+        body = sliding_window_view(self._bytes, fmt.len - 3)[offsets + 3]  # no (n, len) index array
         records = body.view(struct_dtype(fmt.columns, fmt.msg_struct)).ravel()
         return {
             column: records[column] * mult if mult is not None else records[column]
