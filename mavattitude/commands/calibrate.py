@@ -17,20 +17,27 @@ from __future__ import annotations
 import argparse
 import csv
 import logging
+import math
 import sys
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 import yaml
 
 from mavattitude.config import DEFAULTS
-from mavattitude.errors import CalibrationError, DataFileError, SensorError
+from mavattitude.errors import CalibrationError, DataFileError
 from mavattitude.files import LOG_SUFFIXES, MAG_COLUMNS, open_text, reading
+from mavattitude.link.requests import StreamRequest
 from mavattitude.sensors import magfit, units
 from mavattitude.sensors.calibration import mag_block
+
+if TYPE_CHECKING:
+    from mavattitude.dispatch import Dispatcher
+    from mavattitude.link.connection import MavlinkLink
+    from mavattitude.link.source import MessageSource
 
 NAME = "calibrate"
 HELP = "fit the magnetometer's hard- and soft-iron calibration (ellipsoid fit) and write its YAML block"
@@ -39,6 +46,7 @@ log = logging.getLogger(__name__)
 
 LIVE_MIN_SAMPLES = 500  # live collection stops once coverage is met with at least this many samples
 LIVE_RATE_HZ = 50.0  # the IMU rate asked of the autopilot while collecting
+LIVE_WAIT_S = 0.1  # the longest a live read waits for input before the periodic work
 REQUEST_REPEAT_S = 5.0  # asked again this often (a ground station may change rates; a reboot forgets)
 REST_RATE_RADPS = 0.05  # a batch turning slower than 3°/s throughout is a vehicle at rest
 PROGRESS_EVERY = 100
@@ -97,7 +105,10 @@ def run(args: argparse.Namespace) -> int:
     elif source.lower().endswith(LOG_SUFFIXES):
         mag = _collect(_log_samples(Path(source), args), args, sys.stderr, live=False)
     else:
-        mag = _collect(_live_samples(source, args), args, sys.stderr, live=True)
+        from mavattitude.link.connection import MavlinkLink
+
+        with MavlinkLink(source, source_system=args.system_id or 1) as link:
+            mag = _collect(_live_samples(link, args), args, sys.stderr, live=True)
     try:
         fit = magfit.fit_ellipsoid(mag, field_uT=args.field_uT, min_coverage=args.min_coverage)
     except CalibrationError as exc:
@@ -150,14 +161,6 @@ def read_csv_mag(path: Path) -> np.ndarray:
     return np.array(rows, dtype=float).reshape(-1, 3)
 
 
-def _imu_sample(msg: Any, profile: units.UnitProfile) -> units.ImuSample | None:
-    try:
-        return units.decode(msg, profile)
-    except SensorError as exc:
-        log.warning("skipped a %s: %s", msg.get_type(), exc)
-        return None
-
-
 class _Readings:
     """The dispatcher's sink in calibrate: the vehicle's samples are kept, not estimated."""
 
@@ -196,10 +199,26 @@ class _Skipped:
         """Not needed for a calibration."""
 
 
+def _read(
+    source: MessageSource, system_id: int, listener: Any, going: Callable[[Dispatcher], bool]
+) -> Iterator[units.ImuSample]:
+    """The autopilot's IMU samples from ``source``, through the service's dispatcher (lock-on to the
+    autopilot, ``system_id`` or the first; its IMU messages only), while ``going(dispatcher)`` (the
+    periodic work of a live link) says so and the source has more."""
+    from mavattitude.dispatch import Dispatcher
+
+    readings = _Readings()
+    dispatcher = Dispatcher(readings, listener, system_id=system_id, vehicle=source.vehicle)
+    while not source.finished and going(dispatcher):
+        for received in source.recv(LIVE_WAIT_S):
+            dispatcher.handle(received)
+        yield from readings.samples
+        readings.samples.clear()
+
+
 def _log_samples(path: Path, args: argparse.Namespace) -> Iterator[units.ImuSample]:
     """The autopilot's IMU samples of a .tlog, .bin or .ulg, through the service's source and dispatcher."""
     from mavattitude.config import load_config
-    from mavattitude.dispatch import Dispatcher
     from mavattitude.link.logs import detect_format, open_log
 
     message = args.message
@@ -208,14 +227,7 @@ def _log_samples(path: Path, args: argparse.Namespace) -> Iterator[units.ImuSamp
     profile = units.get_profile(args.profile)
     overrides = {"input.profile": args.profile, "input.message": message or profile.default_message}
     config = load_config(None, overrides, env={})
-    source = open_log(path, config)
-    readings = _Readings()
-    dispatcher = Dispatcher(readings, _Skipped(), system_id=args.system_id or 0, vehicle=source.vehicle)
-    while not source.finished:
-        for received in source.recv(0.0):
-            dispatcher.handle(received)
-        yield from readings.samples
-        readings.samples.clear()
+    return _read(open_log(path, config), args.system_id or 0, _Skipped(), lambda _: True)
 
 
 def _first_imu_message(path: Path, profile: units.UnitProfile, system_id: int | None) -> str | None:
@@ -225,37 +237,44 @@ def _first_imu_message(path: Path, profile: units.UnitProfile, system_id: int | 
     return next((msg.get_type() for msg in read_messages(path, list(profile.messages), system_id=system_id)), None)
 
 
-def _live_samples(connect: str, args: argparse.Namespace) -> Iterator[units.ImuSample]:
-    """The IMU samples of the autopilot on a live link, which is asked for them as the service asks: lock onto
-    its HEARTBEAT (``--system-id``, or the first autopilot's), send ours at 1 Hz as an onboard computer,
-    request the message with SET_MESSAGE_INTERVAL at once and every ``REQUEST_REPEAT_S``."""
-    from mavattitude.link.connection import MavlinkLink
+class _Live(_Skipped):
+    """The live link's periodic work while collecting, as the service does it: our HEARTBEAT at 1 Hz (as an
+    onboard computer, under the autopilot's system id once locked on), and the IMU message requested with
+    SET_MESSAGE_INTERVAL at once on locking and every ``REQUEST_REPEAT_S``; until ``duration_s`` is over."""
+
+    def __init__(self, link: MavlinkLink, request: StreamRequest, duration_s: float) -> None:
+        self.link = link
+        self.request = request
+        now = time.monotonic()
+        self.deadline, self.next_heartbeat, self.next_request = now + duration_s, now, math.inf
+
+    def on_lock(self, vehicle: tuple[int, int]) -> None:
+        self.link.set_source_system(vehicle[0])
+        self.next_request = self.next_heartbeat = time.monotonic()
+        log.info("locked onto the autopilot at system %d, component %d; asking for %s", *vehicle, self.request.name)
+
+    def __call__(self, dispatcher: Dispatcher) -> bool:
+        now = time.monotonic()
+        if now >= self.next_heartbeat:
+            self.next_heartbeat = now + 1.0
+            self.link.send_heartbeat()
+        if dispatcher.vehicle is not None and now >= self.next_request:
+            self.next_request = now + REQUEST_REPEAT_S
+            self.link.request_message_interval(dispatcher.vehicle, self.request.message_id, self.request.rate_hz)
+        return now < self.deadline
+
+
+def _live_samples(link: MavlinkLink, args: argparse.Namespace) -> Iterator[units.ImuSample]:
+    """The IMU samples of the autopilot on a live link, read as the service reads them (the link as a message
+    source, the service's dispatcher) and asked for as the service asks (:class:`_Live`)."""
     from mavattitude.link.mavlink2 import message_id
+    from mavattitude.link.source import MavlinkDecoder, MavlinkSource
 
     profile = units.get_profile(args.profile)
     message = args.message or profile.default_message
-    now = time.monotonic()
-    deadline, next_heartbeat, next_request = now + args.duration, now, float("inf")
-    vehicle: tuple[int, int] | None = None
-    with MavlinkLink(connect, source_system=args.system_id or 1) as link:
-        while now < deadline:
-            if now >= next_heartbeat:
-                next_heartbeat = now + 1.0
-                link.send_heartbeat()
-            if vehicle is not None and now >= next_request:
-                next_request = now + REQUEST_REPEAT_S
-                link.request_message_interval(vehicle, message_id(message), LIVE_RATE_HZ)
-            for _, msg in link.recv(timeout_s=0.1):
-                source = (msg.get_srcSystem(), msg.get_srcComponent())
-                if vehicle is None and link.is_autopilot_heartbeat(msg) and args.system_id in (None, source[0]):
-                    vehicle, next_request = source, now
-                    link.set_source_system(source[0])
-                    log.info("locked onto the autopilot at system %d, component %d; asking for %s", *source, message)
-                elif msg.get_type() == message and source == vehicle:
-                    sample = _imu_sample(msg, profile)
-                    if sample is not None:
-                        yield sample
-            now = time.monotonic()
+    source = MavlinkSource(link, MavlinkDecoder(message, profile))
+    live = _Live(link, StreamRequest(message, message_id(message), LIVE_RATE_HZ), args.duration)
+    return _read(source, args.system_id or 0, live, live)
 
 
 class _Coverage:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import gzip
 import io
+import itertools
 import socket
 import threading
 import warnings
@@ -16,7 +17,7 @@ import yaml
 from pymavlink import mavutil
 
 from mavattitude.cli import main
-from mavattitude.commands.calibrate import _collect
+from mavattitude.commands.calibrate import _collect, _live_samples
 from mavattitude.config import from_dict
 from mavattitude.link.mavlink2 import mavlink2
 from mavattitude.sensors.calibration import Calibration
@@ -145,6 +146,39 @@ def test_live_over_udp_asks_for_the_stream_and_shows_coverage(
     assert requests[0].param1 == mavlink2.MAVLINK_MSG_ID_RAW_IMU and requests[0].param2 == 1e6 / 50.0
     err = capsys.readouterr().err
     assert "coverage [" in err and "at rest" not in err
+
+
+def test_live_reads_the_chosen_autopilot_as_the_service_does() -> None:
+    """Live, through the service's message source and dispatcher: a ground station, a second autopilot and
+    an undecodable message are not read; only the chosen system is locked onto, asked and read."""
+    from mavattitude.link.memory import MemoryLink
+
+    links = {s: mavlink2.MAVLink(None, srcSystem=s, srcComponent=1) for s in (1, 2, 255)}
+    link = MemoryLink()
+    link.deliver(links[255].heartbeat_encode(6, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 0).pack(links[255]))
+    for system in (1, 2):
+        link.deliver(
+            links[system].heartbeat_encode(2, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4).pack(links[system])
+        )
+    link.deliver(links[2].raw_imu_encode(0, 0, 0, -1000, 0, 0, 0, 30000, 30000, 30000).pack(links[2]))  # 5196 µT
+
+    def imu(first: int) -> None:
+        for i in range(first, first + 10):
+            for system in (1, 2):
+                fields = dict(time_usec=1000 * i, xacc=system, yacc=0, zacc=-1000, xgyro=0, ygyro=0, zgyro=0)
+                link.deliver(links[system].raw_imu_encode(**fields, xmag=200 + i, ymag=0, zmag=400).pack(links[system]))
+
+    args = argparse.Namespace(message=None, profile="ardupilot", system_id=2, duration=30.0)
+    samples = _live_samples(link, args)
+    imu(0)
+    first = list(itertools.islice(samples, 10))
+    imu(10)  # read after the next periodic work: the request goes out on locking
+    both = first + list(itertools.islice(samples, 10))
+    assert [s.acc_mps2[0] for s in both] == [2 * 9.80665e-3] * 20  # system 2's, each once
+    assert [s.mag_uT[0] for s in both] == pytest.approx([(200 + i) * 0.1 for i in range(20)])
+    asked = [m for m in link.sent() if m.get_type() == "COMMAND_LONG"]
+    assert asked and {(m.target_system, m.target_component) for m in asked} == {(2, 1)}
+    assert asked[0].param1 == mavlink2.MAVLINK_MSG_ID_RAW_IMU
 
 
 def test_a_vehicle_at_rest_covers_nothing_and_is_told_to_turn() -> None:
