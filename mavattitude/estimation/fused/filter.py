@@ -248,15 +248,15 @@ class FusedFilter:
     def _measure(self, acc_mps2: ArrayLike, mag_uT: ArrayLike | None, time_s: float, mag_age_s: float) -> None:
         """The update's measurements, each accumulated into the error state."""
         ekf, s = self._ekf, self.settings
-        raw = (float(acc_mps2[0]), float(acc_mps2[1]), float(acc_mps2[2]))
-        if not math.isfinite(raw[0] + raw[1] + raw[2]) or math.sqrt(dot(raw, raw)) < 1e-3 * s.gravity_mps2:
+        raw = r0, r1, r2 = (float(acc_mps2[0]), float(acc_mps2[1]), float(acc_mps2[2]))
+        if not math.isfinite(r0 + r1 + r2) or math.sqrt(r0 * r0 + r1 * r1 + r2 * r2) < 1e-3 * s.gravity_mps2:
             self.counters["skipped_updates"] += 1
             return
         self.counters["updates"] += 1
         if s.rest_gyro_std_radps > 0.0:
             self._rest_update(raw, time_s)
         acc, sigma_a2 = self._prefiltered(raw)
-        acc_norm = math.sqrt(dot(acc, acc))
+        acc_norm = math.sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
         r = rotation_matrix_parts(ekf.q)
         mag = None if mag_uT is None else self._mag.corrected((float(mag_uT[0]), float(mag_uT[1]), float(mag_uT[2])))
         if mag is not None and mag_age_s > 0.0:
@@ -300,8 +300,10 @@ class FusedFilter:
         r_g = rotation_matrix_parts(self._ekf.q_gyro)
         a_earth = _matvec(r_g, raw)  # R(q_g) a
         lp_m, lp_r = self._lp_measure.step(a_earth), self._lp_reject.step(a_earth)
-        lag2 = (lp_m[0] - lp_r[0]) ** 2 + (lp_m[1] - lp_r[1]) ** 2 + (lp_m[2] - lp_r[2]) ** 2
-        norm_dev = math.sqrt(dot(lp_r, lp_r)) - s.gravity_mps2
+        m0, m1, m2 = lp_m
+        j0, j1, j2 = lp_r
+        lag2 = (m0 - j0) ** 2 + (m1 - j1) ** 2 + (m2 - j2) ** 2
+        norm_dev = math.sqrt(j0 * j0 + j1 * j1 + j2 * j2) - s.gravity_mps2
         sigma_a2 = s.accel_std_mps2**2 + (s.accel_norm_gain * norm_dev) ** 2 + s.accel_lag_gain**2 * lag2
         return rotate_ned_to_body_parts(r_g, lp_m), sigma_a2
 
@@ -410,6 +412,9 @@ class EarthFrameLowpass:
         self._bq: Biquad | None = None
         self.design(rate_hz)
         self._state: tuple[Vec3, Vec3, Vec3, Vec3] | None = None
+        self._coefficients = (
+            None if self._bq is None else (self._bq.b0, self._bq.b1, self._bq.b2, self._bq.a1, self._bq.a2)
+        )
 
     def design(self, rate_hz: float) -> None:
         """(Re-)design for inputs at ``rate_hz``; the state (the last inputs and outputs) carries on."""
@@ -420,20 +425,20 @@ class EarthFrameLowpass:
         self._state = None
 
     def step(self, x: Vec3) -> Vec3:
-        bq = self._bq
-        if bq is None:
+        if self._coefficients is None:
             return x
         if self._state is None:
             self._state = (x, x, x, x)  # x₋₁, x₋₂, y₋₁, y₋₂ at steady state
-        (p0, p1, p2), (q0, q1, q2), (y0, y1, y2), (z0, z1, z2) = self._state  # x₋₁, x₋₂, y₋₁, y₋₂
+        x_1, x_2, y_1, y_2 = self._state
+        (p0, p1, p2), (q0, q1, q2), (y0, y1, y2), (z0, z1, z2) = x_1, x_2, y_1, y_2
         x0, x1, x2 = x
-        b0, b1, b2, a1, a2 = bq.b0, bq.b1, bq.b2, bq.a1, bq.a2
+        b0, b1, b2, a1, a2 = self._coefficients
         y = (
             b0 * x0 + b1 * p0 + b2 * q0 - a1 * y0 - a2 * z0,
             b0 * x1 + b1 * p1 + b2 * q1 - a1 * y1 - a2 * z1,
             b0 * x2 + b1 * p2 + b2 * q2 - a1 * y2 - a2 * z2,
         )
-        self._state = (x, self._state[0], y, self._state[2])
+        self._state = (x, x_1, y, y_1)
         return y
 
 

@@ -32,20 +32,17 @@ class RestDetector:
 
     def rate(self, gyr: Vec3, acc: Vec3, bias: Vec3, time_s: float) -> Vec3 | None:
         """``ḡ − b`` once at rest for ``rest_min_s``, else None."""
+        g0, g1, g2 = gyr
+        a0, a1, a2 = acc
         if self._lp is None:
-            self._lp = (*gyr, *acc)
-        k, lp = self._alpha, self._lp
-        lp = self._lp = (
-            lp[0] + k * (gyr[0] - lp[0]),
-            lp[1] + k * (gyr[1] - lp[1]),
-            lp[2] + k * (gyr[2] - lp[2]),
-            lp[3] + k * (acc[0] - lp[3]),
-            lp[4] + k * (acc[1] - lp[4]),
-            lp[5] + k * (acc[2] - lp[5]),
-        )
-        dev_g2 = (gyr[0] - lp[0]) ** 2 + (gyr[1] - lp[1]) ** 2 + (gyr[2] - lp[2]) ** 2
-        dev_a2 = (acc[0] - lp[3]) ** 2 + (acc[1] - lp[4]) ** 2 + (acc[2] - lp[5]) ** 2
-        rate = (lp[0] - bias[0], lp[1] - bias[1], lp[2] - bias[2])
+            self._lp = (g0, g1, g2, a0, a1, a2)
+        k, (l0, l1, l2, l3, l4, l5) = self._alpha, self._lp
+        l0, l1, l2 = l0 + k * (g0 - l0), l1 + k * (g1 - l1), l2 + k * (g2 - l2)
+        l3, l4, l5 = l3 + k * (a0 - l3), l4 + k * (a1 - l4), l5 + k * (a2 - l5)
+        self._lp = (l0, l1, l2, l3, l4, l5)
+        dev_g2 = (g0 - l0) ** 2 + (g1 - l1) ** 2 + (g2 - l2) ** 2
+        dev_a2 = (a0 - l3) ** 2 + (a1 - l4) ** 2 + (a2 - l5) ** 2
+        rate = (l0 - bias[0], l1 - bias[1], l2 - bias[2])
         rate2 = rate[0] ** 2 + rate[1] ** 2 + rate[2] ** 2
         if not (dev_g2 < self._gyro2 and rate2 < self._gyro2 and dev_a2 < self._accel2):
             self._still_since_s = math.inf
