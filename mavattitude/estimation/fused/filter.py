@@ -388,16 +388,17 @@ class FusedFilter:
         """Estimates for every output tick up to ``time_s``, the attitude carried back to the tick time."""
         b, g = self._ekf.bias, self._gyr_last
         wx, wy, wz = g[0] - b[0], g[1] - b[1], g[2] - b[2]
-        rates = np.array([wx, wy, wz])
+        # np.fromiter: a small array from floats in half the time of np.array, which first guesses the shape.
+        rates = np.fromiter((wx, wy, wz), float, 3)
         if self._arrays is None:  # the covariance and bias change only at an update
-            self._arrays = np.array(self._ekf.p_tt).reshape(3, 3), np.array(b)
+            self._arrays = np.fromiter(self._ekf.p_tt, float, 9).reshape(3, 3), np.fromiter(b, float, 3)
         cov, bias = self._arrays
         q_now = self._current_q()
         out = []
         while self._next_output_s <= time_s:
             back = self._next_output_s - time_s
             carry = quat_from_rotvec_parts(wx * back, wy * back, wz * back)
-            q_tick = np.array(quat_normalize_parts(quat_multiply_parts(q_now, carry)))
+            q_tick = np.fromiter(quat_normalize_parts(quat_multiply_parts(q_now, carry)), float, 4)
             out.append(FusedEstimate(self._next_output_s, q_tick, rates, cov, bias, self._mag.disturbed))
             self._next_output_s += self._output_period_s
         return out
