@@ -411,16 +411,15 @@ class EarthFrameLowpass:
     def __init__(self, tau_s: float, rate_hz: float) -> None:
         self._tau_s = tau_s
         self._bq: Biquad | None = None
+        self._coefficients: tuple[float, float, float, float, float] | None = None  # the step's, read once
         self.design(rate_hz)
         self._state: tuple[Vec3, Vec3, Vec3, Vec3] | None = None
-        self._coefficients = (
-            None if self._bq is None else (self._bq.b0, self._bq.b1, self._bq.b2, self._bq.a1, self._bq.a2)
-        )
 
     def design(self, rate_hz: float) -> None:
         """(Re-)design for inputs at ``rate_hz``; the state (the last inputs and outputs) carries on."""
         if self._tau_s > 0.0:
-            self._bq = butter2(math.sqrt(2.0) / (2.0 * math.pi * self._tau_s), rate_hz)
+            bq = self._bq = butter2(math.sqrt(2.0) / (2.0 * math.pi * self._tau_s), rate_hz)
+            self._coefficients = (bq.b0, bq.b1, bq.b2, bq.a1, bq.a2)
 
     def reset(self) -> None:
         self._state = None
