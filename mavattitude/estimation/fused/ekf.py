@@ -151,7 +151,10 @@ class ErrorStateFilter:
             ub0, ub1, ub2 = u_b
             w_t = (s * kt0 - ut0, s * kt1 - ut1, s * kt2 - ut2)
             w_b = (s * kb0 - ub0, s * kb1 - ub1, s * kb2 - ub2)
-        self.p_tt, self.p_tb, self.p_bb = _updated(tt, tb, bb, w_t, w_b, (kt0, kt1, kt2), (kb0, kb1, kb2), u_t, u_b)
+        k_t, k_b = (kt0, kt1, kt2), (kb0, kb1, kb2)
+        self.p_tt = _sym_rank2(tt, w_t, k_t, u_t)
+        self.p_tb = _rank2(tb, w_t, k_b, k_t, u_b)
+        self.p_bb = _sym_rank2(bb, w_b, k_b, u_b)
         self.dx = (d0 + kt0 * z, d1 + kt1 * z, d2 + kt2 * z, d3 + kb0 * z, d4 + kb1 * z, d5 + kb2 * z)
 
     def reset(self) -> None:
@@ -170,36 +173,34 @@ _ZERO_V: Vec3 = (0.0, 0.0, 0.0)
 _ZERO_DX: tuple[float, ...] = (0.0,) * 6
 
 
-def _updated(
-    tt: Block, tb: Block, bb: Block, w_t: Vec3, w_b: Vec3, k_t: Vec3, k_b: Vec3, u_t: Vec3, u_b: Vec3
-) -> tuple[Block, Block, Block]:
-    """``P + w kᵀ − k uᵀ`` by blocks (``w``, ``k``, ``u`` split as ``[θ, b]``), the diagonal blocks' symmetric
-    parts (``P`` symmetric): the covariance after an update, written out in one call (three per update)."""
-    wt0, wt1, wt2 = w_t
-    wb0, wb1, wb2 = w_b
-    kt0, kt1, kt2 = k_t
-    kb0, kb1, kb2 = k_b
-    ut0, ut1, ut2 = u_t
-    ub0, ub1, ub2 = u_b
-    xy = tt[1] + 0.5 * (wt0 * kt1 + wt1 * kt0 - kt0 * ut1 - kt1 * ut0)
-    xz = tt[2] + 0.5 * (wt0 * kt2 + wt2 * kt0 - kt0 * ut2 - kt2 * ut0)
-    yz = tt[5] + 0.5 * (wt1 * kt2 + wt2 * kt1 - kt1 * ut2 - kt2 * ut1)
-    p_tt = (
-        tt[0] + wt0 * kt0 - kt0 * ut0, xy, xz,
-        xy, tt[4] + wt1 * kt1 - kt1 * ut1, yz,
-        xz, yz, tt[8] + wt2 * kt2 - kt2 * ut2,
-    )  # fmt: skip
-    p_tb = (
-        tb[0] + wt0 * kb0 - kt0 * ub0, tb[1] + wt0 * kb1 - kt0 * ub1, tb[2] + wt0 * kb2 - kt0 * ub2,
-        tb[3] + wt1 * kb0 - kt1 * ub0, tb[4] + wt1 * kb1 - kt1 * ub1, tb[5] + wt1 * kb2 - kt1 * ub2,
-        tb[6] + wt2 * kb0 - kt2 * ub0, tb[7] + wt2 * kb1 - kt2 * ub1, tb[8] + wt2 * kb2 - kt2 * ub2,
-    )  # fmt: skip
-    xy = bb[1] + 0.5 * (wb0 * kb1 + wb1 * kb0 - kb0 * ub1 - kb1 * ub0)
-    xz = bb[2] + 0.5 * (wb0 * kb2 + wb2 * kb0 - kb0 * ub2 - kb2 * ub0)
-    yz = bb[5] + 0.5 * (wb1 * kb2 + wb2 * kb1 - kb1 * ub2 - kb2 * ub1)
-    p_bb = (
-        bb[0] + wb0 * kb0 - kb0 * ub0, xy, xz,
-        xy, bb[4] + wb1 * kb1 - kb1 * ub1, yz,
-        xz, yz, bb[8] + wb2 * kb2 - kb2 * ub2,
-    )  # fmt: skip
-    return p_tt, p_tb, p_bb
+def _rank2(p: Block, a: Vec3, b: Vec3, c: Vec3, d: Vec3) -> Block:
+    """``p + a bᵀ − c dᵀ``."""
+    a0, a1, a2 = a
+    b0, b1, b2 = b
+    c0, c1, c2 = c
+    d0, d1, d2 = d
+    return (
+        p[0] + a0 * b0 - c0 * d0,
+        p[1] + a0 * b1 - c0 * d1,
+        p[2] + a0 * b2 - c0 * d2,
+        p[3] + a1 * b0 - c1 * d0,
+        p[4] + a1 * b1 - c1 * d1,
+        p[5] + a1 * b2 - c1 * d2,
+        p[6] + a2 * b0 - c2 * d0,
+        p[7] + a2 * b1 - c2 * d1,
+        p[8] + a2 * b2 - c2 * d2,
+    )
+
+
+def _sym_rank2(p: Block, w: Vec3, k: Vec3, u: Vec3) -> Block:
+    """The symmetric part of ``p + w kᵀ − k uᵀ`` (``p`` symmetric): the covariance block after an update."""
+    w0, w1, w2 = w
+    k0, k1, k2 = k
+    u0, u1, u2 = u
+    xx = p[0] + w0 * k0 - k0 * u0
+    yy = p[4] + w1 * k1 - k1 * u1
+    zz = p[8] + w2 * k2 - k2 * u2
+    xy = p[1] + 0.5 * (w0 * k1 + w1 * k0 - k0 * u1 - k1 * u0)
+    xz = p[2] + 0.5 * (w0 * k2 + w2 * k0 - k0 * u2 - k2 * u0)
+    yz = p[5] + 0.5 * (w1 * k2 + w2 * k1 - k1 * u2 - k2 * u1)
+    return (xx, xy, xz, xy, yy, yz, xz, yz, zz)
