@@ -92,12 +92,15 @@ def _frame(data: bytes) -> tuple[list[int], int, int, int]:
     starts: list[int] = []
     append = starts.append
     n = len(data)
+    last = n - MIN_RECORD  # the last place a record's header can start
     ofs = skipped = 0
     first_skip = -1
-    while ofs + MIN_RECORD <= n:
+    while ofs <= last:  # the hot loop: one pass of it per record
         magic = data[ofs + TIME_LEN]
         if magic == MAGIC_V2:
-            end = ofs + 20 + data[ofs + 9] + (SIGNATURE_LEN if data[ofs + 10] & IFLAG_SIGNED else 0)
+            end = ofs + 20 + data[ofs + 9]
+            if data[ofs + 10] & IFLAG_SIGNED:
+                end += SIGNATURE_LEN
         elif magic == MAGIC_V1:
             end = ofs + 16 + data[ofs + 9]
         else:
