@@ -272,14 +272,15 @@ class FusedEstimator:
                 0,
                 True,
                 front | {"MAG_DISTURBED"} if e.mag_disturbed else front,
-                _constant(e.covariance),
+                functools.partial(_covariance, e),
             )
             for e in estimates
         ]
 
 
-def _constant(value: Array) -> Callable[[], Array]:
-    return lambda: value
+def _covariance(estimate: Any) -> Array:
+    """A fused estimate's covariance, made an array when an output is asked for it."""
+    return estimate.covariance
 
 
 @functools.cache

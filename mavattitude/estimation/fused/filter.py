@@ -64,7 +64,7 @@ from mavattitude.sensors.lowpass import Biquad, butter2
 
 from .ekf import ErrorStateFilter
 from .magnetic import MagneticChecks
-from .mat3 import cross, dot, symmetric
+from .mat3 import Block, cross, dot, symmetric
 from .mat3 import matvec as _matvec
 from .rest import RestDetector
 from .settings import FusedSettings
@@ -92,14 +92,25 @@ _MIN_HORIZONTAL = math.sin(math.radians(5.0))  # |m_h| / |m| below this: no head
 
 @dataclass(frozen=True)
 class FusedEstimate:
-    """One output tick: attitude (body → NED), body rates with the bias removed, 3×3 error covariance (rad²)."""
+    """One output tick: attitude (body → NED), body rates with the bias removed, 3×3 error covariance (rad²).
+
+    The covariance and bias are kept as the filter's plain floats and made arrays on access: most ticks'
+    are never read (only the covariance of the ticks sent with ATTITUDE_QUATERNION_COV or written out)."""
 
     time_s: float
     q: Array
     rates_radps: Array
-    covariance: Array
-    bias_radps: Array
     mag_disturbed: bool
+    p_tt: Block  # the attitude error covariance, row-major
+    bias: Vec3  # the gyro bias, rad/s
+
+    @property
+    def covariance(self) -> Array:
+        return np.fromiter(self.p_tt, float, 9).reshape(3, 3)
+
+    @property
+    def bias_radps(self) -> Array:
+        return np.fromiter(self.bias, float, 3)
 
 
 class FusedFilter:
@@ -133,7 +144,6 @@ class FusedFilter:
         self._noise = NoiseModel(accel_std=(s.accel_std_mps2,) * 3, mag_std=(s.mag_std_uT,) * 3)
         self._t_last = 0.0
         self._gyr_last: Vec3 = (0.0, 0.0, 0.0)
-        self._arrays: tuple[Array, Array] | None = None  # P_θθ and b as arrays for the output ticks
         self._next_update_s = 0.0
         self._next_output_s = 0.0
         self.set_mag_ref(mag_ref)
@@ -226,7 +236,6 @@ class FusedFilter:
         self._ekf.propagate()
         self._measure(acc_mps2, mag_uT, time_s, mag_age_s)
         self._ekf.reset()
-        self._arrays = None
 
     def _pace(self, time_s: float) -> None:
         """Keep the per-update filters (the two pre-filters, the rest detector, the field learning) designed
@@ -374,7 +383,6 @@ class FusedFilter:
             self._ekf.start(q, p_tt, symmetric((0.0,) * 9, self.settings.gyro_bias_init_radps**2))  # type: ignore[arg-type]
             self._mag.start(self._mag.corrected((float(mag[0]), float(mag[1]), float(mag[2]))))
         self._started = True
-        self._arrays = None
         self._lp_measure.reset()
         self._lp_reject.reset()
         self._update_times.clear()
@@ -390,16 +398,14 @@ class FusedFilter:
         wx, wy, wz = g[0] - b[0], g[1] - b[1], g[2] - b[2]
         # np.fromiter: a small array from floats in half the time of np.array, which first guesses the shape.
         rates = np.fromiter((wx, wy, wz), float, 3)
-        if self._arrays is None:  # the covariance and bias change only at an update
-            self._arrays = np.fromiter(self._ekf.p_tt, float, 9).reshape(3, 3), np.fromiter(b, float, 3)
-        cov, bias = self._arrays
+        p_tt = self._ekf.p_tt
         q_now = self._current_q()
         out = []
         while self._next_output_s <= time_s:
             back = self._next_output_s - time_s
             carry = quat_from_rotvec_parts(wx * back, wy * back, wz * back)
             q_tick = np.fromiter(quat_normalize_parts(quat_multiply_parts(q_now, carry)), float, 4)
-            out.append(FusedEstimate(self._next_output_s, q_tick, rates, cov, bias, self._mag.disturbed))
+            out.append(FusedEstimate(self._next_output_s, q_tick, rates, self._mag.disturbed, p_tt, b))
             self._next_output_s += self._output_period_s
         return out
 
