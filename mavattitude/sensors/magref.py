@@ -141,6 +141,7 @@ class ReferenceTracker:
         self.mode = setting.mode
         self.recompute_distance_km = recompute_distance_km
         self._at: tuple[float, float] | None = None
+        self._when: dt.date | None = None  # the vehicle's date the reference was taken on (None: the clock's)
         self._clamp_said = False
         self.reference = setting.fixed_field()
 
@@ -149,14 +150,18 @@ class ReferenceTracker:
         return self.reference.waiting
 
     def update_position(self, lat_deg: float, lon_deg: float, alt_m: float, when: dt.date | None = None) -> bool:
-        """Feed a position (``auto`` only); True when the reference changed."""
+        """Feed a position (``auto`` only); True when the reference changed: the first position, a move
+        of more than ``recompute_distance_km``, or a vehicle date other than the one the field was taken on."""
         if self.mode != "auto":
             return False
-        if self._at is not None and distance_km(*self._at, lat_deg, lon_deg) <= self.recompute_distance_km:
+        moved = self._at is None or distance_km(*self._at, lat_deg, lon_deg) > self.recompute_distance_km
+        # the vehicle's date arriving after the first position (SYSTEM_TIME after GLOBAL_POSITION_INT), or
+        # changing, replaces the day the field was taken on: the companion's clock is only the last resort
+        if not moved and (when is None or when == self._when):
             return False
         day = self._model_day(when)
         vec = wmm_field_ned_uT(lat_deg, lon_deg, alt_m, day)
-        self._at = (lat_deg, lon_deg)
+        self._at, self._when = (lat_deg, lon_deg), when
         self.reference = ReferenceField(vec, math.hypot(*vec), "wmm")
         log.info(
             "magnetic reference from WMM2025 at %.4f°, %.4f°, %.0f m on %s (%s): N %.2f E %.2f D %.2f µT",

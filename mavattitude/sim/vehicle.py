@@ -8,6 +8,8 @@ It behaves like an autopilot on a companion-computer link:
 - ATTITUDE (10 Hz by default, ``attitude_rate_hz``), as an autopilot's own estimate: the truth, turned
   by ``attitude_error_deg`` (roll, pitch, yaw) to play an autopilot that is off, so a log recorded from
   it gives ``replay`` and the service's cross-check something to compare with;
+- SYSTEM_TIME when asked for, its Unix time ``gps_unix_s`` at boot plus the vehicle clock (a GPS date
+  other than the machine's); without ``gps_unix_s`` it has no GPS time and denies the request;
 - honours MAV_CMD_SET_MESSAGE_INTERVAL (interval µs; −1 stops, 0 restores the default) and answers every
   COMMAND_LONG with COMMAND_ACK. Like ArduPilot Copter it starts with the IMU stream off until asked
   (``stream_on_start`` turns it on), and like ArduPilot it denies the command when param3 is not 0
@@ -51,6 +53,7 @@ log = logging.getLogger(__name__)
 _IMU_MESSAGE_IDS = frozenset(message_id(name) for name in MESSAGES)
 _MSG_GLOBAL_POSITION_INT = mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT
 _MSG_ATTITUDE = mavlink2.MAVLINK_MSG_ID_ATTITUDE
+_MSG_SYSTEM_TIME = mavlink2.MAVLINK_MSG_ID_SYSTEM_TIME
 _AUTOPILOT = {"px4": mavlink2.MAV_AUTOPILOT_PX4}
 _POSITION_RATE_HZ = 2.0
 _HEARTBEAT_PERIOD_S = 1.0
@@ -87,6 +90,7 @@ class VehicleConfig:
     home_alt_m: float = 488.0
     attitude_rate_hz: float = 10.0  # ATTITUDE streamed from boot (0: only when asked for)
     attitude_error_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # the autopilot's error: roll, pitch, yaw
+    gps_unix_s: float | None = None  # the GPS's Unix time at boot, for SYSTEM_TIME (None: no GPS time)
 
 
 @dataclass(frozen=True)
@@ -138,6 +142,13 @@ class FakeVehicle:
         self._epoch = _Epoch()
         self._imu_paused = False
         self._streams: dict[int, _Stream] = {}
+        # the telemetry it sends (paced by the clock) and how
+        self._telemetry: dict[int, Callable[[float], None]] = {
+            _MSG_GLOBAL_POSITION_INT: self._send_position,
+            _MSG_ATTITUDE: self._send_attitude,
+        }
+        if config.gps_unix_s is not None:
+            self._telemetry[_MSG_SYSTEM_TIME] = self._send_system_time
         self._peer_order: list[tuple[str, int]] = []
         self._fault: tuple[Callable[[list[ImuRow]], list[ImuRow]], float, threading.Event] | None = None
         # Records (appended by the receive thread, read under self._cond).
@@ -326,7 +337,7 @@ class FakeVehicle:
             for msg_id, stream in list(self._streams.items()):
                 if msg_id not in _IMU_MESSAGE_IDS:  # telemetry: paced by the clock, flying or not
                     if mono >= stream.next_t_s:
-                        (self._send_position if msg_id == _MSG_GLOBAL_POSITION_INT else self._send_attitude)(now)
+                        self._telemetry[msg_id](now)
                         stream.next_t_s = mono + 1.0 / (stream.rate_hz * self.config.speed)
                     continue
                 if not self._imu_paused:
@@ -417,6 +428,11 @@ class FakeVehicle:
             )
         )
 
+    def _send_system_time(self, now_s: float) -> None:
+        vehicle_s = max(0.0, self.vehicle_time(now_s))
+        unix_us = round(((self.config.gps_unix_s or 0.0) + vehicle_s) * 1e6)  # asked for only when set
+        self.send(mavlink2.MAVLink_system_time_message(unix_us, time_boot_ms(vehicle_s)))
+
     def _send_attitude(self, now_s: float) -> None:
         truth = self.script.sample([now_s])
         roll, pitch, yaw = euler_from_quat(truth.q[0]) + np.radians(self.config.attitude_error_deg)
@@ -473,7 +489,7 @@ class FakeVehicle:
         )
 
     def _set_interval(self, msg_id: int, interval_us: float, param3: float) -> int:
-        if msg_id not in _IMU_MESSAGE_IDS and msg_id not in (_MSG_GLOBAL_POSITION_INT, _MSG_ATTITUDE):
+        if msg_id not in _IMU_MESSAGE_IDS and msg_id not in self._telemetry:
             return mavlink2.MAV_RESULT_DENIED
         if self.config.deny_nonzero_param3 and param3 != 0:
             return mavlink2.MAV_RESULT_DENIED

@@ -32,3 +32,33 @@ def test_auto_reference_from_the_vehicle_position(fly: Callable[..., Any]) -> No
     # vehicle reported is the field it flies in.
     assert score.broken == 0 and score.angle_rms_deg < 1.0, score
     assert_all_outputs_valid(v)
+
+
+@pytest.mark.parametrize(
+    ("vehicle_day", "model_day"),
+    [(dt.date(2027, 7, 1), dt.date(2027, 7, 1)), (dt.date(2031, 3, 1), dt.date(2029, 12, 31))],
+    ids=["in_the_model_span", "after_it_clamped"],
+)
+def test_the_model_is_taken_on_the_vehicles_gps_date(
+    fly: Callable[..., Any], vehicle_day: dt.date, model_day: dt.date
+) -> None:
+    """The vehicle's SYSTEM_TIME, not the machine's clock, dates the World Magnetic Model; a date after
+    the model's span is clamped to its last day with one warning, and the service flies on."""
+    assert vehicle_day != dt.datetime.now(dt.timezone.utc).date()  # the two clocks disagree
+    home = VehicleConfig("unused")
+    field = wmm_field_ned_uT(home.home_lat_deg, home.home_lon_deg, home.home_alt_m, model_day)
+    script = Script([Hold(1.0), Rotate(119.0, (0.03, -0.05, 0.08))], tuple(field))
+    gps_unix_s = dt.datetime(vehicle_day.year, vehicle_day.month, vehicle_day.day, 12, tzinfo=dt.timezone.utc)
+    service = {"reference": {"magnetic": "auto"}}
+    with fly(script, scenarios.paper_sensors(200.0), service, gps_unix_s=gps_unix_s.timestamp()) as (v, svc):
+        line = svc.wait_for_line(rf"magnetic reference from WMM2025 .* on {model_day} \(the vehicle's GPS date\)", 10.0)
+        assert line is not None, svc.log_tail()
+        wait_outputs(v, 75)
+        clamped = [ln for ln in svc.lines if "is outside WMM2025's span" in ln]
+    assert len(clamped) == (vehicle_day != model_day)  # said once, only when clamped
+    if clamped:
+        assert f"the date {vehicle_day} is outside" in clamped[0]
+        assert "--declination DEG --inclination DEG" in clamped[0]
+    # The field of that day is the one the script flies in: the outputs agree with the truth.
+    score = v.score()
+    assert score.broken == 0 and score.angle_rms_deg < 1.0, score

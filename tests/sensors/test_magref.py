@@ -89,3 +89,14 @@ def test_a_date_outside_the_model_is_clamped_to_its_edge_with_one_warning(caplog
     warnings = [r.getMessage() for r in caplog.records]
     assert len(warnings) == 1 and "2023-05-01 is outside WMM2025's span" in warnings[0]
     assert "--declination DEG --inclination DEG" in warnings[0]
+
+
+def test_the_vehicles_date_arriving_after_the_first_position_replaces_the_clocks() -> None:
+    # live, GLOBAL_POSITION_INT may come before SYSTEM_TIME: the first field is then the companion clock's
+    ref = ReferenceTracker(MagneticReference("auto"))
+    assert ref.update_position(47.0, 8.0, 500.0) is True
+    later = dt.date(2029, 6, 1)
+    assert ref.update_position(47.0, 8.0, 500.0, later) is True  # same place, the vehicle's date now
+    assert ref.reference.field_ned_uT == pytest.approx(wmm_field_ned_uT(47.0, 8.0, 500.0, later))
+    assert ref.update_position(47.0, 8.0, 500.0, later) is False  # nothing new: no new reference
+    assert ref.update_position(47.0, 8.0, 500.0) is False  # a fix without a date keeps the vehicle's
