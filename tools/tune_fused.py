@@ -48,7 +48,7 @@ import numpy as np
 
 from mavattitude.estimation.fused import FusedFilter, FusedSettings
 from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2
-from mavattitude.validation.frames import ned_from_enu
+from mavattitude.validation.frames import MISORIENTATIONS, ned_from_enu
 from mavattitude.validation.loaders import Recording, load_recording
 from mavattitude.validation.metrics import score_broad
 from mavattitude.validation.peers import estimate_peer
@@ -216,16 +216,6 @@ def leave_one_category_out(base: FusedSettings, names: Sequence[str]) -> None:
     print(
         f"leave-one-category-out: geometric mean {geomean(held_out.values()):.3f}, worst {max(held_out.values()):.2f}"
     )
-
-
-MISORIENTATIONS = {
-    "z-flip": np.diag([1.0, 1.0, -1.0]),
-    "x-flip": np.diag([-1.0, 1.0, 1.0]),
-    "y-flip": np.diag([1.0, -1.0, 1.0]),
-    "yaw-90": np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]),
-    "roll-90": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]),
-    "pitch-90": np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]]),
-}
 
 
 def misoriented(trials: Sequence[str], settings: FusedSettings) -> None:

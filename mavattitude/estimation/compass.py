@@ -73,6 +73,7 @@ HEADING_UNKNOWN_STD_RAD = math.pi / math.sqrt(3.0)  # σ of a heading uniform ov
 TURN_SPAN_S = 0.2  # the field's turn is compared over steps this long ...
 MIN_TURN_DEG = 5.0  # ... that turned the body by at least this much (else noise dominates)
 MAX_TURN_GAP_S = 0.1  # a longer gap between ticks restarts the gyroscope's integration
+MIN_SECOND_AXIS_SHARE = 0.1  # a turn vouches for a compass when this share of it was about a second axis
 
 
 def _norm(v: Vec3) -> float:
@@ -221,8 +222,10 @@ class TurnCheck:
         self._q = (1.0, 0.0, 0.0, 0.0)  # body → a frame the integrated gyroscope keeps fixed
         self._t: float | None = None
         self._recent: deque[tuple[float, tuple, Vec3, Vec3]] = deque()  # (t, q, F, B) within TURN_SPAN_S
-        self._steps: deque[tuple[float, float, float]] = deque()  # (t, |ΔF|², |ΔB|²) within window_s
+        # (t, |ΔF|², |ΔB|², the step's turn v v^T: 6 terms) within window_s
+        self._steps: deque[tuple[float, float, float, tuple[float, ...]]] = deque()
         self.moved2 = self.changed2 = 0.0
+        self._axes = [0.0] * 6  # Σ v vᵀ of the steps' turns (body frame): xx yy zz xy xz yz
 
     @property
     def steps(self) -> int:
@@ -250,19 +253,41 @@ class TurnCheck:
             recent.popleft()
         t0, q0, f0, b0 = recent[0]
         if time_s - t0 >= TURN_SPAN_S and self._turned(q0):
-            moved2 = _distance2(fixed, f0)
-            changed2 = _distance2(mag_uT, b0)
-            self._steps.append((time_s, moved2, changed2))
-            self.moved2 += moved2
-            self.changed2 += changed2
+            self._add(time_s, _distance2(fixed, f0), _distance2(mag_uT, b0), _turn_outer(q0, self._q), 1)
         while self._steps and self._steps[0][0] <= time_s - self.window_s:
-            _, moved2, changed2 = self._steps.popleft()
-            self.moved2 -= moved2
-            self.changed2 -= changed2
+            self._add(*self._steps.popleft(), -1)
+
+    def _add(self, time_s: float, moved2: float, changed2: float, outer: tuple[float, ...], sign: int) -> None:
+        if sign > 0:
+            self._steps.append((time_s, moved2, changed2, outer))
+        self.moved2 += sign * moved2
+        self.changed2 += sign * changed2
+        self._axes = [a + sign * o for a, o in zip(self._axes, outer, strict=True)]
+
+    def second_axis_share(self) -> float:
+        """The share of the window's turn about its second principal axis (0: all about one axis).
+
+        A compass mirrored or turned about an axis turns like a good one while the body turns about that
+        axis only (its misorientation commutes with those rotations): the turn vouches for a compass only
+        when the body turned about a second axis too.
+        """
+        xx, yy, zz, xy, xz, yz = self._axes
+        total = xx + yy + zz
+        if total <= 0.0:
+            return 0.0
+        eigen = np.linalg.eigvalsh(np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]]))
+        return float(eigen[1] / total)
 
     def _turned(self, q0: tuple) -> bool:
         q = self._q
         return abs(q0[0] * q[0] + q0[1] * q[1] + q0[2] * q[2] + q0[3] * q[3]) <= _COS_HALF_MIN_TURN
+
+
+def _turn_outer(q0: tuple, q1: tuple) -> tuple[float, ...]:
+    """``v vᵀ`` (xx yy zz xy xz yz) of the vector part ``v`` of ``q0* ⊗ q1``: the turn between two attitudes,
+    in the body frame, its length ``sin(θ/2)``."""
+    _, x, y, z = quat_multiply_parts((q0[0], -q0[1], -q0[2], -q0[3]), q1)
+    return (x * x, y * y, z * z, x * y, x * z, y * z)
 
 
 def _floats(v: Vec3) -> Vec3:
@@ -299,6 +324,7 @@ class CompassMonitor:
         self._turn = TurnCheck(settings.window_s)
         self._dip_excess = 0.0  # the dip's (or |B|'s) distance over its threshold, as last judged
         self._turn_excess = 0.0  # the turn mismatch over its threshold, as last judged
+        self._confirmed = False
         self.samples = 0
         self.inconsistent = False
         self.warnings = 0
@@ -307,6 +333,12 @@ class CompassMonitor:
     def judged(self) -> bool:
         """Enough quiet samples in the window to judge the dip."""
         return self._win.n >= self.settings.min_samples
+
+    @property
+    def confirmed(self) -> bool:
+        """Found consistent in dip and in turn (each within ``CLEAR_FRACTION`` of its threshold), never
+        warned about: from then on every sample of it is trusted."""
+        return self._confirmed
 
     @property
     def turn_judged(self) -> bool:
@@ -338,20 +370,29 @@ class CompassMonitor:
     def suspect(self, acc_mps2: Vec3, mag_uT: Vec3, gyr_radps: Vec3) -> bool:
         """Whether this one sample's field should set heading only.
 
-        While the compass is judged inconsistent: always. Before it can be judged: when this sample's dip
-        (when quiet) is beyond the threshold. Once it has been judged inconsistent (a compass
-        found off stays suspect: a misorientation about a horizontal axis shows only while the vehicle
-        tilts, and the window mean clears while it hovers level): when this sample's dip is further off
-        than the noise model's ``k σ_dip``, at any acceleration.
+        While the compass is judged inconsistent: always. Once it has been found consistent in both dip and
+        turn (:attr:`confirmed`): never. Before it can be judged: when this sample's dip (when quiet) is
+        beyond the threshold. Judged consistent in dip but not yet in turn (a compass turned about the
+        vertical, or mirrored in a vertical plane, keeps its dip while the vehicle is level; only a turn
+        shows it, and a fast manoeuvre tilts the vehicle before the turn check has enough steps): when this
+        sample's dip is further than the noise model's ``k σ_dip`` from the window's mean, at any
+        acceleration. The tilt is dragged only by the field's part that disagrees with gravity, the dip
+        error, weighted by the field's share of the Wahba weights: gating each sample at the noise bounds
+        the drag from the first sample. Once it has been judged inconsistent (a compass found off stays
+        suspect: a misorientation about a horizontal axis shows only while the vehicle tilts, and the
+        window mean clears while it hovers level): when this sample's dip is further off than ``k σ_dip``
+        from the reference's, at any acceleration.
         """
         if self.inconsistent:
             return True
-        if not self.warnings and self.judged:
-            return False  # a compass judged consistent: every sample is trusted (IGN is the paper's)
-        off = abs(measured_dip_deg(_floats(acc_mps2), _floats(mag_uT)) - self._expected_dip)
+        if self.confirmed:
+            return False  # a compass found consistent in dip and turn: every sample is trusted (IGN is the paper's)
+        dip = measured_dip_deg(_floats(acc_mps2), _floats(mag_uT))
         if self.warnings:
-            return off > self._thresholds.dip_noise_deg
-        return not self.judged and off > self._thresholds.dip_deg and self.quiet(acc_mps2, gyr_radps)
+            return abs(dip - self._expected_dip) > self._thresholds.dip_noise_deg
+        if not self.judged:
+            return abs(dip - self._expected_dip) > self._thresholds.dip_deg and self.quiet(acc_mps2, gyr_radps)
+        return abs(dip - self._win.dip_mean()) > self._thresholds.dip_noise_deg
 
     def update(self, time_s: float, acc_mps2: Vec3, mag_uT: Vec3, gyr_radps: Vec3) -> CompassEvent | None:
         if self._expected_dip != self._expected_dip:
@@ -394,6 +435,8 @@ class CompassMonitor:
 
     def _judge(self, time_s: float) -> CompassEvent | None:
         excess = self._excess()
+        if not self._confirmed and self._vouched(excess):
+            self._confirmed = True
         if not self.inconsistent and excess > 1.0:
             self.inconsistent = True
             self.warnings += 1
@@ -402,6 +445,16 @@ class CompassMonitor:
         else:
             return None
         return CompassEvent(time_s, self.inconsistent, self.figures())
+
+    def _vouched(self, excess: float) -> bool:
+        """Consistent in dip and in a turn about more than one axis, clear of the thresholds, never warned."""
+        return (
+            self.judged
+            and self.turn_judged
+            and excess < CLEAR_FRACTION
+            and not self.warnings
+            and self._turn.second_axis_share() >= MIN_SECOND_AXIS_SHARE
+        )
 
     def figures(self) -> CompassFigures:
         b0 = self._field_uT or math.nan

@@ -84,3 +84,15 @@ def rest_reference(time_s: Array, acc_mps2: Array, gyr_radps: Array, mag_uT: Arr
         mag_std_uT=mag.std(axis=0),
         window_s=(float(time_s[0]), float(time_s[window.stop - 1])),
     )
+
+
+#: Compass mounting errors (body-frame matrices turning a good magnetometer's readings): each axis inverted,
+#: and a 90° turn about each axis. The misoriented-compass checks (tools/compass_table.py, the tests) use them.
+MISORIENTATIONS: dict[str, Array] = {
+    "x-flip": np.diag([-1.0, 1.0, 1.0]),
+    "y-flip": np.diag([1.0, -1.0, 1.0]),
+    "z-flip": np.diag([1.0, 1.0, -1.0]),
+    "roll-90": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]),
+    "pitch-90": np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]]),
+    "yaw-90": np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]),
+}

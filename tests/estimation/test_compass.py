@@ -137,12 +137,13 @@ def test_fast_rotation_is_not_quiet():
     assert m.samples == 0 and not m.judged and not m.suspect(acc, mag, spinning)
 
 
-def _turning(flip: np.ndarray, seconds: float = 20.0, seed: int = 5) -> list:
-    """A level vehicle rolling, pitching and yawing (±20°, 0.2–0.5 Hz); its compass turned by ``flip``."""
+def _turning(flip: np.ndarray, seconds: float = 20.0, seed: int = 5, amplitudes_deg=(20.0, 20.0, 90.0)) -> list:
+    """A level vehicle rolling, pitching and yawing (±20°, ±20°, ±90° by default; 0.2–0.5 Hz); its compass
+    turned by ``flip``."""
     rng = np.random.default_rng(seed)
     freq, phase = rng.uniform(0.2, 0.5, 3), rng.uniform(0, 2 * np.pi, 3)
     t = np.arange(0.0, seconds, 0.02)
-    angles = np.radians([20.0, 20.0, 90.0])[:, None] * np.sin(2 * np.pi * freq[:, None] * t + phase[:, None])
+    angles = np.radians(amplitudes_deg)[:, None] * np.sin(2 * np.pi * freq[:, None] * t + phase[:, None])
     q = quat_from_euler(*angles)
     events = []
     m = _monitor()
@@ -170,6 +171,35 @@ def test_a_compass_turned_about_the_vertical_is_found_by_its_turn(flip):
 def test_a_good_compass_turns_with_the_gyroscope():
     events, m = _turning(np.eye(3))
     assert events == [] and m.figures().turn_mismatch < 0.01  # exact data: only the rate's discretisation
+    assert m.confirmed  # vouched for by a turn about three axes: every sample of it is trusted from now on
+    acc, mag = _body(quat_from_euler(0.3, -0.2, 1.0))
+    assert not m.suspect(tuple(1.3 * a for a in acc), mag, STILL)  # even an accelerated one (IGN is the paper's)
+
+
+MIRROR_X = np.diag([-1.0, 1.0, 1.0])
+
+
+def test_a_turn_about_one_axis_does_not_vouch_for_a_compass():
+    # Mirrored in x, a compass turns like a good one while the body only rolls (the mirror commutes with a
+    # rotation about x): the turn check cannot tell, and the compass stays unconfirmed.
+    events, m = _turning(MIRROR_X, amplitudes_deg=(30.0, 0.0, 0.0))
+    assert events == [] and m.figures().turn_mismatch < 0.01
+    assert m.judged and m.turn_judged and not m.confirmed
+
+
+def test_before_it_is_confirmed_a_sample_off_the_dip_sets_heading_only():
+    m = _monitor()
+    level = quat_from_euler(0.0, 0.0, 0.0)  # heading north: the x axis carries the horizontal field
+    acc, mag = _body(level)
+    for i in range(100):  # level: a compass mirrored in x keeps its dip, so the dip check passes it
+        m.update(0.02 * i, acc, tuple((MIRROR_X @ mag).tolist()), STILL)
+    assert m.judged and not m.inconsistent and not m.confirmed
+    acc, mag = _body(quat_from_euler(0.0, np.radians(30.0), 0.0))  # pitched 30°: the mirror shows in the dip
+    mirrored = tuple((MIRROR_X @ mag).tolist())
+    off_deg = abs(measured_dip_deg(acc, mirrored) - measured_dip_deg(acc, mag))
+    noise_deg = m._thresholds.dip_noise_deg
+    assert off_deg > noise_deg  # far beyond the noise: this sample would drag the tilt
+    assert m.suspect(acc, mirrored, STILL) and not m.suspect(acc, mag, STILL)
 
 
 def test_no_new_evidence_does_not_clear_the_verdict():

@@ -1,0 +1,149 @@
+"""The misoriented-compass table: every axis flip and 90° turn of the magnetometer, on every shared recording.
+
+Usage::
+
+    nice -n 10 .venv/bin/python tools/compass_table.py [--recordings 06 08 sitl ...] [--methods ign fused]
+
+For each recording (the 17 BROAD training trials in ``../shared/data/broad`` and the ArduCopter SITL flight
+``../shared/data/ardupilot-sitl/flightA.BIN``) the service's pipeline runs with a good compass and with its
+magnetometer's axes turned by each of :data:`~mavattitude.validation.frames.MISORIENTATIONS` (the field
+turned in the body frame before the front end). Printed, as Markdown tables (docs/vehicle.md):
+
+- **IGN**: RMS tilt difference (the angle between the two "down" directions, degrees) from the
+  accelerometer-only tilt (TRIAD with the accelerometer primary, good compass), and the time of the
+  first compass warning after the first output (``-``: none);
+- **fused**: RMS tilt difference from the good-compass fused run, and the first warning's time;
+- **good compass**: the warnings (time, s after the first output) with a good compass, IGN and fused;
+  for BROAD, IGN's movement-phase RMS total error against the optical truth.
+
+The target (issue "compass consistency"): every cell ≤ 1° and warned within 10 s (of the first turn,
+for a compass turned about the vertical or mirrored in a vertical plane: only a turn shows those);
+no warning with a good compass except in BROAD's disturbed phases.
+BROAD runs take each trial's own references (``validation_config``: the field and noise at its opening
+rest); the SITL flight the default configuration (WMM at the logged position and date).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import functools
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from mavattitude.config import load_config
+from mavattitude.link.dataflash import read_dataflash
+from mavattitude.link.logs import LogStreams, StreamSource
+from mavattitude.pipeline import AttitudePipeline
+from mavattitude.replay import replay
+from mavattitude.sim.scoring import tilt_error
+from mavattitude.validation.frames import MISORIENTATIONS
+from mavattitude.validation.loaders import Recording, load_recording
+from mavattitude.validation.runner import Estimate, evaluate, validation_config
+
+ROOT = Path(__file__).resolve().parents[1]
+BROAD_DIR = ROOT / ".." / "shared" / "data" / "broad"
+SITL_BIN = ROOT / ".." / "shared" / "data" / "ardupilot-sitl" / "flightA.BIN"
+BROAD = ("01", "03", "04", "06", "08", "10", "12", "15", "21", "24", "26", "28", "29", "31", "33", "34", "36")
+
+
+@dataclasses.dataclass(frozen=True)
+class Run:
+    """One pipeline run: its outputs and the compass warnings' vehicle times."""
+
+    time_s: np.ndarray
+    q: np.ndarray
+    warnings_s: list[float]
+
+    def first_warning_s(self) -> float:
+        """Seconds from the first output to the first warning (NaN: none)."""
+        return self.warnings_s[0] - self.time_s[0] if self.warnings_s else math.nan
+
+
+def _run(pipeline: AttitudePipeline, outputs: list) -> Run:
+    warnings = [e.time_s for e in pipeline.take_compass_events() if e.inconsistent]
+    t = np.array([o.time_s for o in outputs], dtype=float)
+    q = np.array([o.q for o in outputs], dtype=float).reshape(-1, 4)
+    return Run(t, q, warnings)
+
+
+def run_broad(rec: Recording, method: str, mag_uT: np.ndarray) -> Run:
+    """A BROAD trial through the pipeline (its samples at once, as replay feeds a log)."""
+    pipeline = AttitudePipeline(validation_config(rec, method))
+    outputs = pipeline.push_batch(rec.time_s, rec.acc_mps2, rec.gyr_radps, mag_uT, rec.mag_new)
+    return _run(pipeline, outputs)
+
+
+def run_sitl(streams: LogStreams, method: str, mag_uT: np.ndarray) -> Run:
+    """The SITL DataFlash log through replay, its magnetometer replaced by ``mag_uT``."""
+    source = StreamSource("flightA.BIN", dataclasses.replace(streams, mag_uT=mag_uT))
+    result = replay(source, load_config(None, {"estimator.method": method}, env={}))
+    return _run(result.pipeline, result.outputs)
+
+
+def tilt_rms_deg(run: Run, reference: Run) -> float:
+    """RMS tilt difference at the instants both runs output, degrees."""
+    common, i, j = np.intersect1d(np.round(run.time_s, 6), np.round(reference.time_s, 6), return_indices=True)
+    if len(common) < 0.9 * len(reference.time_s):
+        return math.nan  # too few common instants to compare: shown, not hidden
+    return float(np.sqrt(np.mean(np.degrees(tilt_error(run.q[i], reference.q[j])) ** 2)))
+
+
+def _cell(rms: float, warned_s: float) -> str:
+    warned = "-" if warned_s != warned_s else f"{warned_s:.1f} s"
+    return f"{rms:.2f}° / {warned}"
+
+
+def recording_rows(name: str, methods: Sequence[str]) -> dict[str, str]:
+    """One row per table (``ign``, ``fused``, ``good``) for one recording."""
+    if name == "sitl":
+        streams = read_dataflash(SITL_BIN)
+        mag, runner, rec = streams.mag_uT, functools.partial(run_sitl, streams), None
+    else:
+        rec = load_recording(next(BROAD_DIR.glob(f"{name}_*.csv.gz")))
+        mag, runner = rec.mag_uT, functools.partial(run_broad, rec)
+    rows: dict[str, str] = {}
+    good_notes = []
+    accel_only = runner("triad", mag)
+    for method in methods:
+        good = runner(method, mag)
+        reference = accel_only if method != "fused" else good
+        cells = []
+        for m in MISORIENTATIONS.values():
+            bad = runner(method, mag @ m.T)
+            cells.append(_cell(tilt_rms_deg(bad, reference), bad.first_warning_s()))
+        rows[method] = f"| {name} | " + " | ".join(cells) + " |"
+        warned = ", ".join(f"{t - good.time_s[0]:.1f}" for t in good.warnings_s) or "none"
+        good_notes.append(f"{method}: {warned}")
+        if rec is not None and method != "fused":
+            score = evaluate(rec, Estimate("stream", method, good.time_s, good.q, len(good.time_s), 0.0)).score
+            good_notes.append(f"{method} move total {score.movement.total_deg:.2f}°")
+    rows["good"] = f"| {name} | " + " | ".join(good_notes) + " |"
+    return rows
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--recordings", nargs="+", default=[*BROAD, "sitl"], help="BROAD trial numbers, sitl")
+    parser.add_argument("--methods", nargs="+", default=["ign", "fused"], choices=["ign", "fused", "cgn", "ml"])
+    args = parser.parse_args()
+    header = "| recording | " + " | ".join(MISORIENTATIONS) + " |"
+    rows = {}
+    for name in args.recordings:
+        rows[name] = recording_rows(name, args.methods)
+        print(name, end=" ", flush=True)
+    print()
+    for table in [*args.methods, "good"]:
+        print(f"\n{table}: RMS tilt difference / first warning" if table != "good" else "\ngood compass: warnings (s)")
+        print(header if table != "good" else "| recording | " + " | ".join(args.methods) + " |")
+        print("|---" * (len(MISORIENTATIONS) + 1) + "|")
+        for name in args.recordings:
+            print(rows[name][table])
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
