@@ -16,12 +16,13 @@ The estimator is a small strategy chosen by ``estimator.method``:
 
 Before the estimator, every tick with a magnetometer reading feeds the compass monitor
 (:mod:`mavattitude.estimation.compass`, ``compass:`` in the config): the dip and |B| it measures while
-quiet (low acceleration, slow rotation) against the reference. While it judges the compass inconsistent
-(or, before it has enough samples to judge, while this tick's own dip is off) the tick is flagged
+quiet (low acceleration, slow rotation) against the reference, and the field's turn against the gyroscope's.
+While it judges the compass inconsistent, or before it has vouched for it (consistent in dip, and in a
+turn about more than one axis) while this tick's own dip is off by more than the noise, the tick is flagged
 ``MAG_INCONSISTENT``; the snapshot estimator then takes only heading from the magnetometer, as it does
 for a tick whose |B| the front end flagged (``MAG_NORM``): the accelerometer's direction is kept exactly
 (TRIAD, accelerometer primary), the output flagged ``MAG_HEADING_ONLY`` and its covariance given the
-heading σ of a heading uniform over ±180°. A consistent, undisturbed compass leaves IGN the paper's IGN.
+heading σ of a heading uniform over ±180°. A compass vouched for and undisturbed leaves IGN the paper's IGN.
 The verdict's changes are kept in :attr:`AttitudePipeline.compass_events` for the service and replay.
 
 A sample the solver cannot use (degenerate geometry, bad numbers) is counted by exception type, logged at

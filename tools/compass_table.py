@@ -14,7 +14,8 @@ turned in the body frame before the front end). Printed, as Markdown tables (doc
   first compass warning after the first output (``-``: none);
 - **fused**: RMS tilt difference from the good-compass fused run, and the first warning's time;
 - **good compass**: the warnings (time, s after the first output) with a good compass, IGN and fused;
-  for BROAD, IGN's movement-phase RMS total error against the optical truth.
+  when the compass was vouched for (from then on IGN is the paper's; docs/vehicle.md); for BROAD, IGN's
+  movement-phase RMS total error against the optical truth.
 
 The target (issue "compass consistency"): every cell ≤ 1° and warned within 10 s (of the first turn,
 for a compass turned about the vertical or mirrored in a vertical plane: only a turn shows those);
@@ -57,6 +58,7 @@ class Run:
     time_s: np.ndarray
     q: np.ndarray
     warnings_s: list[float]
+    vouched_s: float  # vehicle time the compass was vouched for (NaN: never)
 
     def first_warning_s(self) -> float:
         """Seconds from the first output to the first warning (NaN: none)."""
@@ -67,7 +69,7 @@ def _run(pipeline: AttitudePipeline, outputs: list) -> Run:
     warnings = [e.time_s for e in pipeline.take_compass_events() if e.inconsistent]
     t = np.array([o.time_s for o in outputs], dtype=float)
     q = np.array([o.q for o in outputs], dtype=float).reshape(-1, 4)
-    return Run(t, q, warnings)
+    return Run(t, q, warnings, pipeline.compass.confirmed_at_s)
 
 
 def run_broad(rec: Recording, method: str, mag_uT: np.ndarray) -> Run:
@@ -97,6 +99,13 @@ def _cell(rms: float, warned_s: float) -> str:
     return f"{rms:.2f}° / {warned}"
 
 
+def _motion(rec: Recording | None) -> str:
+    """BROAD's first movement, seconds after the first sample (the SITL flight: its README's first turn)."""
+    if rec is None:
+        return ""
+    return f" (first movement {rec.time_s[np.argmax(rec.movement)] - rec.time_s[0]:.1f} s)"
+
+
 def recording_rows(name: str, methods: Sequence[str]) -> dict[str, str]:
     """One row per table (``ign``, ``fused``, ``good``) for one recording."""
     if name == "sitl":
@@ -118,6 +127,8 @@ def recording_rows(name: str, methods: Sequence[str]) -> dict[str, str]:
         rows[method] = f"| {name} | " + " | ".join(cells) + " |"
         warned = ", ".join(f"{t - good.time_s[0]:.1f}" for t in good.warnings_s) or "none"
         good_notes.append(f"{method}: {warned}")
+        if method != "fused":
+            good_notes.append(f"vouched for at {good.vouched_s - good.time_s[0]:.1f} s{_motion(rec)}")
         if rec is not None and method != "fused":
             score = evaluate(rec, Estimate("stream", method, good.time_s, good.q, len(good.time_s), 0.0)).score
             good_notes.append(f"{method} move total {score.movement.total_deg:.2f}°")

@@ -322,9 +322,11 @@ class CompassMonitor:
         self._field_uT: float | None = None
         self._thresholds = Thresholds(math.nan, math.nan, math.nan)
         self._turn = TurnCheck(settings.window_s)
-        self._dip_excess = 0.0  # the dip's (or |B|'s) distance over its threshold, as last judged
+        self._dip_excess = 0.0  # the dip's distance over its threshold, as last judged
+        self._field_excess = 0.0  # |B|'s, as last judged
+        self._judged_dip = math.nan  # the window's mean dip when last judged (NaN: never judged)
         self._turn_excess = 0.0  # the turn mismatch over its threshold, as last judged
-        self._confirmed = False
+        self.confirmed_at_s = math.nan  # vehicle time it was vouched for (NaN: not yet)
         self.samples = 0
         self.inconsistent = False
         self.warnings = 0
@@ -338,7 +340,7 @@ class CompassMonitor:
     def confirmed(self) -> bool:
         """Found consistent in dip and in turn (each within ``CLEAR_FRACTION`` of its threshold), never
         warned about: from then on every sample of it is trusted."""
-        return self._confirmed
+        return self.confirmed_at_s == self.confirmed_at_s
 
     @property
     def turn_judged(self) -> bool:
@@ -371,17 +373,17 @@ class CompassMonitor:
         """Whether this one sample's field should set heading only.
 
         While the compass is judged inconsistent: always. Once it has been found consistent in both dip and
-        turn (:attr:`confirmed`): never. Before it can be judged: when this sample's dip (when quiet) is
-        beyond the threshold. Judged consistent in dip but not yet in turn (a compass turned about the
-        vertical, or mirrored in a vertical plane, keeps its dip while the vehicle is level; only a turn
-        shows it, and a fast manoeuvre tilts the vehicle before the turn check has enough steps): when this
-        sample's dip is further than the noise model's ``k σ_dip`` from the window's mean, at any
-        acceleration. The tilt is dragged only by the field's part that disagrees with gravity, the dip
-        error, weighted by the field's share of the Wahba weights: gating each sample at the noise bounds
-        the drag from the first sample. Once it has been judged inconsistent (a compass found off stays
-        suspect: a misorientation about a horizontal axis shows only while the vehicle tilts, and the
-        window mean clears while it hovers level): when this sample's dip is further off than ``k σ_dip``
-        from the reference's, at any acceleration.
+        turn about two axes (:attr:`confirmed`): never. Before it can be judged: when this sample's dip (when quiet) is
+        beyond the threshold. Judged consistent in dip but not yet vouched for in turn (a compass turned
+        about the vertical, or mirrored in a vertical plane, keeps its dip while the vehicle is level; only
+        a turn shows it, and a fast manoeuvre tilts the vehicle before the turn check has enough steps):
+        when this sample's dip is further than the noise model's ``k σ_dip`` from the window's mean dip
+        when last judged, at any acceleration. The tilt is dragged only by the field's part that disagrees
+        with gravity, the dip error, weighted by the field's share of the Wahba weights: gating each sample
+        at the noise bounds the drag from the first sample. Once it has been judged inconsistent (a compass
+        found off stays suspect: a misorientation about a horizontal axis shows only while the vehicle
+        tilts, and the window mean clears while it hovers level): when this sample's dip is further off
+        than ``k σ_dip`` from the reference's, at any acceleration.
         """
         if self.inconsistent:
             return True
@@ -390,9 +392,9 @@ class CompassMonitor:
         dip = measured_dip_deg(_floats(acc_mps2), _floats(mag_uT))
         if self.warnings:
             return abs(dip - self._expected_dip) > self._thresholds.dip_noise_deg
-        if not self.judged:
+        if self._judged_dip != self._judged_dip:  # never judged yet
             return abs(dip - self._expected_dip) > self._thresholds.dip_deg and self.quiet(acc_mps2, gyr_radps)
-        return abs(dip - self._win.dip_mean()) > self._thresholds.dip_noise_deg
+        return abs(dip - self._judged_dip) > self._thresholds.dip_noise_deg
 
     def update(self, time_s: float, acc_mps2: Vec3, mag_uT: Vec3, gyr_radps: Vec3) -> CompassEvent | None:
         if self._expected_dip != self._expected_dip:
@@ -426,17 +428,18 @@ class CompassMonitor:
         # turning, or that has not been quiet for a window, shows nothing new either way.
         t = self._thresholds
         if self.judged:
-            self._dip_excess = abs(self._win.dip_mean() - self._expected_dip) / t.dip_deg
+            self._judged_dip = self._win.dip_mean()
+            self._dip_excess = abs(self._judged_dip - self._expected_dip) / t.dip_deg
             if self._field_uT is not None and self._win.nf:
-                self._dip_excess = max(self._dip_excess, abs(self._win.field_mean() / self._field_uT - 1.0) / t.field)
+                self._field_excess = abs(self._win.field_mean() / self._field_uT - 1.0) / t.field
         if self.turn_judged:
             self._turn_excess = self._turn.mismatch() / self._turn_threshold()
-        return max(self._dip_excess, self._turn_excess)
+        return max(self._dip_excess, self._field_excess, self._turn_excess)
 
     def _judge(self, time_s: float) -> CompassEvent | None:
         excess = self._excess()
-        if not self._confirmed and self._vouched(excess):
-            self._confirmed = True
+        if not self.confirmed and self._vouched():
+            self.confirmed_at_s = time_s
         if not self.inconsistent and excess > 1.0:
             self.inconsistent = True
             self.warnings += 1
@@ -446,12 +449,14 @@ class CompassMonitor:
             return None
         return CompassEvent(time_s, self.inconsistent, self.figures())
 
-    def _vouched(self, excess: float) -> bool:
-        """Consistent in dip and in a turn about more than one axis, clear of the thresholds, never warned."""
+    def _vouched(self) -> bool:
+        """Oriented as configured: consistent in dip (as last judged: a vehicle in continuous motion has few
+        quiet samples) and in a turn about more than one axis, both clear of their thresholds, never warned.
+        Not |B|: a field whose intensity is off is screened sample by sample (the front end's ``MAG_NORM``)."""
         return (
-            self.judged
+            self._judged_dip == self._judged_dip
             and self.turn_judged
-            and excess < CLEAR_FRACTION
+            and max(self._dip_excess, self._turn_excess) < CLEAR_FRACTION
             and not self.warnings
             and self._turn.second_axis_share() >= MIN_SECOND_AXIS_SHARE
         )
