@@ -90,7 +90,7 @@ PACE_TOLERANCE = 0.1
 _MIN_HORIZONTAL = math.sin(math.radians(5.0))  # |m_h| / |m| below this: no heading from the field
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)  # not frozen: a frozen dataclass's __init__ costs four times as much, every tick
 class FusedEstimate:
     """One output tick: attitude (body → NED), body rates with the bias removed, 3×3 error covariance (rad²).
 
@@ -335,7 +335,12 @@ class FusedFilter:
         """The accelerometer direction, along the two axes it measures; its gain is kept off the heading."""
         h0, h1, h2 = h = rotate_ned_to_body_parts(r, self._v_acc)
         d0, d1, d2 = acc[0] / acc_norm - h0, acc[1] / acc_norm - h1, acc[2] / acc_norm - h2  # u − h
-        e1 = _unit(cross(h, (1.0, 0.0, 0.0) if abs(h0) < 0.6 else (0.0, 1.0, 0.0)))
+        # e₁ = unit(h × x̂), or unit(h × ŷ) near x̂: the cross product with the axis written out term by term
+        e1 = _unit(
+            (h1 * 0.0 - h2 * 0.0, h2 * 1.0 - h0 * 0.0, h0 * 0.0 - h1 * 1.0)
+            if abs(h0) < 0.6
+            else (h1 * 0.0 - h2 * 1.0, h2 * 0.0 - h0 * 0.0, h0 * 1.0 - h1 * 0.0)
+        )
         e2 = cross(h, e1)
         var = (sigma_a / acc_norm) ** 2
         update = self._ekf.update
