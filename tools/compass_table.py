@@ -11,7 +11,8 @@ turned in the body frame before the front end). Printed, as Markdown tables (doc
 
 - **IGN**: RMS tilt difference (the angle between the two "down" directions, degrees) from the
   accelerometer-only tilt (TRIAD with the accelerometer primary, good compass), and the time of the
-  first compass warning after the first output (``-``: none);
+  first compass warning after the first output (``-``: none); each row names when the recording first
+  moves (BROAD's first movement phase, the SITL flight's first turn), after the first output;
 - **fused**: RMS tilt difference from the good-compass fused run, and the first warning's time;
 - **good compass**: the warnings (time, s after the first output) with a good compass, IGN and fused;
   when the compass was vouched for (from then on IGN is the paper's; docs/vehicle.md); for BROAD, IGN's
@@ -48,6 +49,7 @@ from mavattitude.validation.runner import Estimate, evaluate, validation_config
 ROOT = Path(__file__).resolve().parents[1]
 BROAD_DIR = ROOT / ".." / "shared" / "data" / "broad"
 SITL_BIN = ROOT / ".." / "shared" / "data" / "ardupilot-sitl" / "flightA.BIN"
+SITL_FIRST_TURN_S = 59.0  # vehicle time of the SITL flight's first turn (its README: a 360° yaw at 60°/s)
 BROAD = ("01", "03", "04", "06", "08", "10", "12", "15", "21", "24", "26", "28", "29", "31", "33", "34", "36")
 
 
@@ -99,11 +101,10 @@ def _cell(rms: float, warned_s: float) -> str:
     return f"{rms:.2f}° / {warned}"
 
 
-def _motion(rec: Recording | None) -> str:
-    """BROAD's first movement, seconds after the first sample (the SITL flight: its README's first turn)."""
-    if rec is None:
-        return ""
-    return f" (first movement {rec.time_s[np.argmax(rec.movement)] - rec.time_s[0]:.1f} s)"
+def _label(name: str, rec: Recording | None, first_output_s: float) -> str:
+    """The row's name with its first movement (BROAD) or first turn (SITL), s after the first output."""
+    moves_s = SITL_FIRST_TURN_S if rec is None else rec.time_s[np.argmax(rec.movement)]
+    return f"{name} (moves {moves_s - first_output_s:.1f} s)"
 
 
 def recording_rows(name: str, methods: Sequence[str]) -> dict[str, str]:
@@ -117,6 +118,7 @@ def recording_rows(name: str, methods: Sequence[str]) -> dict[str, str]:
     rows: dict[str, str] = {}
     good_notes = []
     accel_only = runner("triad", mag)
+    label = _label(name, rec, accel_only.time_s[0])
     for method in methods:
         good = runner(method, mag)
         reference = accel_only if method != "fused" else good
@@ -124,15 +126,15 @@ def recording_rows(name: str, methods: Sequence[str]) -> dict[str, str]:
         for m in MISORIENTATIONS.values():
             bad = runner(method, mag @ m.T)
             cells.append(_cell(tilt_rms_deg(bad, reference), bad.first_warning_s()))
-        rows[method] = f"| {name} | " + " | ".join(cells) + " |"
+        rows[method] = f"| {label} | " + " | ".join(cells) + " |"
         warned = ", ".join(f"{t - good.time_s[0]:.1f}" for t in good.warnings_s) or "none"
         good_notes.append(f"{method}: {warned}")
         if method != "fused":
-            good_notes.append(f"vouched for at {good.vouched_s - good.time_s[0]:.1f} s{_motion(rec)}")
+            good_notes.append(f"vouched for at {good.vouched_s - good.time_s[0]:.1f} s")
         if rec is not None and method != "fused":
             score = evaluate(rec, Estimate("stream", method, good.time_s, good.q, len(good.time_s), 0.0)).score
             good_notes.append(f"{method} move total {score.movement.total_deg:.2f}°")
-    rows["good"] = f"| {name} | " + " | ".join(good_notes) + " |"
+    rows["good"] = f"| {label} | " + "; ".join(good_notes) + " |"
     return rows
 
 
@@ -141,7 +143,6 @@ def main() -> int:
     parser.add_argument("--recordings", nargs="+", default=[*BROAD, "sitl"], help="BROAD trial numbers, sitl")
     parser.add_argument("--methods", nargs="+", default=["ign", "fused"], choices=["ign", "fused", "cgn", "ml"])
     args = parser.parse_args()
-    header = "| recording | " + " | ".join(MISORIENTATIONS) + " |"
     rows = {}
     for name in args.recordings:
         rows[name] = recording_rows(name, args.methods)
@@ -149,8 +150,9 @@ def main() -> int:
     print()
     for table in [*args.methods, "good"]:
         print(f"\n{table}: RMS tilt difference / first warning" if table != "good" else "\ngood compass: warnings (s)")
-        print(header if table != "good" else "| recording | " + " | ".join(args.methods) + " |")
-        print("|---" * (len(MISORIENTATIONS) + 1) + "|")
+        columns = list(MISORIENTATIONS) if table != "good" else ["notes"]
+        print("| recording | " + " | ".join(columns) + " |")
+        print("|---" * (len(columns) + 1) + "|")
         for name in args.recordings:
             print(rows[name][table])
     return 0

@@ -451,12 +451,15 @@ class CompassMonitor:
 
     def _vouched(self) -> bool:
         """Oriented as configured: consistent in dip (as last judged: a vehicle in continuous motion has few
-        quiet samples) and in a turn about more than one axis, both clear of their thresholds, never warned.
+        quiet samples) and in a turn about more than one axis, both clear of their thresholds (the turn's
+        without the noise's share), never warned.
         Not |B|: a field whose intensity is off is screened sample by sample (the front end's ``MAG_NORM``)."""
         return (
             self._judged_dip == self._judged_dip
             and self.turn_judged
-            and max(self._dip_excess, self._turn_excess) < CLEAR_FRACTION
+            and self._dip_excess < CLEAR_FRACTION
+            # the allowance alone, not widened by the noise's share: a turn too small to judge well vouches for nothing
+            and self._turn.mismatch() < CLEAR_FRACTION * self.settings.turn_allowance
             and not self.warnings
             and self._turn.second_axis_share() >= MIN_SECOND_AXIS_SHARE
         )
