@@ -34,12 +34,12 @@ from typing import Any
 import yaml
 
 from mavattitude.errors import ConfigError
-from mavattitude.estimation import METHODS
+from mavattitude.estimation import METHODS, SNAPSHOT_METHODS
 from mavattitude.estimation.compass import CompassSettings
 from mavattitude.estimation.conventions import Mat3, Vec3
 from mavattitude.estimation.crosscheck import CrossCheckSettings
 from mavattitude.estimation.fused.settings import FusedSettings
-from mavattitude.estimation.solve import MAX_ITERATIONS, MIN_ANGLE_DEG, TOLERANCE_RAD
+from mavattitude.estimation.solve import DEFAULT_METHOD, MAX_ITERATIONS, MIN_ANGLE_DEG, TOLERANCE_RAD
 from mavattitude.sensors.calibration import Calibration
 from mavattitude.sensors.frontend import FrontEndSettings
 from mavattitude.sensors.magref import MagneticReference
@@ -278,7 +278,8 @@ class ReferenceConfig:
 @dataclass(frozen=True)
 class EstimatorConfig:
     method: str = field(
-        default="ign", metadata=_meta(_choice(*METHODS), "solver: ign, cgn, ml, triad, or fused (gyro-aided)")
+        default=DEFAULT_METHOD,
+        metadata=_meta(_choice(*METHODS), f"solver: {', '.join(SNAPSHOT_METHODS)}, or fused (gyro-aided)"),
     )
     max_iterations: int = field(
         default=MAX_ITERATIONS, metadata=_meta(_number(1, 100, integer=True), "Gauss–Newton iteration bound")

@@ -18,6 +18,7 @@ from . import kernel
 from .conventions import quat_from_rotation_matrix
 from .noise import NoiseModel
 from .solve import (
+    DEFAULT_METHOD,
     MAX_ITERATIONS,
     MIN_ANGLE_DEG,
     SINGULAR_MESSAGE,
@@ -47,7 +48,7 @@ def solve_batch(
     mag: ArrayLike,
     mag_ref: ArrayLike,
     noise: NoiseModel,
-    method: str = "ign",
+    method: str = DEFAULT_METHOD,
     acc_ref: ArrayLike = (0.0, 0.0, -1.0),
     *,
     max_iterations: int = MAX_ITERATIONS,

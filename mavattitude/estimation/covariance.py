@@ -28,7 +28,7 @@ def _sensor(raw: ArrayLike, var: tuple) -> tuple:
     return w, n, var
 
 
-def predicted_covariance(acc: ArrayLike, mag: ArrayLike, noise: NoiseModel, method: str = "ign") -> Array:
+def predicted_covariance(acc: ArrayLike, mag: ArrayLike, noise: NoiseModel, method: str) -> Array:
     """First-order covariance ``(..., 3, 3)`` of the body error angles of ``method`` at these measurements."""
     return sym_to_matrix(kernel.covariance(method, _sensor(mag, noise.mag_var), _sensor(acc, noise.accel_var)))
 

@@ -36,6 +36,7 @@ from .conventions import quat_from_rotation_parts
 from .noise import NoiseModel
 
 SNAPSHOT_METHODS = ("ign", "cgn", "ml", "triad")  # what solve and solve_batch compute
+DEFAULT_METHOD = "ign"  # the paper's improved Gauss–Newton
 MAX_ITERATIONS = 10
 TOLERANCE_RAD = 1e-12
 MIN_ANGLE_DEG = 5.0
@@ -144,7 +145,7 @@ def solve(
     mag: ArrayLike,
     mag_ref: ArrayLike,
     noise: NoiseModel,
-    method: str = "ign",
+    method: str = DEFAULT_METHOD,
     acc_ref: ArrayLike = (0.0, 0.0, -1.0),
     q0: ArrayLike | None = None,
     *,
