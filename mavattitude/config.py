@@ -403,11 +403,11 @@ def _cross_check(c: Config) -> None:
                 _fail(f"input.custom.{key}", "required with profile: custom")
     elif any(v is not None for v in scales.values()):
         _fail("input.custom", f"scales are only used with profile: custom (profile is {c.input.profile})")
-    if c.estimator.method == "fused" and c.noise != NoiseConfig():
+    if c.estimator.method == "fused" and c.noise != DEFAULTS.noise:
         key = next(
             f.name
             for f in dataclasses.fields(NoiseConfig)
-            if getattr(c.noise, f.name) != getattr(NoiseConfig(), f.name)
+            if getattr(c.noise, f.name) != getattr(DEFAULTS.noise, f.name)
         )
         _fail(
             f"noise.{key}",

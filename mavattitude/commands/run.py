@@ -15,7 +15,7 @@ import threading
 from typing import Any
 
 from mavattitude.cli import EXIT_INTERRUPTED
-from mavattitude.config import ENV_VAR, Config, load_config
+from mavattitude.config import DEFAULTS, ENV_VAR, load_config
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
 
 NAME = "run"
@@ -40,7 +40,7 @@ _OVERRIDES = {
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    d = Config()  # the defaults quoted below are the config's own
+    d = DEFAULTS  # the defaults quoted below are the config's own
     parser.description = (
         f"{HELP}. Precedence: flags > ${ENV_VAR} file > --config FILE > defaults. "
         "Stops cleanly on SIGTERM/SIGINT with a final counters line."
