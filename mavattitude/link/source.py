@@ -33,7 +33,6 @@ from mavattitude.sensors import units
 Sender = tuple[int, int]  # MAVLink (system id, component id)
 Received = tuple[float, Sender, Any]  # (t_rx, sender, item): see the module docstring
 
-POSITION_MESSAGES = ("GLOBAL_POSITION_INT", "GPS_RAW_INT")
 ATTITUDE_MESSAGES = ("ATTITUDE", "ATTITUDE_QUATERNION")  # the autopilot's own attitude, as Euler angles or q
 
 
@@ -111,7 +110,7 @@ class MavlinkDecoder:
             self.message: self._imu,
             "HEARTBEAT": _heartbeat,
             **dict(zip(ATTITUDE_MESSAGES, (_attitude, _attitude_quaternion), strict=True)),
-            **dict.fromkeys(POSITION_MESSAGES, self._position),
+            **dict.fromkeys(units.POSITION_MESSAGES, self._position),
             "SYSTEM_TIME": self._system_time,
         }
 

@@ -39,7 +39,6 @@ from mavattitude.link.logs import LogStreams, struct_dtype
 from mavattitude.link.mavlink2 import mavlink2
 from mavattitude.link.source import (
     ATTITUDE_MESSAGES,
-    POSITION_MESSAGES,
     AutopilotAttitude,
     Heartbeat,
     MavlinkDecoder,
@@ -191,7 +190,7 @@ class TlogSource:
             return [Heartbeat(bool(a)) for a in _autopilot_heartbeats(table).tolist()]
         if name in ATTITUDE_MESSAGES:
             return _attitudes(name, f)
-        if name in POSITION_MESSAGES:
+        if name in units.POSITION_MESSAGES:
             valid, position = units.decode_position_columns(name, f)
             dates = self._dates(table)
             return [
@@ -288,7 +287,7 @@ class TlogSource:
     ) -> tuple[NDArray[np.float64], NDArray[np.float64], dt.date | None]:
         """The vehicle's positions, each at the time of the first IMU sample after it; the date of the first."""
         parts = []
-        for name in POSITION_MESSAGES:
+        for name in units.POSITION_MESSAGES:
             if name in tables:
                 valid, position = units.decode_position_columns(name, tables[name].fields)
                 parts.append((tables[name], valid, position))

@@ -389,6 +389,7 @@ class Position:
 
 
 GPS_FIX_3D = 3
+POSITION_MESSAGES = ("GLOBAL_POSITION_INT", "GPS_RAW_INT")  # what decode_position reads
 
 
 def decode_position(msg: Any) -> Position | None:
@@ -400,7 +401,7 @@ def decode_position(msg: Any) -> Position | None:
     kind = msg.get_type()
     if kind == "GPS_RAW_INT" and msg.fix_type < GPS_FIX_3D:
         return None
-    if kind not in ("GPS_RAW_INT", "GLOBAL_POSITION_INT") or (msg.lat == 0 and msg.lon == 0):
+    if kind not in POSITION_MESSAGES or (msg.lat == 0 and msg.lon == 0):
         return None
     return Position(lat_deg=msg.lat * 1e-7, lon_deg=msg.lon * 1e-7, alt_m=msg.alt * 1e-3)
 
