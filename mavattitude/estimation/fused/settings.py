@@ -42,7 +42,7 @@ class FusedSettings:
     accel_lag_gain: float = ranged(3.0, "k_d: σ_a added per m/s² between the two pre-filters' outputs")
     accel_norm_gain: float = ranged(8.0, "k_n: σ_a added per m/s² of ‖a‖ − g (of the short pre-filter)")
     accel_residual_gain: float = ranged(0.0, "k_r: σ_a added per g·rad of the acc/mag angle error")
-    mag_std_uT: float = ranged(5.25, "σ_m: magnetometer σ per axis, µT", lo_open=True)
+    mag_std_uT: float = ranged(3.75, "σ_m: magnetometer σ per axis, µT", lo_open=True)
     mag_norm_tolerance_fraction: float = ranged(
         0.1, "τ_n: ‖B‖ off its learnt value by this fraction is a disturbance", hi=10.0, lo_open=True
     )
@@ -55,7 +55,9 @@ class FusedSettings:
     mag_relearn_s: float = ranged(
         60.0, "T_new: a field disturbed this long without a break is adopted (it sets heading only), s", lo_open=True
     )
-    mag_soft_fraction: float = ranged(0.5, "d₀: σ_m inflation scale below the disturbance threshold", lo_open=True)
+    mag_soft_fraction: float = ranged(
+        0.35, "d₀: σ_m inflation scale below the disturbance threshold (σ_m² × (1 + (d/d₀)⁶))", lo_open=True
+    )
     mag_recovery_factor: float = ranged(10.0, "ρ₀: σ_m² multiplier just after a long disturbance", lo=1.0)
     mag_recovery_s: float = ranged(3.0, "T_r: the recovery ramp's length, s", hi=3600.0)
     mag_offset_window_s: float = ranged(
