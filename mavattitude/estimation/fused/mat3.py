@@ -16,36 +16,28 @@ matvec = rotate_body_to_ned_parts  # a x
 
 
 def tmm_shift(r: Block, y: Block, k: float, e: Block) -> Block:
-    """``rᵀ (y + k e) + k e`` written out (the covariance propagation, once per update)."""
+    """``rᵀ (y + k e) + k e`` written out (the covariance propagation, once per update); ``k e`` once."""
     r0, r1, r2, r3, r4, r5, r6, r7, r8 = r
     e0, e1, e2, e3, e4, e5, e6, e7, e8 = e
+    e0, e1, e2, e3, e4, e5, e6, e7, e8 = k * e0, k * e1, k * e2, k * e3, k * e4, k * e5, k * e6, k * e7, k * e8
     y0, y1, y2, y3, y4, y5, y6, y7, y8 = y
-    z0, z1, z2, z3, z4, z5, z6, z7, z8 = (
-        y0 + k * e0,
-        y1 + k * e1,
-        y2 + k * e2,
-        y3 + k * e3,
-        y4 + k * e4,
-        y5 + k * e5,
-        y6 + k * e6,
-        y7 + k * e7,
-        y8 + k * e8,
-    )
+    z0, z1, z2, z3, z4, z5, z6, z7, z8 = y0 + e0, y1 + e1, y2 + e2, y3 + e3, y4 + e4, y5 + e5, y6 + e6, y7 + e7, y8 + e8
     return (
-        r0 * z0 + r3 * z3 + r6 * z6 + k * e0,
-        r0 * z1 + r3 * z4 + r6 * z7 + k * e1,
-        r0 * z2 + r3 * z5 + r6 * z8 + k * e2,
-        r1 * z0 + r4 * z3 + r7 * z6 + k * e3,
-        r1 * z1 + r4 * z4 + r7 * z7 + k * e4,
-        r1 * z2 + r4 * z5 + r7 * z8 + k * e5,
-        r2 * z0 + r5 * z3 + r8 * z6 + k * e6,
-        r2 * z1 + r5 * z4 + r8 * z7 + k * e7,
-        r2 * z2 + r5 * z5 + r8 * z8 + k * e8,
+        r0 * z0 + r3 * z3 + r6 * z6 + e0,
+        r0 * z1 + r3 * z4 + r6 * z7 + e1,
+        r0 * z2 + r3 * z5 + r6 * z8 + e2,
+        r1 * z0 + r4 * z3 + r7 * z6 + e3,
+        r1 * z1 + r4 * z4 + r7 * z7 + e4,
+        r1 * z2 + r4 * z5 + r7 * z8 + e5,
+        r2 * z0 + r5 * z3 + r8 * z6 + e6,
+        r2 * z1 + r5 * z4 + r8 * z7 + e7,
+        r2 * z2 + r5 * z5 + r8 * z8 + e8,
     )
 
 
 def transpose(a: Block) -> Block:
-    return (a[0], a[3], a[6], a[1], a[4], a[7], a[2], a[5], a[8])
+    a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
+    return (a0, a3, a6, a1, a4, a7, a2, a5, a8)
 
 
 def symmetric(a: Block, diag: float = 0.0) -> Block:
