@@ -309,7 +309,7 @@ class TlogSource:
         parts = [
             (t.index, units.utc_time_columns(name, t.fields))
             for name, t in self.tables.items()
-            if name in ("SYSTEM_TIME", "GPS_RAW_INT")
+            if name in units.UTC_TIME_FIELDS
         ]
         if not parts:
             return np.empty(0, dtype=np.int64), np.empty(0)

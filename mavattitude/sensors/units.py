@@ -422,26 +422,24 @@ def decode_position_columns(kind: str, fields: Mapping[str, NDArray[Any]]) -> tu
 EARLIEST_UNIX_S = 1_420_070_400  # 2015-01-01
 
 
+#: The messages that may carry the vehicle's GPS time, and the field (µs since 1970, or since boot).
+UTC_TIME_FIELDS = {"SYSTEM_TIME": "time_unix_usec", "GPS_RAW_INT": "time_usec"}
+
+
 def decode_utc_date(msg: Any) -> dt.date | None:
     """The UTC date the vehicle's GPS gives: SYSTEM_TIME.time_unix_usec, or GPS_RAW_INT.time_usec when it is
     a Unix time (µs) rather than a time since boot; ``None`` when the message carries no such date."""
-    kind = msg.get_type()
-    if kind == "SYSTEM_TIME":
-        usec = msg.time_unix_usec
-    elif kind == "GPS_RAW_INT":
-        usec = msg.time_usec
-    else:
+    name = UTC_TIME_FIELDS.get(msg.get_type())
+    if name is None:
         return None
+    usec = getattr(msg, name)
     if usec < EARLIEST_UNIX_S * 1_000_000:
         return None
     return dt.datetime.fromtimestamp(usec * 1e-6, dt.timezone.utc).date()
 
 
 def utc_time_columns(kind: str, fields: Mapping[str, NDArray[Any]]) -> NDArray[np.float64]:
-    """:func:`decode_utc_date` for many messages of ``kind``: each row's Unix time in s, NaN where it carries
-    no date (a message of another kind, or a time since boot)."""
-    name = {"SYSTEM_TIME": "time_unix_usec", "GPS_RAW_INT": "time_usec"}.get(kind)
-    if name is None:
-        return np.full(len(next(iter(fields.values()))), np.nan)
-    usec = fields[name]
+    """:func:`decode_utc_date` for many messages of ``kind`` (one of :data:`UTC_TIME_FIELDS`): each row's
+    Unix time in s, NaN where it is a time since boot."""
+    usec = fields[UTC_TIME_FIELDS[kind]]
     return np.where(usec >= EARLIEST_UNIX_S * 1_000_000, usec * 1e-6, np.nan)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import datetime as dt
 import struct
 from pathlib import Path
 
@@ -9,6 +10,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from mavattitude.dispatch import Dispatcher
 from mavattitude.errors import DataFileError
 from mavattitude.estimation.conventions import angle_between
 from mavattitude.link.source import PositionFix
@@ -51,6 +53,7 @@ def test_missing_file_is_a_data_file_error(tmp_path: Path) -> None:
 # --- the array reader: every frame kind a ground station records, against pymavlink's decode of the file ---
 
 SIGNING_KEY = bytes(range(32))
+UNIX_2027_03_01_US = 1_803_902_400_000_000
 
 
 def _mixed_log(path: Path) -> list[tuple]:
@@ -85,6 +88,10 @@ def _mixed_log(path: Path) -> list[tuple]:
                 rollspeed=0.0, pitchspeed=0.0, yawspeed=0.0)  # fmt: skip
             add(v2[1], 1, "GLOBAL_POSITION_INT", time_boot_ms=10 * i, lat=474000000 + i, lon=85000000, alt=450000,
                 relative_alt=0, vx=0, vy=0, vz=0, hdg=0)  # fmt: skip
+        if i == 25:  # the vehicle's GPS date from here on (the log's own day before); a boot-stamped GPS_RAW_INT
+            add(v2[1], 1, "SYSTEM_TIME", time_unix_usec=UNIX_2027_03_01_US, time_boot_ms=250)
+            add(v2[1], 1, "GPS_RAW_INT", time_usec=62_173_000, fix_type=3, lat=474000000, lon=85000000, alt=450000,
+                eph=0, epv=0, vel=0, cog=0, satellites_visible=9)  # fmt: skip
     offset = 0
     with path.open("wb") as f:
         for i, buf in enumerate(records):
@@ -113,7 +120,7 @@ def test_the_columns_are_pymavlinks_decode_of_every_frame_kind(tmp_path: Path) -
     written = _mixed_log(path)
     source = _source(path, _config())
     assert source.count == len(written) and source.bad_records == 0 and source.damage is None
-    names = ["HEARTBEAT", "RAW_IMU", "ATTITUDE", "GLOBAL_POSITION_INT"]
+    names = ["HEARTBEAT", "RAW_IMU", "ATTITUDE", "GLOBAL_POSITION_INT", "SYSTEM_TIME", "GPS_RAW_INT"]
     theirs = list(read_messages(path, names))
     assert len(theirs) == len(written)
     for name in names:
@@ -135,18 +142,21 @@ def test_each_record_is_the_live_decoders_item(tmp_path: Path) -> None:
     ours = []
     while not source.finished:
         ours += source.recv(0.0)
-    decode = MavlinkDecoder.from_config(config, lambda m: None)
+    decode = MavlinkDecoder.from_config(
+        config, lambda m: dt.datetime.fromtimestamp(m._timestamp, dt.timezone.utc).date()
+    )
     theirs = list(read_messages(path, decode.types))
     assert [s for _, s, _ in ours] == [(m.get_srcSystem(), m.get_srcComponent()) for m in theirs]
-    positions = 0
-    for (_, _, item), msg in zip(ours, theirs, strict=True):
-        expected = decode(msg)
-        if isinstance(item, PositionFix):  # the log's day: the decoder here was given none
-            positions += 1
-            assert item.position == expected.position and str(item.date) == "2023-11-14"
-        else:
-            assert item == expected
-    assert positions == 6
+    assert [item for _, _, item in ours] == [decode(m) for m in theirs]
+    dates = [item.date for _, _, item in ours if isinstance(item, PositionFix)]
+    assert [str(d) for d in dates] == ["2023-11-14"] * 3 + ["2027-03-01"] * 4  # from SYSTEM_TIME on
+    streams = source.streams_for(Dispatcher(None, _Locked(), system_id=1))
+    assert streams.date == dates[0] and len(streams.position_t_s) == 7
+
+
+class _Locked:
+    def on_lock(self, vehicle: tuple[int, int]) -> None:
+        """Only the lock-on is heard."""
 
 
 def test_the_vehicle_is_chosen_by_the_dispatchers_rules(tmp_path: Path) -> None:
