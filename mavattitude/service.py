@@ -58,6 +58,7 @@ import numpy as np
 from mavattitude import __version__, alive
 from mavattitude.config import Config
 from mavattitude.dispatch import DISPATCH_REJECTS, DispatchCounters, Dispatcher
+from mavattitude.errors import DegenerateGeometryError
 from mavattitude.estimation.compass import CompassEvent, CompassFigures
 from mavattitude.estimation.crosscheck import CrossCheck
 from mavattitude.link import MavlinkLink, load_signing_key, message_id
@@ -76,7 +77,7 @@ UNLOCKED_SYSTEM_ID = 1  # our system id before locking onto an autopilot in auto
 ACK_TIMEOUT_S = 2.0
 ACK_FORGET_S = 10.0  # an unanswered request still matches a late ACK for this long
 RATE_WINDOW_S = 5.0  # the input rate is measured over windows this long
-DEGENERATE = "DegenerateGeometryError"  # the pipeline's reject reason for collinear acc and mag
+DEGENERATE = DegenerateGeometryError.__name__  # the pipeline's reject reason for collinear acc and mag
 POSITION_MESSAGE = "GLOBAL_POSITION_INT"
 POSITION_RATE_HZ = 1.0
 TIME_MESSAGE = "SYSTEM_TIME"
