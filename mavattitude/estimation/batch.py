@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import ConvergenceError, DegenerateGeometryError, InputError
 from . import kernel
-from .conventions import quat_from_rotation_matrix
+from .conventions import ACC_REF_NED, quat_from_rotation_matrix
 from .noise import NoiseModel
 from .solve import (
     DEFAULT_METHOD,
@@ -49,7 +49,7 @@ def solve_batch(
     mag_ref: ArrayLike,
     noise: NoiseModel,
     method: str = DEFAULT_METHOD,
-    acc_ref: ArrayLike = (0.0, 0.0, -1.0),
+    acc_ref: ArrayLike = ACC_REF_NED,
     *,
     max_iterations: int = MAX_ITERATIONS,
     tolerance: float = TOLERANCE_RAD,

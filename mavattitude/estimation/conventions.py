@@ -31,6 +31,7 @@ Quat = tuple[float, float, float, float]
 Mat3 = tuple[Vec3, Vec3, Vec3]
 
 STANDARD_GRAVITY_MPS2 = 9.80665  # the g of "mG" in MAVLink and of ArduPilot's GRAVITY_MSS
+ACC_REF_NED = (0.0, 0.0, -1.0)  # an accelerometer at rest reads the specific force, up: −z in NED
 
 #: ``| |q|² − 1 |`` at or beyond this is a numerical failure, not an attitude: float64 rounding leaves a
 #: normalised quaternion within ~1e-15 of unit, and an estimate gone wrong (a diverged solve, a filter

@@ -32,7 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import DegenerateGeometryError, InputError
 from . import kernel
-from .conventions import quat_from_rotation_parts
+from .conventions import ACC_REF_NED, quat_from_rotation_parts
 from .noise import NoiseModel
 
 SNAPSHOT_METHODS = ("ign", "cgn", "ml", "triad")  # what solve and solve_batch compute
@@ -146,7 +146,7 @@ def solve(
     mag_ref: ArrayLike,
     noise: NoiseModel,
     method: str = DEFAULT_METHOD,
-    acc_ref: ArrayLike = (0.0, 0.0, -1.0),
+    acc_ref: ArrayLike = ACC_REF_NED,
     q0: ArrayLike | None = None,
     *,
     max_iterations: int = MAX_ITERATIONS,

@@ -154,7 +154,6 @@ def estimate_batch(recording: Recording, config: Config) -> Estimate:
         field_ned_uT,
         noise,
         method=config.estimator.method,
-        acc_ref=(0.0, 0.0, -1.0),
         max_iterations=config.estimator.max_iterations,
         tolerance=config.estimator.tolerance,
         min_angle_deg=config.estimator.min_angle_deg,

@@ -51,6 +51,7 @@ from numpy.typing import ArrayLike
 from mavattitude.errors import InputError
 from mavattitude.estimation import NoiseModel, solve
 from mavattitude.estimation.conventions import (
+    ACC_REF_NED,
     Array,
     Quat,
     Vec3,
@@ -120,7 +121,7 @@ class FusedFilter:
         self,
         settings: FusedSettings,
         mag_ref: ArrayLike,
-        acc_ref: ArrayLike = (0.0, 0.0, -1.0),
+        acc_ref: ArrayLike = ACC_REF_NED,
         *,
         output_rate_hz: float = 50.0,
         max_gap_s: float = 0.5,
