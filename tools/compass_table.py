@@ -4,10 +4,11 @@ Usage::
 
     nice -n 10 .venv/bin/python tools/compass_table.py [--recordings 06 08 sitl ...] [--methods ign fused]
 
-For each recording (the 17 BROAD training trials in ``../shared/data/broad`` and the ArduCopter SITL flight
-``../shared/data/ardupilot-sitl/flightA.BIN``) the service's pipeline runs with a good compass and with its
-magnetometer's axes turned by each of :data:`~mavattitude.validation.frames.MISORIENTATIONS` (the field
-turned in the body frame before the front end). Printed, as Markdown tables (docs/vehicle.md):
+For each recording (the 17 BROAD training trials in ``../shared/data/broad``, the ArduCopter SITL flight
+``../shared/data/ardupilot-sitl/flightA.BIN`` and the PX4 log's sensors in ``../shared/data/px4``) the
+service's pipeline runs with a good compass and with its magnetometer's axes turned by each of
+:data:`~mavattitude.validation.frames.MISORIENTATIONS` (the field turned in the body frame before the
+front end). Printed, as Markdown tables (docs/vehicle.md):
 
 - **IGN**: RMS tilt difference (the angle between the two "down" directions, degrees) from the
   accelerometer-only tilt (TRIAD with the accelerometer primary, good compass), and the time of the
@@ -22,7 +23,8 @@ The target (issue "compass consistency"): every cell ≤ 1° and warned within 1
 for a compass turned about the vertical or mirrored in a vertical plane: only a turn shows those);
 no warning with a good compass except in BROAD's disturbed phases.
 BROAD runs take each trial's own references (``validation_config``: the field and noise at its opening
-rest); the SITL flight the default configuration (WMM at the logged position and date).
+rest, as does the PX4 log); the SITL flight the default configuration (WMM at the logged position and
+date). Slow: about 15 runs per recording; run it under ``nice -n 10``.
 """
 
 from __future__ import annotations
@@ -49,6 +51,7 @@ from mavattitude.validation.runner import Estimate, evaluate, validation_config
 ROOT = Path(__file__).resolve().parents[1]
 BROAD_DIR = ROOT / ".." / "shared" / "data" / "broad"
 SITL_BIN = ROOT / ".." / "shared" / "data" / "ardupilot-sitl" / "flightA.BIN"
+PX4_CSV = ROOT / ".." / "shared" / "data" / "px4" / "px4_sample_sensors.csv.gz"
 SITL_FIRST_TURN_S = 59.0  # vehicle time of the SITL flight's first turn (its README: a 360° yaw at 60°/s)
 BROAD = ("01", "03", "04", "06", "08", "10", "12", "15", "21", "24", "26", "28", "29", "31", "33", "34", "36")
 
@@ -103,6 +106,8 @@ def _cell(rms: float, warned_s: float) -> str:
 
 def _label(name: str, rec: Recording | None, first_output_s: float) -> str:
     """The row's name with its first movement (BROAD) or first turn (SITL), s after the first output."""
+    if rec is not None and not rec.movement.any():
+        return name  # the PX4 log: no movement phases marked
     moves_s = SITL_FIRST_TURN_S if rec is None else rec.time_s[np.argmax(rec.movement)]
     return f"{name} (moves {moves_s - first_output_s:.1f} s)"
 
@@ -113,7 +118,7 @@ def recording_rows(name: str, methods: Sequence[str]) -> dict[str, str]:
         streams = read_dataflash(SITL_BIN)
         mag, runner, rec = streams.mag_uT, functools.partial(run_sitl, streams), None
     else:
-        rec = load_recording(next(BROAD_DIR.glob(f"{name}_*.csv.gz")))
+        rec = load_recording(PX4_CSV if name == "px4" else next(BROAD_DIR.glob(f"{name}_*.csv.gz")))
         mag, runner = rec.mag_uT, functools.partial(run_broad, rec)
     rows: dict[str, str] = {}
     good_notes = []
@@ -131,7 +136,7 @@ def recording_rows(name: str, methods: Sequence[str]) -> dict[str, str]:
         good_notes.append(f"{method}: {warned}")
         if method != "fused":
             good_notes.append(f"vouched for at {good.vouched_s - good.time_s[0]:.1f} s")
-        if rec is not None and method != "fused":
+        if rec is not None and rec.kind == "broad" and method != "fused":
             score = evaluate(rec, Estimate("stream", method, good.time_s, good.q, len(good.time_s), 0.0)).score
             good_notes.append(f"{method} move total {score.movement.total_deg:.2f}°")
     rows["good"] = f"| {label} | " + "; ".join(good_notes) + " |"
@@ -140,7 +145,7 @@ def recording_rows(name: str, methods: Sequence[str]) -> dict[str, str]:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--recordings", nargs="+", default=[*BROAD, "sitl"], help="BROAD trial numbers, sitl")
+    parser.add_argument("--recordings", nargs="+", default=[*BROAD, "sitl", "px4"], help="BROAD trials, sitl, px4")
     parser.add_argument("--methods", nargs="+", default=["ign", "fused"], choices=["ign", "fused", "cgn", "ml"])
     args = parser.parse_args()
     rows = {}
