@@ -232,7 +232,9 @@ def replay_log(job: Job) -> LogResult:
     damage = getattr(source, "damage", None)
     if damage:
         result.status = "damaged"
-        result.note = f"{job.log}: {damage}: the {result.samples} samples before it replayed, written to {job.csv}"
+        read = "skipped; the other" if damage.startswith("damaged") else "the"  # read past it, or up to it
+        where = "" if damage.startswith("damaged") else " before it"
+        result.note = f"{job.log}: {damage}: {read} {result.samples} samples{where} replayed, written to {job.csv}"
     if job.config.compass.enabled:
         _compass_columns(replayed.pipeline.compass.figures(), result)
     if replayed.autopilot:

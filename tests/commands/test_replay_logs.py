@@ -95,6 +95,20 @@ def test_a_truncated_log_alone_is_replayed_then_one_line_and_exit_2(tmp_path):
     assert len(read_rows(out)) > 40  # what came before the cut
 
 
+def test_a_telemetry_log_with_a_damaged_record_is_replayed_around_it_then_exit_2(tmp_path, capsys):
+    from tests.commands.test_replay import write_tlog
+
+    path = write_tlog(tmp_path / "x.tlog", seconds=3.0, second_vehicle=False, attitude=False)
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0xFF  # one record's CRC fails: the log goes on after it
+    path.write_bytes(bytes(data))
+    out = tmp_path / "x.csv"
+    assert main(["replay", str(path), "-o", str(out), *REF]) == 2
+    line = capsys.readouterr().err.strip().splitlines()[-1]
+    assert ": damaged: the record at byte " in line and "does not decode (CRC): skipped; the other 298 samples" in line
+    assert len(read_rows(out)) == pytest.approx(150, abs=2)  # the whole log, but for one sample
+
+
 def test_the_shared_sitl_flight_ign_and_fused(tmp_path):
     flight = shared_path("data", "ardupilot-sitl", "flightA.BIN")
     figures = {}
