@@ -62,7 +62,7 @@ from mavattitude.errors import DegenerateGeometryError
 from mavattitude.estimation.compass import CompassEvent, CompassFigures
 from mavattitude.estimation.crosscheck import CrossCheck
 from mavattitude.link import MavlinkLink, load_signing_key, message_id
-from mavattitude.link.requests import LOW_FRACTION, PendingRequests, RateMonitor, StreamRequest
+from mavattitude.link.requests import LOW_FRACTION, PendingRequests, RateMonitor, RequestSchedule, StreamRequest
 from mavattitude.link.source import AutopilotAttitude, MavlinkDecoder, MavlinkSource, MessageSource, Sender
 from mavattitude.pipeline import AttitudeOutput, AttitudePipeline
 from mavattitude.sensors import units
@@ -228,7 +228,7 @@ class AttitudeService:
         self._last_input: float | None = None
         self._input_lost = False
         self._attitude_sent = False
-        self._streams = self._stream_requests(config)
+        self._requests = RequestSchedule(self._stream_requests(config), config.link.request_repeat_s)
         self._pending = PendingRequests(ACK_TIMEOUT_S, ACK_FORGET_S)
         self._answers_said: set[tuple[str, str]] = set()  # (stream, result) logged once each
         self._rate = RateMonitor(config.link.request_rate_hz, RATE_WINDOW_S) if config.link.request_messages else None
@@ -238,7 +238,6 @@ class AttitudeService:
         now = time.monotonic()
         self._next_tick = now
         self._next_heartbeat = now
-        self._next_request = float("inf")
         self._next_publish = now
         self._next_stats = now + config.output.stats_interval_s
         watchdog_s = self.notifier.watchdog_interval_s
@@ -294,10 +293,9 @@ class AttitudeService:
             self.link.send_heartbeat()
         if self.link.counters.reconnects != self._reconnects_seen:
             self._reconnects_seen = self.link.counters.reconnects
-            if self.vehicle is not None and self._streams:
-                self._next_request = now  # a new connection: the autopilot may have lost our requests
-        if now >= self._next_request:
-            self._request_streams(now)
+            if self.vehicle is not None:
+                self._requests.ask_now(now)  # a new connection: the autopilot may have lost our requests
+        self._request_streams(now)
         for request in self._pending.timed_out(now):
             self.counters.ack_timeouts += 1
             self._say_answer(request, "TIMEOUT")
@@ -373,8 +371,7 @@ class AttitudeService:
         self.link.set_source_system(vehicle[0])
         log.info("locked onto the autopilot: system %d, component %d", *vehicle)
         self._statustext("start", f"mavattitude {__version__}: attitude from {self._input_name}", "info")
-        if self._streams:
-            self._next_request = time.monotonic()
+        self._requests.ask_now(time.monotonic())
         self._next_heartbeat = time.monotonic()  # announce ourselves under the vehicle's id at once
 
     @staticmethod
@@ -393,10 +390,10 @@ class AttitudeService:
         return streams
 
     def _request_streams(self, now: float) -> None:
-        assert self.vehicle is not None
-        self._next_request = now + self.config.link.request_repeat_s
-        for stream in self._streams:
-            if self.link.request_message_interval(self.vehicle, stream.message_id, stream.rate_hz):
+        """Ask for every stream when the schedule says so (it is started on locking on)."""
+        vehicle = self.vehicle
+        for stream in self._requests.due(now) if vehicle is not None else ():
+            if self.link.request_message_interval(vehicle, stream.message_id, stream.rate_hz):
                 self.counters.interval_requests += 1
                 self._pending.sent(stream, now)
 
@@ -549,8 +546,8 @@ class AttitudeService:
         self._statustext("input_lost", text, "warning", log_it=False)
         if self._rate is not None:
             self._rate.restart()
-        if self._streams and self.vehicle is not None:
-            self._next_request = time.monotonic()  # a rebooted autopilot has forgotten our request: ask now
+        if self.vehicle is not None:
+            self._requests.ask_now(time.monotonic())  # a rebooted autopilot has forgotten our request: ask now
 
     def _reject(self, reason: str, exc: BaseException, counted: bool = False) -> None:
         if not counted:

@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import csv
 import logging
-import math
 import sys
 import time
 from collections.abc import Callable, Iterable, Iterator
@@ -30,7 +29,7 @@ import yaml
 from mavattitude.config import DEFAULTS
 from mavattitude.errors import CalibrationError, DataFileError
 from mavattitude.files import LOG_SUFFIXES, MAG_COLUMNS, open_text, reading
-from mavattitude.link.requests import StreamRequest
+from mavattitude.link.requests import RequestSchedule, StreamRequest
 from mavattitude.sensors import magfit, units
 from mavattitude.sensors.calibration import mag_block
 
@@ -238,29 +237,38 @@ def _first_imu_message(path: Path, profile: units.UnitProfile, system_id: int | 
 
 
 class _Live(_Skipped):
-    """The live link's periodic work while collecting, as the service does it: our HEARTBEAT at 1 Hz (as an
+    """The live link's periodic work while collecting, as the service does it: our HEARTBEAT as often (as an
     onboard computer, under the autopilot's system id once locked on), and the IMU message requested with
-    SET_MESSAGE_INTERVAL at once on locking and every ``REQUEST_REPEAT_S``; until ``duration_s`` is over."""
+    SET_MESSAGE_INTERVAL on the service's schedule (:class:`RequestSchedule`: at once on locking on, then
+    every ``REQUEST_REPEAT_S``); until ``duration_s`` is over."""
 
     def __init__(self, link: MavlinkLink, request: StreamRequest, duration_s: float) -> None:
+        from mavattitude.service import HEARTBEAT_PERIOD_S
+
+        self.heartbeat_s = HEARTBEAT_PERIOD_S
         self.link = link
-        self.request = request
+        self.requests = RequestSchedule([request], REQUEST_REPEAT_S)
         now = time.monotonic()
-        self.deadline, self.next_heartbeat, self.next_request = now + duration_s, now, math.inf
+        self.deadline, self.next_heartbeat = now + duration_s, now
 
     def on_lock(self, vehicle: tuple[int, int]) -> None:
         self.link.set_source_system(vehicle[0])
-        self.next_request = self.next_heartbeat = time.monotonic()
-        log.info("locked onto the autopilot at system %d, component %d; asking for %s", *vehicle, self.request.name)
+        self.next_heartbeat = time.monotonic()
+        self.requests.ask_now(self.next_heartbeat)
+        log.info(
+            "locked onto the autopilot at system %d, component %d; asking for %s",
+            *vehicle,
+            self.requests.streams[0].name,
+        )
 
     def __call__(self, dispatcher: Dispatcher) -> bool:
         now = time.monotonic()
         if now >= self.next_heartbeat:
-            self.next_heartbeat = now + 1.0
+            self.next_heartbeat = now + self.heartbeat_s
             self.link.send_heartbeat()
-        if dispatcher.vehicle is not None and now >= self.next_request:
-            self.next_request = now + REQUEST_REPEAT_S
-            self.link.request_message_interval(dispatcher.vehicle, self.request.message_id, self.request.rate_hz)
+        vehicle = dispatcher.vehicle
+        for stream in self.requests.due(now) if vehicle is not None else ():
+            self.link.request_message_interval(vehicle, stream.message_id, stream.rate_hz)
         return now < self.deadline
 
 

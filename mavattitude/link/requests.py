@@ -1,5 +1,7 @@
 """What the service asks the autopilot for, and how it knows what was answered: no I/O here.
 
+- :class:`RequestSchedule`: when the streams are asked for (at once on locking on, again every few
+  seconds), for the service and live ``calibrate`` alike.
 - :class:`PendingRequests`: the SET_MESSAGE_INTERVAL commands sent and not yet answered. A COMMAND_ACK
   names only the command it answers, not its parameters, so several requests of one command (the IMU
   stream, the position, the autopilot's ATTITUDE) are told apart by order: an autopilot answers the
@@ -35,6 +37,27 @@ class StreamRequest:
 
     def describe(self) -> str:
         return f"{self.name} at {self.rate_hz:g} Hz"
+
+
+class RequestSchedule:
+    """When to ask the autopilot for its streams: at once when told (locking on, a new connection, a rebooted
+    autopilot), then every ``repeat_s`` (a ground station may change rates; a reboot forgets them)."""
+
+    def __init__(self, streams: list[StreamRequest], repeat_s: float) -> None:
+        self.streams = streams
+        self.repeat_s = repeat_s
+        self._next_s = math.inf  # nothing is asked before the first ask_now
+
+    def ask_now(self, now_s: float) -> None:
+        if self.streams:
+            self._next_s = now_s
+
+    def due(self, now_s: float) -> list[StreamRequest]:
+        """The streams to request now (every one, when due), else none."""
+        if now_s < self._next_s:
+            return []
+        self._next_s = now_s + self.repeat_s
+        return self.streams
 
 
 @dataclass

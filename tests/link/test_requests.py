@@ -2,7 +2,14 @@
 
 from __future__ import annotations
 
-from mavattitude.link.requests import CLEAR_FRACTION, LOW_FRACTION, PendingRequests, RateMonitor, StreamRequest
+from mavattitude.link.requests import (
+    CLEAR_FRACTION,
+    LOW_FRACTION,
+    PendingRequests,
+    RateMonitor,
+    RequestSchedule,
+    StreamRequest,
+)
 
 IMU = StreamRequest("RAW_IMU", 27, 200.0)
 POSITION = StreamRequest("GLOBAL_POSITION_INT", 33, 1.0)
@@ -69,3 +76,17 @@ def test_a_stopped_stream_is_not_a_slow_one():
     _feed(monitor, 200.0, 0.0, 1.5)
     monitor.restart()  # input lost
     assert monitor.update(10.0) is None and not monitor.low
+
+
+def test_the_schedule_asks_at_once_when_told_then_every_repeat():
+    imu = StreamRequest("RAW_IMU", 27, 50.0)
+    schedule = RequestSchedule([imu], repeat_s=5.0)
+    assert schedule.due(100.0) == []  # not before locking on
+    schedule.ask_now(100.0)
+    assert schedule.due(100.0) == [imu]
+    assert schedule.due(104.9) == [] and schedule.due(105.0) == [imu]
+    schedule.ask_now(106.0)  # a new connection or a rebooted autopilot: at once again
+    assert schedule.due(106.0) == [imu]
+    nothing = RequestSchedule([], repeat_s=5.0)
+    nothing.ask_now(0.0)
+    assert nothing.due(1e9) == []  # link.request_messages off: never asked
