@@ -520,6 +520,7 @@ EXPECTED_ROWS["replay"] = [
     "replay .tlog, ign, one core: IMU samples/s",
     "replay .tlog, fused, one core: IMU samples/s",
     "replay -j 2 of two .bin logs (ign) against -j 1, wall clock: speed-up",
+    "the same two logs in two bare processes at once against one after the other (the machine's ceiling), ×",
 ]
 
 
@@ -593,7 +594,26 @@ def bench_replay(settings: Settings) -> list[Row]:
             replay_command.replay_all(jobs, workers)
             walls.append(time.monotonic() - start)
         rows.append(_row(sec, names[9], walls[0] / walls[1], "×", 1.7, higher_is_better=True))
+        rows.append(_row(sec, names[10], _in_processes(jobs, False) / _in_processes(jobs, True), "×"))
     return rows
+
+
+def _in_processes(jobs: list[Any], at_once: bool) -> float:
+    """Wall seconds to replay ``jobs`` each in a forked process of its own, all at once or one after the other:
+    what two cores give two independent replays here, with no pool, no result transfer, no parent's work."""
+    import multiprocessing
+
+    from mavattitude.commands.replay import replay_log
+
+    processes = [multiprocessing.get_context("fork").Process(target=replay_log, args=(job,)) for job in jobs]
+    start = time.monotonic()
+    for p in processes:
+        p.start()
+        if not at_once:
+            p.join()
+    for p in processes:
+        p.join()
+    return time.monotonic() - start
 
 
 # --- the table and the machine ----------------------------------------------------------------------------
