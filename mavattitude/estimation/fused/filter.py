@@ -29,7 +29,8 @@ which hand motion is not); ``ε``: the measured angle between ``ã`` and ``m`` m
 Heading update — the horizontal field ``m_h`` (of ``R(q) (m − o)``) against the reference's
 horizontal direction ``n``: ``z = atan2(m_h × n, m_h · n)``, ``h_θ = A(q) e_D`` (the vertical in the body),
 ``r = σ_m'² / |m_h|²``, gain only along ``h_θ`` (attitude and bias): the magnetometer sets the heading and
-nothing else, so a wrong or disturbed field can never move roll and pitch.
+nothing else, so a wrong or disturbed field can never move roll and pitch. ``σ_m'²`` (:mod:`.magnetic`) gains
+``(τ_m |ω × m|)²``: the field error of a sample-time skew ``τ_m`` between gyro and magnetometer in a turn.
 
 Start-up and gaps: the first sample with both vectors initialises ``q`` from IGN and ``P_θθ`` from its
 covariance, ``P_bb = σ_b0² I``; a gap longer than ``max_gap_s`` restarts from IGN, keeping the bias.
@@ -280,7 +281,8 @@ class FusedFilter:
         # Past half a radian of direction noise the accelerometer tells nothing the gyro does not know.
         self._tilt_update(acc, acc_norm, min(math.sqrt(sigma_a2), _MAX_UNIT_STD * acc_norm), r)
         if mag is not None and d < 1.0:
-            sigma_m2 = min(s.mag_std_uT**2 * self._mag.sigma2_factor(d, time_s), (_MAX_UNIT_STD * mag_norm) ** 2)
+            sigma_m2 = s.mag_std_uT**2 * self._mag.sigma2_factor(d, time_s) + self._skew_var(mag)
+            sigma_m2 = min(sigma_m2, (_MAX_UNIT_STD * mag_norm) ** 2)
             if self._heading_update(mag, mag_norm, sigma_m2, r):
                 return
         self.counters["tilt_only_updates"] += 1
@@ -326,6 +328,13 @@ class FusedFilter:
             self.counters["mag_offset_learned"] += self._mag.learn_offset(mag, r, time_s)
         self.counters["mag_disturbed"] += d >= 1.0
         return d, mag_norm
+
+    def _skew_var(self, mag: Vec3) -> float:
+        """``(τ_m ‖ω × m‖)²``: the field error a sample-time skew ``τ_m`` between gyro and magnetometer makes
+        while the body turns (``ω``: the bias-corrected rate)."""
+        b, g = self._ekf.bias, self._gyr_last
+        turn = cross((g[0] - b[0], g[1] - b[1], g[2] - b[2]), mag)
+        return self.settings.mag_skew_s**2 * dot(turn, turn)
 
     def _vector_residual(self, acc: Vec3, acc_norm: float, mag: Vec3, mag_norm: float) -> float:
         """IGN residual as an angle: measured angle between the vectors minus the reference angle."""

@@ -58,6 +58,9 @@ class FusedSettings:
     mag_soft_fraction: float = ranged(
         0.35, "d₀: σ_m inflation scale below the disturbance threshold (σ_m² × (1 + (d/d₀)⁶))", lo_open=True
     )
+    mag_skew_s: float = ranged(
+        0.02, "τ_m: σ_m added per µT/s of the field's turn in the body (‖ω × m‖): the sample-time skew, s", hi=1.0
+    )
     mag_recovery_factor: float = ranged(10.0, "ρ₀: σ_m² multiplier just after a long disturbance", lo=1.0)
     mag_recovery_s: float = ranged(3.0, "T_r: the recovery ramp's length, s", hi=3600.0)
     mag_offset_window_s: float = ranged(
