@@ -1,4 +1,4 @@
-"""`mavattitude validate` end to end on a slice of the PX4 log, its errors, and the figures' helper."""
+"""`mavattitude validate` end to end on a slice of the PX4 log, its errors, its running RMS, --set."""
 
 from __future__ import annotations
 
