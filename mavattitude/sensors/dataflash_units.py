@@ -29,12 +29,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mavattitude.estimation.conventions import Array, quat_from_euler
-from mavattitude.sensors.units import MILLIGAUSS_UT
+from mavattitude.sensors.units import BOOT_MS_WRAP_S, MILLIGAUSS_UT
 
 Table = dict[str, NDArray]
 
 #: SI per logged unit of each time field, and its wrap period (s; None: a uint64 of µs never wraps).
-TIME_FIELDS: dict[str, tuple[float, float | None]] = {"TimeUS": (1e-6, None), "TimeMS": (1e-3, 2.0**32 * 1e-3)}
+TIME_FIELDS: dict[str, tuple[float, float | None]] = {"TimeUS": (1e-6, None), "TimeMS": (1e-3, BOOT_MS_WRAP_S)}
 ACC_FIELDS, ACC_SI = ("AccX", "AccY", "AccZ"), 1.0  # m/s²
 GYR_FIELDS, GYR_SI = ("GyrX", "GyrY", "GyrZ"), 1.0  # rad/s
 MAG_FIELDS, MAG_SI = ("MagX", "MagY", "MagZ"), MILLIGAUSS_UT  # milligauss → µT

@@ -45,12 +45,14 @@ MAX_PLAUSIBLE_FIELD_UT = 2000.0
 
 INT16_MIN, INT16_MAX = -32768, 32767
 
+BOOT_MS_WRAP_S = 2.0**32 * 1e-3  # a uint32 of milliseconds wraps after this (≈ 49.7 days)
+
 #: The time field of each IMU message, its size in seconds, and the period after which it wraps.
 TIME_FIELDS: dict[str, tuple[str, float, float | None]] = {
     "RAW_IMU": ("time_usec", 1e-6, None),
-    "SCALED_IMU": ("time_boot_ms", 1e-3, 2.0**32 * 1e-3),
-    "SCALED_IMU2": ("time_boot_ms", 1e-3, 2.0**32 * 1e-3),
-    "SCALED_IMU3": ("time_boot_ms", 1e-3, 2.0**32 * 1e-3),
+    "SCALED_IMU": ("time_boot_ms", 1e-3, BOOT_MS_WRAP_S),
+    "SCALED_IMU2": ("time_boot_ms", 1e-3, BOOT_MS_WRAP_S),
+    "SCALED_IMU3": ("time_boot_ms", 1e-3, BOOT_MS_WRAP_S),
     "HIGHRES_IMU": ("time_usec", 1e-6, None),
 }
 #: The IMU messages the project reads (``input.message``) and the fake vehicle sends.
