@@ -217,11 +217,12 @@ def test_bytes_that_start_no_record_are_skipped_to_the_next_frame(tmp_path: Path
     assert source.count == len(written)
 
 
-def test_the_crc_is_mavlinks_x25() -> None:
+@pytest.mark.parametrize("length", [0, 1, 30, 31])
+def test_the_crc_is_mavlinks_x25(length: int) -> None:
     from pymavlink.mavutil import x25crc
 
     rng = np.random.default_rng(7)
-    strings = rng.integers(0, 256, size=(50, 31), dtype=np.uint8)
+    strings = rng.integers(0, 256, size=(50, length), dtype=np.uint8)
     extra = rng.integers(0, 256, size=50, dtype=np.uint8)
     ours = x25_crc(np.ascontiguousarray(strings.T), extra)
     assert ours.tolist() == [x25crc(bytes(s) + bytes([e])).crc for s, e in zip(strings, extra, strict=True)]
