@@ -408,6 +408,11 @@ def decode_position(msg: Any) -> Position | None:
     return Position(lat_deg=msg.lat * 1e-7, lon_deg=msg.lon * 1e-7, alt_m=msg.alt * 1e-3)
 
 
+def encode_position(position: Position) -> tuple[int, int, int]:
+    """:func:`decode_position`'s inverse: latitude and longitude in degrees × 10⁷, altitude in millimetres."""
+    return round(position.lat_deg * 1e7), round(position.lon_deg * 1e7), round(position.alt_m * 1e3)
+
+
 def decode_position_columns(kind: str, fields: Mapping[str, NDArray[Any]]) -> tuple[NDArray[np.bool_], NDArray[Any]]:
     """:func:`decode_position` for many messages of ``kind``: which rows are a position, and every row's
     latitude °, longitude °, altitude m (n, 3)."""

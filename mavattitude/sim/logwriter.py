@@ -177,7 +177,7 @@ def write_tlog(path: str | Path, log: SensorLog, system: int = 1) -> Path:
     the newest magnetometer reading (ArduPilot units), ATTITUDE and GLOBAL_POSITION_INT; each packet after
     its 8-byte big-endian receive time (µs since 1970, the log's clock starting on 2026-03-01)."""
     from mavattitude.link.mavlink2 import mavlink2
-    from mavattitude.sensors.units import PROFILES, ImuSample, encode
+    from mavattitude.sensors.units import PROFILES, ImuSample, Position, encode, encode_position
 
     mav = mavlink2.MAVLink(None, srcSystem=system, srcComponent=1)
     profile = PROFILES["ardupilot"]
@@ -195,7 +195,7 @@ def write_tlog(path: str | Path, log: SensorLog, system: int = 1) -> Path:
             records.append((t, mavlink2.MAVLink_attitude_message(round(t * 1e3), r, p, y, 0.0, 0.0, 0.0).pack(mav)))
     if log.position_t_s is not None and log.position is not None:
         for t, (lat, lon, alt) in zip(log.position_t_s.tolist(), log.position.tolist(), strict=True):
-            fields = (round(t * 1e3), round(lat * 1e7), round(lon * 1e7), round(alt * 1e3), 0, 0, 0, 0, 0)
+            fields = (round(t * 1e3), *encode_position(Position(lat, lon, alt)), 0, 0, 0, 0, 0)
             records.append((t, mavlink2.MAVLink_global_position_int_message(*fields).pack(mav)))
     records.sort(key=lambda r: r[0])
     start_us = 1_772_323_200_000_000  # 2026-03-01 00:00 UTC

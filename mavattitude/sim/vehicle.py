@@ -43,7 +43,15 @@ import numpy as np
 from mavattitude.errors import InputError, LinkError
 from mavattitude.estimation.conventions import Array, euler_from_quat
 from mavattitude.link.mavlink2 import force_mavlink2, mavlink2, mavutil, message_id
-from mavattitude.sensors.units import MESSAGES, ImuSample, encode, get_profile, time_boot_ms
+from mavattitude.sensors.units import (
+    MESSAGES,
+    ImuSample,
+    Position,
+    encode,
+    encode_position,
+    get_profile,
+    time_boot_ms,
+)
 from mavattitude.sim.scoring import Comparison, Score, compare, score
 from mavattitude.sim.sensors import SensorModel
 from mavattitude.sim.trajectory import Script
@@ -419,9 +427,7 @@ class FakeVehicle:
         self.send(
             mavlink2.MAVLink_global_position_int_message(
                 time_boot_ms(max(0.0, self.vehicle_time(now_s))),
-                round(cfg.home_lat_deg * 1e7),
-                round(cfg.home_lon_deg * 1e7),
-                round(cfg.home_alt_m * 1000),
+                *encode_position(Position(cfg.home_lat_deg, cfg.home_lon_deg, cfg.home_alt_m)),
                 0,
                 *(int(np.clip(v, -32768, 32767)) for v in vel_cms),
                 65535,

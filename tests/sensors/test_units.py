@@ -193,3 +193,13 @@ def test_the_columns_decode_each_message_as_decode_does(profile: str, message: s
             assert sample is None and str(columns.error(i)) == str(exc)
             continue
         assert sample == expected
+
+
+def test_encode_position_is_decode_positions_inverse() -> None:
+    fields = units.encode_position(units.Position(47.397742, -8.545594, 488.25))
+    assert fields == (473_977_420, -85_455_940, 488_250)  # degrees × 10⁷, millimetres
+    gpi = _msg("GLOBAL_POSITION_INT", lat=fields[0], lon=fields[1], alt=fields[2])
+    # one unit of the encoding apart at most: 1e-7°, 1 mm
+    assert decode_position(gpi) == units.Position(
+        pytest.approx(47.397742, abs=1e-7), pytest.approx(-8.545594, abs=1e-7), pytest.approx(488.25, abs=1e-3)
+    )
