@@ -29,24 +29,18 @@ log = logging.getLogger(__name__)
 
 def add_vehicle_arguments(parser: argparse.ArgumentParser, default_duration_s: float) -> None:
     """The options that describe the fake vehicle (shared with `mavattitude demo`)."""
-    parser.add_argument(
-        "--script",
-        default="tour",
-        choices=sorted(scenarios.SCRIPTS),
-        help="truth trajectory (default tour: maneuvering flight, slow rotation, flips)",
-    )
+    for flag, presets, default, what in (
+        ("--script", scenarios.SCRIPTS, "tour", "truth trajectory"),
+        ("--sensors", scenarios.SENSORS, "consumer", "sensor error preset"),
+    ):
+        about = (presets[default].__doc__ or "").split("\n")[0].rstrip(".")  # the preset's own description
+        parser.add_argument(flag, default=default, choices=sorted(presets), help=f"{what} (default {default}: {about})")
     parser.add_argument(
         "--duration",
         type=float,
         default=default_duration_s,
         metavar="S",
         help=f"how long to fly, vehicle seconds from the first IMU request (default {default_duration_s:g})",
-    )
-    parser.add_argument(
-        "--sensors",
-        default="consumer",
-        choices=sorted(scenarios.SENSORS),
-        help="sensor error preset: paper (the paper's noise), ideal, consumer (default)",
     )
     parser.add_argument(
         "--profile",

@@ -101,6 +101,7 @@ def flips(duration_s: float = 6.0) -> Script:
 
 
 def tour(duration_s: float = 60.0) -> Script:
+    """Maneuvering flight, slow rotation, flips."""
     segments = [*_maneuver_segments(), Rotate(8.0, (0.03, -0.05, 0.08)), Hold(1.0)]
     # Flips start from whatever attitude the rotation ended at: they are relative to the body.
     segments += _flip_segments()
