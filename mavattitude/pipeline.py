@@ -204,7 +204,7 @@ class SnapshotEstimator:
             flags |= _HEADING_ONLY
             covariance = _heading_uncertain(r, sample.acc_mps2)
         else:
-            covariance = _lazy(r)
+            covariance = _SolutionCovariance(r)
         return [AttitudeOutput(sample.time_s, r.q, rates, r.iterations, r.converged, flags, covariance)]
 
 
@@ -213,8 +213,31 @@ _MAG_OFF = frozenset({"MAG_NORM", "MAG_INCONSISTENT"})
 _HEADING_ONLY = frozenset({"MAG_HEADING_ONLY"})
 
 
-def _lazy(result: Any) -> Callable[[], Array]:
-    return lambda: result.covariance
+class _SolutionCovariance:
+    """An output's covariance from its solution, computed when asked (:func:`output_covariances` computes many
+    at once)."""
+
+    __slots__ = ("result",)
+
+    def __init__(self, result: Any) -> None:
+        self.result = result
+
+    def __call__(self) -> Array:
+        return self.result.covariance
+
+
+def output_covariances(outputs: list[AttitudeOutput]) -> Array:
+    """``[o.covariance_or_nan() for o in outputs]`` as ``(N, 3, 3)``: the snapshot solutions' in one batch
+    (:func:`mavattitude.estimation.solve.covariances`, the same values), the others one by one."""
+    from mavattitude.estimation.solve import covariances
+
+    solved = [i for i, o in enumerate(outputs) if type(o.covariance_source) is _SolutionCovariance]
+    out = np.empty((len(outputs), 3, 3))
+    if solved:
+        out[solved] = covariances([outputs[i].covariance_source.result for i in solved])  # type: ignore[union-attr]
+    for i in sorted(set(range(len(outputs))) - set(solved)):
+        out[i] = outputs[i].covariance_or_nan()
+    return out
 
 
 def _heading_uncertain(result: Any, acc_mps2: Any) -> Callable[[], Array]:

@@ -280,3 +280,17 @@ def test_a_good_compass_leaves_ign_the_papers_ign():
     noise = pipeline_module._noise_model(p.config)
     plain = [real_solve(t.acc_mps2, t.mag_uT, FIELD_NED_UT, noise, "ign").q for t in ticks]
     assert np.degrees(angle_between(np.array([o.q for o in out]), np.array(plain))).max() < 1e-6
+
+
+@pytest.mark.parametrize("method", ["ign", "cgn", "ml", "triad", "fused"])
+def test_output_covariances_at_once_are_each_outputs_bit_for_bit(method):
+    """The CSV's covariances are computed for all outputs at once: the same values as one by one, exactly (the
+    kernel's arithmetic is elementwise); heading-only outputs (an upside-down compass) and the fused filter's
+    go one by one."""
+    samples = static_samples(n=200)
+    flipped = [dataclasses.replace(s, mag_uT=(s.mag_uT[0], s.mag_uT[1], -s.mag_uT[2])) for s in static_samples(n=200)]
+    p = AttitudePipeline(from_dict({**ANGLES, "estimator": {"method": method}}))
+    out = run(p, samples) + run(AttitudePipeline(from_dict({**ANGLES, "estimator": {"method": method}})), flipped)
+    assert method == "fused" or any("MAG_HEADING_ONLY" in o.flags for o in out)
+    one_by_one = np.array([o.covariance_or_nan() for o in out])
+    assert np.array_equal(pipeline_module.output_covariances(out), one_by_one)

@@ -118,6 +118,7 @@ def write_outputs(path: str | Path, outputs: Sequence[AttitudeOutput]) -> int:
     """Write the attitude CSV (``OUTPUT_COLUMNS``), Euler angles computed for all rows at once; returns the
     number of rows. The covariance is of the body-frame error angles, rad² (NaN: none)."""
     from mavattitude.estimation.conventions import euler_from_quat
+    from mavattitude.pipeline import output_covariances
 
     n = len(outputs)
     q = np.array([o.q for o in outputs], dtype=float).reshape(n, 4)
@@ -128,7 +129,7 @@ def write_outputs(path: str | Path, outputs: Sequence[AttitudeOutput]) -> int:
             np.degrees(euler_from_quat(q)).reshape(n, 3),
             np.array([o.iterations for o in outputs], dtype=float),
             np.array([o.converged for o in outputs], dtype=float),
-            np.array([o.covariance_or_nan()[_UPPER] for o in outputs], dtype=float).reshape(n, 6),
+            output_covariances(list(outputs))[:, _UPPER[0], _UPPER[1]].reshape(n, 6),
         ]
     )
     with open_text(path, "w") as f:

@@ -80,6 +80,27 @@ class SolveResult:
         return self._covariance
 
 
+def covariances(results: list[SolveResult]) -> NDArray[np.float64]:
+    """``[r.covariance for r in results]`` as ``(N, 3, 3)``, NaN where a result has none (a singular
+    information matrix): the kernel once on arrays per method and noise model. Its arithmetic is elementwise
+    (``+ − × /`` only), so the values are those of the one-by-one path, bit for bit."""
+    out = np.full((len(results), 3, 3), np.nan)
+    groups: dict[tuple[str, NoiseModel], list[int]] = {}
+    for i, r in enumerate(results):
+        groups.setdefault((r.method, r.noise), []).append(i)
+    for (method, noise), rows in groups.items():
+        w_mag, w_acc = (np.array([results[i]._obs[k][0] for i in rows], dtype=float).T for k in (0, 1))
+        n_acc, n_mag = np.array([results[i]._norms for i in rows], dtype=float).T
+        with np.errstate(all="ignore"):  # a singular matrix gives NaN (kernel.sym_inverse), as one by one
+            xx, xy, xz, yy, yz, zz = kernel.covariance(
+                method, (tuple(w_mag), n_mag, noise.mag_var), (tuple(w_acc), n_acc, noise.accel_var)
+            )
+        cov = np.stack([xx, xy, xz, xy, yy, yz, xz, yz, zz], -1).reshape(-1, 3, 3)
+        cov[~np.isfinite(cov).all(axis=(1, 2))] = np.nan
+        out[rows] = cov
+    return out
+
+
 def check_method(method: str) -> None:
     if method not in SNAPSHOT_METHODS:
         raise InputError(f"unknown method {method!r}; choose one of {', '.join(SNAPSHOT_METHODS)}")
