@@ -21,7 +21,8 @@ stationary magnet, attached magnet), tune the ``--tune`` parameters by coordinat
 in turn ×/÷ a step, kept while the geometric mean of fused/VQF over the *other* categories improves) and
 score the held-out category with the result. A category that only scores well when it is trained on is
 what the held-back trials would expose. Without ``--tune`` the tuned set is the accelerometer and
-magnetometer weights. Long: run it under ``nice -n 10``.
+magnetometer weights. Long: run it under ``nice -n 10``; ``--jobs 2`` scores a configuration's trials in
+two processes (the scores are shared between the folds either way).
 
 ``--misoriented`` runs each trial with its magnetometer's axes flipped or turned by 90° and prints the RMS
 roll/pitch difference from the good-compass run (the target: ≤ 1°: the field sets heading only).
@@ -46,6 +47,7 @@ import argparse
 import dataclasses
 import functools
 import math
+import multiprocessing
 import time
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
@@ -136,13 +138,29 @@ def score(trial: str, settings: FusedSettings) -> tuple[float, float, float, Fus
     return m.total_deg, m.heading_deg, m.inclination_deg, f, cost_us
 
 
-@functools.cache
+_TOTALS: dict[tuple[str, FusedSettings], float] = {}
+JOBS = 1  # processes that score a configuration's trials (--jobs)
+
+
 def total_deg(trial: str, settings: FusedSettings) -> float:
-    """Movement RMS total of one trial, remembered: the searches ask for the same configurations again."""
-    return score(trial, settings)[0]
+    """Movement RMS total of one trial, remembered: the searches (and the folds) ask for the same
+    configurations again."""
+    key = (trial, settings)
+    if key not in _TOTALS:
+        _TOTALS[key] = score(trial, settings)[0]
+    return _TOTALS[key]
+
+
+def _scored(key: tuple[str, FusedSettings]) -> float:
+    return score(*key)[0]
 
 
 def ratios(trials: Iterable[str], settings: FusedSettings, peer: str = "vqf") -> dict[str, float]:
+    trials = list(trials)
+    todo = [(t, settings) for t in trials if (t, settings) not in _TOTALS]
+    if JOBS > 1 and len(todo) > 1:  # the missing trials at once, in JOBS processes
+        with multiprocessing.Pool(JOBS) as pool:
+            _TOTALS.update(zip(todo, pool.map(_scored, todo), strict=True))
     return {t: total_deg(t, settings) / peer_scores(t)[peer] for t in trials}
 
 
@@ -321,6 +339,7 @@ def main() -> int:
     parser.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE", help="FusedSettings overrides")
     parser.add_argument("--loco", action="store_true", help="leave-one-category-out tuning and scores")
     parser.add_argument("--descend", action="store_true", help="coordinate descent of --tune on --trials")
+    parser.add_argument("--jobs", type=int, default=1, help="processes for --loco and --descend (nice them)")
     parser.add_argument("--tune", nargs="+", default=list(DEFAULT_TUNED), help="parameters --loco tunes")
     parser.add_argument("--solve", action="store_true", help="score through `mavattitude solve --method fused`")
     parser.add_argument("--sim", action="store_true", help="the fake vehicle's maneuvering flight, not BROAD")
@@ -328,6 +347,8 @@ def main() -> int:
         "--misoriented", action="store_true", help="roll/pitch with a flipped or turned magnetometer vs a good one"
     )
     args = parser.parse_args()
+    global JOBS
+    JOBS = max(1, args.jobs)
     overrides = {k: float(v) for k, v in (s.split("=", 1) for s in args.set)}
     if args.sim:
         run_sim(overrides)
