@@ -270,8 +270,9 @@ class FusedFilter:
         acc_norm = math.sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
         r = rotation_matrix_parts(ekf.q)
         mag = None if mag_uT is None else self._mag.corrected((float(mag_uT[0]), float(mag_uT[1]), float(mag_uT[2])))
+        rate = self._body_rate()  # the bias is the same until the update's reset
         if mag is not None and mag_age_s > 0.0:
-            mag = self._carried(mag, mag_age_s)
+            mag = _carried(mag, rate, mag_age_s)
         d = mag_norm = math.inf
         if mag is not None:
             d, mag_norm = self._check_field(mag, r, time_s)
@@ -281,30 +282,16 @@ class FusedFilter:
         # Past half a radian of direction noise the accelerometer tells nothing the gyro does not know.
         self._tilt_update(acc, acc_norm, min(math.sqrt(sigma_a2), _MAX_UNIT_STD * acc_norm), r)
         if mag is not None and d < 1.0:
-            sigma_m2 = s.mag_std_uT**2 * self._mag.sigma2_factor(d, time_s) + self._skew_var(mag)
+            sigma_m2 = s.mag_std_uT**2 * self._mag.sigma2_factor(d, time_s) + self._skew_var(mag, rate)
             sigma_m2 = min(sigma_m2, (_MAX_UNIT_STD * mag_norm) ** 2)
             if self._heading_update(mag, mag_norm, sigma_m2, r):
                 return
         self.counters["tilt_only_updates"] += 1
 
-    def _carried(self, mag: Vec3, age_s: float) -> Vec3:
-        """A reading taken ``age_s`` ago, in the body frame of now: the Earth's field turns in the body by
-        ``−ω`` as the body turns by ``ω`` (the bias-corrected rate), ``m ← exp(−[ω×] age) m`` (Rodrigues).
-        A 10 Hz magnetometer's reading held to a 60°/s turn's samples was up to 6° off in heading."""
+    def _body_rate(self) -> Vec3:
+        """The body's rate ``ω``, rad/s: the last gyro sample with the estimated bias removed."""
         b, g = self._ekf.bias, self._gyr_last
-        kx, ky, kz = (g[0] - b[0]) * age_s, (g[1] - b[1]) * age_s, (g[2] - b[2]) * age_s
-        angle = math.sqrt(kx * kx + ky * ky + kz * kz)
-        if angle < 1e-12:
-            return mag
-        kx, ky, kz = kx / angle, ky / angle, kz / angle
-        c, s = math.cos(angle), math.sin(angle)
-        along = (kx * mag[0] + ky * mag[1] + kz * mag[2]) * (1.0 - c)
-        kxm = cross((kx, ky, kz), mag)
-        return (
-            mag[0] * c - kxm[0] * s + kx * along,
-            mag[1] * c - kxm[1] * s + ky * along,
-            mag[2] * c - kxm[2] * s + kz * along,
-        )
+        return (g[0] - b[0], g[1] - b[1], g[2] - b[2])
 
     def _prefiltered(self, raw: Vec3) -> tuple[Vec3, float]:
         """``ã`` (the long pre-filter, body frame) and ``σ_a'²`` without the residual term (module docstring)."""
@@ -329,11 +316,10 @@ class FusedFilter:
         self.counters["mag_disturbed"] += d >= 1.0
         return d, mag_norm
 
-    def _skew_var(self, mag: Vec3) -> float:
+    def _skew_var(self, mag: Vec3, rate: Vec3) -> float:
         """``(τ_m ‖ω × m‖)²``: the field error a sample-time skew ``τ_m`` between gyro and magnetometer makes
-        while the body turns (``ω``: the bias-corrected rate)."""
-        b, g = self._ekf.bias, self._gyr_last
-        turn = cross((g[0] - b[0], g[1] - b[1], g[2] - b[2]), mag)
+        while the body turns at ``rate`` (``ω``, :meth:`_body_rate`)."""
+        turn = cross(rate, mag)
         return self.settings.mag_skew_s**2 * dot(turn, turn)
 
     def _vector_residual(self, acc: Vec3, acc_norm: float, mag: Vec3, mag_norm: float) -> float:
@@ -409,8 +395,7 @@ class FusedFilter:
 
     def _outputs(self, time_s: float) -> list[FusedEstimate]:
         """Estimates for every output tick up to ``time_s``, the attitude carried back to the tick time."""
-        b, g = self._ekf.bias, self._gyr_last
-        wx, wy, wz = g[0] - b[0], g[1] - b[1], g[2] - b[2]
+        wx, wy, wz = self._body_rate()
         # np.fromiter: a small array from floats in half the time of np.array, which first guesses the shape.
         rates = np.fromiter((wx, wy, wz), float, 3)
         p_tt = self._ekf.p_tt
@@ -420,7 +405,7 @@ class FusedFilter:
             back = self._next_output_s - time_s
             carry = quat_from_rotvec_parts(wx * back, wy * back, wz * back)
             q_tick = np.fromiter(quat_normalize_parts(quat_multiply_parts(q_now, carry)), float, 4)
-            out.append(FusedEstimate(self._next_output_s, q_tick, rates, self._mag.disturbed, p_tt, b))
+            out.append(FusedEstimate(self._next_output_s, q_tick, rates, self._mag.disturbed, p_tt, self._ekf.bias))
             self._next_output_s += self._output_period_s
         return out
 
@@ -469,3 +454,22 @@ def _unit(v: Vec3) -> Vec3:
 
 
 _AXES: tuple[Vec3, Vec3, Vec3] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+
+
+def _carried(mag: Vec3, rate: Vec3, age_s: float) -> Vec3:
+    """A reading taken ``age_s`` ago, in the body frame of now: the Earth's field turns in the body by
+    ``−ω`` as the body turns by ``ω`` (``rate``, bias-corrected), ``m ← exp(−[ω×] age) m`` (Rodrigues).
+    A 10 Hz magnetometer's reading held to a 60°/s turn's samples was up to 6° off in heading."""
+    kx, ky, kz = rate[0] * age_s, rate[1] * age_s, rate[2] * age_s
+    angle = math.sqrt(kx * kx + ky * ky + kz * kz)
+    if angle < 1e-12:
+        return mag
+    kx, ky, kz = kx / angle, ky / angle, kz / angle
+    c, s = math.cos(angle), math.sin(angle)
+    along = (kx * mag[0] + ky * mag[1] + kz * mag[2]) * (1.0 - c)
+    kxm = cross((kx, ky, kz), mag)
+    return (
+        mag[0] * c - kxm[0] * s + kx * along,
+        mag[1] * c - kxm[1] * s + ky * along,
+        mag[2] * c - kxm[2] * s + kz * along,
+    )
