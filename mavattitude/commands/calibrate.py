@@ -220,10 +220,10 @@ def _log_samples(path: Path, args: argparse.Namespace) -> Iterator[units.ImuSamp
     from mavattitude.config import load_config
     from mavattitude.link.logs import detect_format, open_log
 
+    profile = units.get_profile(args.profile)
     message = args.message
     if message is None and detect_format(path) == "tlog":
-        message = _first_imu_message(path, units.get_profile(args.profile), args.system_id)
-    profile = units.get_profile(args.profile)
+        message = _first_imu_message(path, profile, args.system_id)
     overrides = {"input.profile": args.profile, "input.message": message or profile.default_message}
     config = load_config(None, overrides, env={})
     return _read(open_log(path, config), args.system_id or 0, _Skipped(), lambda _: True)
