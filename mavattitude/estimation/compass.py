@@ -22,6 +22,19 @@ hard iron); a compass mounted in another orientation than the gyroscope turns th
 axis, ≥ 0.4 (flips and 90° turns about any axis, on the SITL flight and the BROAD trials). The threshold is
 ``turn_allowance + k · (noise's share)``, the noise's share being ``n · 6 σ̄_mag² / Σ |B_k − B_j|²``.
 
+A turn mostly about a misorientation's own axis shows it only in the small rest of the turn (a mirror or a
+rotation commutes with rotations about its axis), too small a share of the field's change for that ratio.
+So the same steps also score every other axis-aligned mounting ``M`` (:data:`MOUNTINGS`): the residual
+``S_M`` of "the compass reads ``M b``" (:meth:`TurnCheck.better_mounting`). Only the part of the turn that
+tells ``M`` from the configured mounting separates ``S_M`` from ``S_I``, however small its share of the whole
+turn; and what the gyroscope and the calibration leave (a bias, a hard-iron residual) is no closer to a
+wrong mounting than to the right one. With the steps' noise ``n`` (per-axis variance ``2σ̄²``) and ``D`` the
+hypotheses' separation, a good compass gives ``S_I − S_M = −D − 2 Σ d·n``, whose noise is at most
+``4 σ̄ √D``: it exceeds ``4 k² σ̄²`` only on a noise excursion beyond ``k`` of its σ, whatever ``D``
+(the least ``(D + 4k²σ̄²) / (4σ̄√D)`` is ``k``, at ``D = 4k²σ̄²``). The turn is judged off too when another
+mounting gains more than that on the configured one and explains at least ``MIN_EXPLAINED_SHARE`` of its
+residual (a hard-iron residual the size of the turn can favour another mounting a little: 7 % on BROAD 33).
+
 Only *quiet* samples count for the dip and |B|: low acceleration (``| |f| − g | ≤ low_accel_fraction · g``)
 and slow rotation (``|ω| ≤ max_rate_dps``): elsewhere the specific force is not gravity (linear acceleration; or the
 centripetal and tangential acceleration of a sensor off the rotation axis, and the small time offset
@@ -46,6 +59,7 @@ Pure functions and a small state machine on plain floats; no I/O (the service an
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -74,6 +88,7 @@ TURN_SPAN_S = 0.2  # the field's turn is compared over steps this long ...
 MIN_TURN_DEG = 5.0  # ... that turned the body by at least this much (else noise dominates)
 MAX_TURN_GAP_S = 0.1  # a longer gap between ticks restarts the gyroscope's integration
 MIN_SECOND_AXIS_SHARE = 0.1  # a turn vouches for a compass when this share of it was about a second axis
+MIN_EXPLAINED_SHARE = 0.5  # another mounting must explain at least this share of the configured one's turn residual
 
 
 def _norm(v: Vec3) -> float:
@@ -150,6 +165,8 @@ class CompassFigures:
     threshold_field: float
     turn_mismatch: float  # window Σ|F_k − F_j|² / Σ|B_k − B_j|²: ~0 for a field that turns as the gyroscope says
     threshold_turn: float
+    mounting_share: float  # share of the configured mounting's turn residual the best other mounting explains
+    mounting_off: bool  # that mounting explains the turns better beyond the noise (module docstring)
     inconsistent: bool
     warnings: int  # times it turned inconsistent
 
@@ -160,12 +177,14 @@ class CompassFigures:
             text += f", |B| {100.0 * self.field_ratio:.0f} % of the expected"
         if self.turn_mismatch == self.turn_mismatch:
             text += f", turns unlike the gyroscope by {100.0 * self.turn_mismatch:.0f} %"
+        if self.mounting_off:
+            text += f", {100.0 * self.mounting_share:.0f} % of that explained by a compass mounted otherwise"
         return text
 
     @property
     def turn_off(self) -> bool:
-        """The turn mismatch is beyond its threshold (what the warning should name first)."""
-        return self.turn_mismatch > self.threshold_turn
+        """The turn is off: its mismatch beyond its threshold, or another mounting explains it (named first)."""
+        return self.turn_mismatch > self.threshold_turn or self.mounting_off
 
 
 @dataclass(frozen=True)
@@ -222,10 +241,12 @@ class TurnCheck:
         self._q = (1.0, 0.0, 0.0, 0.0)  # body → a frame the integrated gyroscope keeps fixed
         self._t: float | None = None
         self._recent: deque[tuple[float, tuple, Vec3, Vec3]] = deque()  # (t, q, F, B) within TURN_SPAN_S
-        # (t, |ΔF|², |ΔB|², the step's turn v v^T: 6 terms) within window_s
-        self._steps: deque[tuple[float, float, float, tuple[float, ...]]] = deque()
+        # (t, |ΔF|², |ΔB|², the step's turn v v^T: 6 terms, |B_j|² + |B_k|², Q ⊗ B_j B_kᵀ) within window_s
+        self._steps: deque[tuple[float, float, float, tuple[float, ...], float, NDArray[np.float64]]] = deque()
         self.moved2 = self.changed2 = 0.0
         self._axes = [0.0] * 6  # Σ v vᵀ of the steps' turns (body frame): xx yy zz xy xz yz
+        self._norms2 = 0.0  # Σ |B_j|² + |B_k|²
+        self._products = np.zeros(81)  # Σ Q_jk ⊗ B_j B_kᵀ: every mounting's residual is linear in it
 
     @property
     def steps(self) -> int:
@@ -246,23 +267,65 @@ class TurnCheck:
             step = quat_from_rotvec_parts(gyr_radps[0] * dt, gyr_radps[1] * dt, gyr_radps[2] * dt)
             self._q = quat_normalize_parts(quat_multiply_parts(self._q, step))
         self._t = time_s
-        fixed = rotate_body_to_ned_parts(rotation_matrix_parts(self._q), mag_uT)  # into the gyroscope's fixed frame
+        rot = rotation_matrix_parts(self._q)
+        fixed = rotate_body_to_ned_parts(rot, mag_uT)  # into the gyroscope's fixed frame
         recent = self._recent
-        recent.append((time_s, self._q, fixed, mag_uT))
+        recent.append((time_s, self._q, rot, fixed, mag_uT))
         while len(recent) > 1 and recent[1][0] <= time_s - TURN_SPAN_S:
             recent.popleft()
-        t0, q0, f0, b0 = recent[0]
+        t0, q0, rot0, f0, b0 = recent[0]
         if time_s - t0 >= TURN_SPAN_S and self._turned(q0):
-            self._add(time_s, _distance2(fixed, f0), _distance2(mag_uT, b0), _turn_outer(q0, self._q), 1)
+            self._add(
+                time_s,
+                _distance2(fixed, f0),
+                _distance2(mag_uT, b0),
+                _turn_outer(q0, self._q),
+                _dot(b0, b0) + _dot(mag_uT, mag_uT),
+                _step_products(rot0, rot, b0, mag_uT),
+                1,
+            )
         while self._steps and self._steps[0][0] <= time_s - self.window_s:
             self._add(*self._steps.popleft(), -1)
+        if not self._steps:  # nothing in the window: the running sums start again from exact zeros
+            self.moved2 = self.changed2 = self._norms2 = 0.0
+            self._axes = [0.0] * 6
+            self._products[:] = 0.0
 
-    def _add(self, time_s: float, moved2: float, changed2: float, outer: tuple[float, ...], sign: int) -> None:
+    def _add(
+        self,
+        time_s: float,
+        moved2: float,
+        changed2: float,
+        outer: tuple[float, ...],
+        norms2: float,
+        products: NDArray[np.float64],
+        sign: int,
+    ) -> None:
         if sign > 0:
-            self._steps.append((time_s, moved2, changed2, outer))
+            self._steps.append((time_s, moved2, changed2, outer, norms2, products))
         self.moved2 += sign * moved2
         self.changed2 += sign * changed2
         self._axes = [a + sign * o for a, o in zip(self._axes, outer, strict=True)]
+        self._norms2 += sign * norms2
+        self._products += sign * products
+
+    def better_mounting(self) -> tuple[float, float]:
+        """How much better the best other axis-aligned mounting explains the window's turns than the configured one.
+
+        For a compass mounted as ``M`` (its reading ``M b`` of the body's field ``b``), ``R_k Mᵀ B_k`` stays
+        put in the gyroscope's fixed frame; the window's residual of that hypothesis is
+        ``S_M = Σ |R_k Mᵀ B_k − R_j Mᵀ B_j|² = Σ (|B_j|² + |B_k|²) − 2 tr(M Q_jk Mᵀ B_j B_kᵀ)``, ``Q_jk = R_kᵀ R_j``,
+        linear in the window's ``Σ Q_jk ⊗ B_j B_kᵀ``: every candidate of :data:`MOUNTINGS` is scored at once.
+        Returns ``S_I − min S_M`` (µT²) over the candidates other than the configured one, and the share of
+        ``S_I`` it explains (NaN without a residual). A turn about a mirror's or a misorientation's own axis moves
+        both hypotheses alike, so only the part of the turn that tells them apart counts, however small its share
+        of the whole turn; and what the gyroscope and the calibration leave (a bias, a hard-iron residual) is no
+        closer to a wrong mounting than to the configured one, so it needs no allowance here.
+        """
+        scores = self._norms2 - 2.0 * (_MOUNTING_WEIGHTS @ self._products)
+        configured = float(scores[0])
+        gain = configured - float(scores[1:].min())
+        return gain, gain / configured if configured > 0.0 else math.nan
 
     def second_axis_share(self) -> float:
         """The share of the window's turn about its second principal axis (0: all about one axis).
@@ -288,6 +351,35 @@ def _turn_outer(q0: tuple, q1: tuple) -> tuple[float, ...]:
     in the body frame, its length ``sin(θ/2)``."""
     _, x, y, z = quat_multiply_parts((q0[0], -q0[1], -q0[2], -q0[3]), q1)
     return (x * x, y * y, z * z, x * y, x * z, y * z)
+
+
+def _step_products(rot0: tuple, rot1: tuple, b0: Vec3, b1: Vec3) -> NDArray[np.float64]:
+    """``Q ⊗ B_j B_kᵀ`` (81 terms, index ``(b, c, d, a)``: ``Q_bc B_j,d B_k,a``) of one step, ``Q = R_kᵀ R_j``."""
+    q = np.array(rot1).reshape(3, 3).T @ np.array(rot0).reshape(3, 3)
+    return np.outer(q, np.outer(b0, b1)).ravel()
+
+
+def _mountings() -> NDArray[np.float64]:
+    """The 24 rotations that take the configured axes onto themselves (every 90° turn and their products), the
+    configured mounting (identity) first.
+
+    The mirrors need no candidates of their own: ``M`` and ``−M`` turn alike (``M Q Mᵀ`` is the same matrix),
+    and a mirror ``S`` is ``−`` the rotation by 180° about its axis, which the dip tells apart."""
+    signed = (
+        np.eye(3)[list(order)] * np.array(signs)[:, None]
+        for order in itertools.permutations(range(3))
+        for signs in itertools.product((1.0, -1.0), repeat=3)
+    )
+    return np.array([m for m in signed if np.linalg.det(m) > 0.0])
+
+
+MOUNTINGS = _mountings()
+# tr(M Q Mᵀ C) = Σ M_ab Q_bc M_dc C_da: each mounting's weights on the (b, c, d, a) terms of Q ⊗ C
+_MOUNTING_WEIGHTS = np.einsum("mab,mdc->mbcda", MOUNTINGS, MOUNTINGS).reshape(len(MOUNTINGS), 81)
+
+
+def _dot(a: Vec3, b: Vec3) -> float:
+    return float(a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
 
 
 def _floats(v: Vec3) -> Vec3:
@@ -326,6 +418,8 @@ class CompassMonitor:
         self._field_excess = 0.0  # |B|'s, as last judged
         self._judged_dip = math.nan  # the window's mean dip when last judged (NaN: never judged)
         self._turn_excess = 0.0  # the turn mismatch over its threshold, as last judged
+        self._mounting_excess = 0.0  # another mounting's explanation of the turn over its thresholds, as last judged
+        self._mounting_share = math.nan
         self.confirmed_at_s = math.nan  # vehicle time it was vouched for (NaN: not yet)
         self.samples = 0
         self.inconsistent = False
@@ -354,6 +448,11 @@ class CompassMonitor:
         sigma = rms_sigma(self._sigmas[1])
         noise_share = self._turn.steps * 6.0 * sigma * sigma / self._turn.changed2
         return self.settings.turn_allowance + NOISE_SIGMAS * noise_share
+
+    def _mounting_threshold_uT2(self) -> float:
+        """``4 k² σ̄²``: what noise alone lets another mounting gain on the configured one (module docstring)."""
+        sigma = rms_sigma(self._sigmas[1])
+        return 4.0 * NOISE_SIGMAS * NOISE_SIGMAS * sigma * sigma
 
     def set_reference(self, field_ned_uT: Vec3, intensity_uT: float | None) -> None:
         self._expected_dip = reference_dip_deg(field_ned_uT)
@@ -433,7 +532,11 @@ class CompassMonitor:
             if self._field_uT is not None and self._win.nf:
                 self._field_excess = abs(self._win.field_mean() / self._field_uT - 1.0) / t.field
         if self.turn_judged:
-            self._turn_excess = self._turn.mismatch() / self._turn_threshold()
+            gain, self._mounting_share = self._turn.better_mounting()
+            self._mounting_excess = min(
+                gain / self._mounting_threshold_uT2(), self._mounting_share / MIN_EXPLAINED_SHARE
+            )
+            self._turn_excess = max(self._turn.mismatch() / self._turn_threshold(), self._mounting_excess)
         return max(self._dip_excess, self._field_excess, self._turn_excess)
 
     def _judge(self, time_s: float) -> CompassEvent | None:
@@ -460,6 +563,7 @@ class CompassMonitor:
             and self._dip_excess < CLEAR_FRACTION
             # the allowance alone, not widened by the noise's share: a turn too small to judge well vouches for nothing
             and self._turn.mismatch() < CLEAR_FRACTION * self.settings.turn_allowance
+            and self._mounting_excess < CLEAR_FRACTION
             and not self.warnings
             and self._turn.second_axis_share() >= MIN_SECOND_AXIS_SHARE
         )
@@ -480,6 +584,8 @@ class CompassMonitor:
             threshold_field=self._thresholds.field,
             turn_mismatch=self._turn.mismatch(),
             threshold_turn=self._turn_threshold(),
+            mounting_share=self._mounting_share,
+            mounting_off=self._mounting_excess > 1.0,
             inconsistent=self.inconsistent,
             warnings=self.warnings,
         )
