@@ -247,6 +247,7 @@ class TurnCheck:
         self._axes = [0.0] * 6  # Σ v vᵀ of the steps' turns (body frame): xx yy zz xy xz yz
         self._norms2 = 0.0  # Σ |B_j|² + |B_k|²
         self._products = np.zeros(81)  # Σ Q_jk ⊗ B_j B_kᵀ: every mounting's residual is linear in it
+        self._scored: tuple[float, float] | None = None  # better_mounting() of the window as it is (None: changed)
 
     @property
     def steps(self) -> int:
@@ -267,13 +268,12 @@ class TurnCheck:
             step = quat_from_rotvec_parts(gyr_radps[0] * dt, gyr_radps[1] * dt, gyr_radps[2] * dt)
             self._q = quat_normalize_parts(quat_multiply_parts(self._q, step))
         self._t = time_s
-        rot = rotation_matrix_parts(self._q)
-        fixed = rotate_body_to_ned_parts(rot, mag_uT)  # into the gyroscope's fixed frame
+        fixed = rotate_body_to_ned_parts(rotation_matrix_parts(self._q), mag_uT)  # into the gyroscope's fixed frame
         recent = self._recent
-        recent.append((time_s, self._q, rot, fixed, mag_uT))
+        recent.append((time_s, self._q, fixed, mag_uT))
         while len(recent) > 1 and recent[1][0] <= time_s - TURN_SPAN_S:
             recent.popleft()
-        t0, q0, rot0, f0, b0 = recent[0]
+        t0, q0, f0, b0 = recent[0]
         if time_s - t0 >= TURN_SPAN_S and self._turned(q0):
             self._add(
                 time_s,
@@ -281,7 +281,7 @@ class TurnCheck:
                 _distance2(mag_uT, b0),
                 _turn_outer(q0, self._q),
                 _dot(b0, b0) + _dot(mag_uT, mag_uT),
-                _step_products(rot0, rot, b0, mag_uT),
+                _step_products(q0, self._q, b0, mag_uT),
                 1,
             )
         while self._steps and self._steps[0][0] <= time_s - self.window_s:
@@ -307,7 +307,11 @@ class TurnCheck:
         self.changed2 += sign * changed2
         self._axes = [a + sign * o for a, o in zip(self._axes, outer, strict=True)]
         self._norms2 += sign * norms2
-        self._products += sign * products
+        if sign > 0:
+            self._products += products
+        else:
+            self._products -= products
+        self._scored = None
 
     def better_mounting(self) -> tuple[float, float]:
         """How much better the best other axis-aligned mounting explains the window's turns than the configured one.
@@ -322,10 +326,12 @@ class TurnCheck:
         of the whole turn; and what the gyroscope and the calibration leave (a bias, a hard-iron residual) is no
         closer to a wrong mounting than to the configured one, so it needs no allowance here.
         """
-        scores = self._norms2 - 2.0 * (_MOUNTING_WEIGHTS @ self._products)
-        configured = float(scores[0])
-        gain = configured - float(scores[1:].min())
-        return gain, gain / configured if configured > 0.0 else math.nan
+        if self._scored is None:
+            scores = self._norms2 - 2.0 * (_MOUNTING_WEIGHTS @ self._products)
+            configured = float(scores[0])
+            gain = configured - float(scores[1:].min())
+            self._scored = (gain, gain / configured if configured > 0.0 else math.nan)
+        return self._scored
 
     def second_axis_share(self) -> float:
         """The share of the window's turn about its second principal axis (0: all about one axis).
@@ -353,10 +359,14 @@ def _turn_outer(q0: tuple, q1: tuple) -> tuple[float, ...]:
     return (x * x, y * y, z * z, x * y, x * z, y * z)
 
 
-def _step_products(rot0: tuple, rot1: tuple, b0: Vec3, b1: Vec3) -> NDArray[np.float64]:
-    """``Q ⊗ B_j B_kᵀ`` (81 terms, index ``(b, c, d, a)``: ``Q_bc B_j,d B_k,a``) of one step, ``Q = R_kᵀ R_j``."""
-    q = np.array(rot1).reshape(3, 3).T @ np.array(rot0).reshape(3, 3)
-    return np.outer(q, np.outer(b0, b1)).ravel()
+def _step_products(q0: tuple, q1: tuple, b0: Vec3, b1: Vec3) -> NDArray[np.float64]:
+    """``Q ⊗ B_j B_kᵀ`` (81 terms, index ``(b, c, d, a)``: ``Q_bc B_j,d B_k,a``) of one step from attitude ``q0``
+    (field ``b0``) to ``q1`` (``b1``): ``Q = R_kᵀ R_j = R(q1* ⊗ q0)``."""
+    turn = rotation_matrix_parts(quat_multiply_parts((q1[0], -q1[1], -q1[2], -q1[3]), q0))
+    x0, y0, z0 = b0
+    x1, y1, z1 = b1
+    fields = np.array((x0 * x1, x0 * y1, x0 * z1, y0 * x1, y0 * y1, y0 * z1, z0 * x1, z0 * y1, z0 * z1))
+    return np.multiply.outer(np.array(turn), fields).ravel()
 
 
 def _mountings() -> NDArray[np.float64]:
