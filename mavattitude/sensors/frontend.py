@@ -689,8 +689,9 @@ def _batch_clock(
     e = 0
     for i, raw in enumerate(t.tolist()):
         ti, event = clock.update(raw, wrap_s)
-        if ti is None:
+        if ti is None:  # dropped, but in the epoch so far: the last row's epoch is the number of epochs less one
             c.rejected[event.value] += 1
+            epoch[i] = e
             continue
         if event is ClockEvent.REBOOT:
             c.reboots += 1

@@ -356,6 +356,10 @@ def test_batch_edge_cases_empty_all_rejected_and_a_reboot() -> None:
     stream, fe = _stream(settings, _samples(t, acc, np.zeros((200, 3))))
     assert batch.counters.reboots == fe.counters.reboots == 1
     assert batch.time_s.tolist() == [o.time_s for o in stream]
+    # a duplicate last row after the reboot: still two epochs of ticks
+    t, acc = np.append(t, t[-1]), np.vstack([acc, acc[-1]])
+    batch = process_batch(settings, t, acc, np.zeros((201, 3)))
+    assert batch.counters.rejected == {"duplicate": 1} and batch.time_s.tolist() == [o.time_s for o in stream]
 
 
 @settings(max_examples=25, deadline=None)
