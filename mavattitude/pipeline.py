@@ -434,6 +434,7 @@ class AttitudePipeline:
         mag_new: NDArray[np.bool_],
         time_wrap_s: float | None = None,
         reference_after_s: float = -math.inf,
+        mag_repeats: bool = False,
     ) -> list[AttitudeOutput]:
         """:meth:`push` for a whole run of samples at once: the outputs ``push`` gives fed them one by one.
 
@@ -441,7 +442,8 @@ class AttitudePipeline:
         sample, ticks equal to rounding), then every tick takes the same estimator step as in :meth:`push`.
         For offline replay, where the per-sample front end is the cost. The magnetic reference is the one
         set now, for every tick after ``reference_after_s`` (the ticks up to it wait, as before a position);
-        ``mag_new`` marks rows with a new magnetometer reading.
+        ``mag_new`` marks rows with a new magnetometer reading, ``mag_repeats`` that the messages repeat the newest
+        one (:attr:`~mavattitude.sensors.units.ImuSample.mag_repeats`).
         """
         fe = self.frontend
         batch = process_batch(
@@ -451,6 +453,7 @@ class AttitudePipeline:
             gyr_radps,
             mag_uT,
             mag_new=mag_new,
+            mag_repeats=mag_repeats,
             wrap_period_s=time_wrap_s,
             expected_field_uT=fe.expected_field_uT,
         )

@@ -87,6 +87,9 @@ class LogStreams:
     #: the magnetometer row each IMU sample carries (-1: none), where the source knows it (a telemetry log's
     #: messages carry their own); otherwise the newest reading at or before the sample, if new (mag_for_imu)
     imu_mag_index: NDArray[np.int64] | None = None
+    #: the IMU messages repeat the newest magnetometer reading (:attr:`ImuSample.mag_repeats`: a telemetry log's
+    #: integer messages); a DataFlash or ULog magnetometer stream has each reading once
+    mag_repeats: bool = False
 
     def carried_mag(self) -> NDArray[np.int64]:
         """Which magnetometer row each IMU sample carries, -1 where none."""
@@ -173,14 +176,19 @@ class StreamSource:
         start, stop = self._next, min(self._next + CHUNK_ITEMS, len(times))
         self._next = stop
         self.finished = stop >= len(times)
-        s, vehicle, wrap = self.streams, self.vehicle, self.streams.time_wrap_s
+        s, vehicle, wrap, repeats = self.streams, self.vehicle, self.streams.time_wrap_s, self.streams.mag_repeats
         out: list[Received] = []
         for t, kind, i in zip(times[start:stop], kinds[start:stop], index[start:stop], strict=True):
             if kind == 1:
                 m = mag_index[i]
                 a, g = acc[i], gyr[i]
                 sample = ImuSample(
-                    imu_t[i], (a[0], a[1], a[2]), (g[0], g[1], g[2]), None if m < 0 else tuple(mag[m]), wrap
+                    imu_t[i],
+                    (a[0], a[1], a[2]),
+                    (g[0], g[1], g[2]),
+                    None if m < 0 else tuple(mag[m]),
+                    wrap,
+                    mag_repeats=repeats,
                 )
                 out.append((t, vehicle, sample))
             elif kind == 2:

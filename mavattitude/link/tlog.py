@@ -244,7 +244,7 @@ class TlogSource:
 
     def _streams(self, tables: dict[str, _Table], dispatcher: Dispatcher) -> LogStreams:
         empty1, empty3 = np.empty(0), np.empty((0, 3))
-        t, acc, gyr, mag_t, mag, carried, wrap = empty1, empty3, empty3, empty1, empty3, None, None
+        t, acc, gyr, mag_t, mag, carried, wrap, repeats = empty1, empty3, empty3, empty1, empty3, None, None, False
         imu_index = np.empty(0, dtype=np.int64)
         imu_table = tables.get(self.decoder.message)
         imu = self._imu_columns(imu_table, dispatcher) if imu_table is not None else None
@@ -252,12 +252,13 @@ class TlogSource:
             ok = ~imu.refused
             imu_index = imu_table.index[ok]  # type: ignore[union-attr]
             t, acc, gyr, wrap = imu.time_s[ok], imu.acc_mps2[ok], imu.gyr_radps[ok], imu.time_wrap_s
+            repeats = imu.mag_repeats
             has_mag = imu.has_mag[ok]
             mag_t, mag = t[has_mag], imu.mag_uT[ok][has_mag]
             carried = np.where(has_mag, np.cumsum(has_mag) - 1, -1)  # each message carries its own reading
         att_t, att_q = self._attitudes(tables)
         pos_t, pos, date = self._positions(tables, imu_index, t)
-        return LogStreams(t, acc, gyr, mag_t, mag, att_t, att_q, pos_t, pos, date, wrap, self.damage, carried)
+        return LogStreams(t, acc, gyr, mag_t, mag, att_t, att_q, pos_t, pos, date, wrap, self.damage, carried, repeats)
 
     def _imu_columns(self, table: _Table, dispatcher: Dispatcher) -> units.ImuColumns | None:
         """The vehicle's IMU messages decoded; what cannot be is counted as the dispatcher counts it."""

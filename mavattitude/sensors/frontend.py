@@ -29,7 +29,13 @@ Per input sample (:meth:`FrontEnd.push`, plain floats: the per-message cost is w
    The magnetometer at a tick is interpolated when samples on both sides are in, else held from the last
    one (``MAG_HELD``) for at most ``input_timeout_s``, else absent (``NO_MAG``, ``mag_uT`` is ``None``); a
    held reading's age (the tick's time minus the reading's) goes with it, ``mag_age_s``, so that an estimator
-   that knows the body's rotation can carry it to the tick (a 10 Hz magnetometer's reading is up to 0.1 s old);
+   that knows the body's rotation can carry it to the tick (a 10 Hz magnetometer's reading is up to 0.1 s old).
+   A message that repeats the newest reading until the next (``ImuSample.mag_repeats``: MAVLink's integer
+   IMU messages) is read as a log's separate magnetometer stream is: a screened reading exactly equal to the
+   last one taken, at most :func:`repeat_hold_s` after it, is that reading again and is held, not taken as a
+   new one. A field that stays the same for longer (a quiet compass at rest, quantised to the same integers)
+   is taken again after that, so it is never lost; a genuinely new reading equal to the last one is held
+   instead of taken, which changes only its age;
 6. screening of the tick: ``| |a| − g | > acc_norm_tolerance · g`` (``ACC_NORM``) or
    ``| |B| − B₀ | > mag_norm_tolerance · B₀`` (``MAG_NORM``, once the expected ``B₀`` is known) are
    flagged, counted and down-weighted: ``acc_std_scale`` / ``mag_std_scale`` (× the σ of the noise model)
@@ -192,6 +198,14 @@ def dead_floors2(settings: FrontEndSettings, expected_field_uT: float | None) ->
 
 CONTINUED, STARTED, GAP = 0, 1, 2
 
+
+def repeat_hold_s(settings: FrontEndSettings) -> float:
+    """How long a repeated magnetometer reading (``ImuSample.mag_repeats``) is held before the same value is
+    taken again as a new reading: half the hold of any reading (``input_timeout_s``), so a constant field is
+    taken again well before the ticks would lose it, and far longer than a compass's interval (0.1 s at 10 Hz)."""
+    return 0.5 * settings.input_timeout_s
+
+
 # --- the screening rules, stated once for one sample (numpy bools, floats) and for arrays of them --------
 
 
@@ -328,6 +342,8 @@ class FrontEnd:
         self._clock = VehicleClock(s.reorder_window_s)
         self._imu = _Stream(cutoff, s.input_timeout_s, s.rate_window, s.rate_tolerance)
         self._mag = _Stream(cutoff, s.input_timeout_s, s.rate_window, s.rate_tolerance)
+        self._mag_taken: Vec3 | None = None  # the last magnetometer reading taken, as received
+        self._repeat_hold_s = repeat_hold_s(s)
         self._next_k = 0
         self._pending_reset = False
 
@@ -368,7 +384,8 @@ class FrontEnd:
         if mag is not None:
             if "mag" in sample.saturated or not _within(mag, s.mag_full_scale_uT) or _norm2(mag) < self._mag_floor2:
                 c.mag_rejected[self._mag_reject_reason(mag, sample.saturated)] += 1
-            else:
+            elif not (sample.mag_repeats and self._repeated(t, mag)):
+                self._mag_taken = mag
                 status, redesigned = self._mag.push(t, _apply(self._mag_cal, mag))
                 c.mag_gap_resets += status == GAP
                 c.redesigns += redesigned
@@ -382,6 +399,11 @@ class FrontEnd:
             self._pending_reset = True
             self._next_k = first_tick(t, s.output_rate_hz) if s.filter_enabled else 0
         return self._emit(t)
+
+    def _repeated(self, t: float, mag: Vec3) -> bool:
+        """Whether ``mag`` is the last reading taken again, within :func:`repeat_hold_s` of it: held."""
+        t_last = self._mag.t_last  # None after a restart: nothing to repeat
+        return t_last is not None and t - t_last <= self._repeat_hold_s and mag == self._mag_taken
 
     def _reject_reason(self, sample: ImuSample) -> str | None:
         """The fast path in :meth:`push` found something: which rule it is (None: only the magnetometer)."""
@@ -564,6 +586,7 @@ def batch_inputs(samples: Sequence[ImuSample]) -> dict[str, Any]:
         "gyr_radps": np.array([sample.gyr_radps for sample in samples], dtype=float).reshape(n, 3),
         "mag_uT": mag,
         "mag_new": mag_new,
+        "mag_repeats": np.array([sample.mag_repeats for sample in samples], dtype=bool),
         "saturated": {
             sensor: np.array([sensor in sample.saturated for sample in samples], dtype=bool)
             for sensor in ("acc", "gyr", "mag")
@@ -580,13 +603,15 @@ def process_batch(
     mag_uT: Array | None = None,
     *,
     mag_new: NDArray[np.bool_] | None = None,
+    mag_repeats: NDArray[np.bool_] | bool = False,
     saturated: dict[str, NDArray[np.bool_]] | None = None,
     wrap_period_s: float | None = None,
     expected_field_uT: float | None = None,
 ) -> BatchOutput:
     """The front end over whole arrays (sensor/board frame, SI): what :meth:`FrontEnd.push` gives, sample
     by sample, for the same input. ``mag_new`` marks rows with a new magnetometer reading (default: rows
-    where ``mag_uT`` is given); ``saturated`` maps ``"acc"``/``"gyr"``/``"mag"`` to rows at an integer limit.
+    where ``mag_uT`` is given), ``mag_repeats`` the rows (or all) whose message repeats the newest one
+    (:attr:`ImuSample.mag_repeats`); ``saturated`` maps ``"acc"``/``"gyr"``/``"mag"`` to rows at an integer limit.
     """
     s = settings
     t = np.asarray(time_s, dtype=float)
@@ -624,6 +649,9 @@ def process_batch(
         if count:
             c.mag_rejected[reason] += count
     mag_ok = mag_in & ~np.logical_or.reduce(list(mag_verdicts.values()))
+    repeats = np.broadcast_to(np.asarray(mag_repeats, dtype=bool), (n,))
+    if repeats.any():
+        mag_ok &= ~_held_repeats(t, mag, mag_ok, repeats, epoch, repeat_hold_s(s))
 
     affines = sensor_affines(s.calibration, mounting_matrix(s.mounting))
     # from here on channels first, time contiguous: (6, n) for the IMU, (3, n) for the magnetometer
@@ -700,6 +728,54 @@ def _batch_clock(
             c.wraps += 1
         out[i], kept[i], epoch[i] = ti, True, e
     return out, kept, epoch
+
+
+def _held_repeats(
+    t: Array,
+    mag: Array,
+    taken: NDArray[np.bool_],
+    repeats: NDArray[np.bool_],
+    epoch: NDArray[np.int64],
+    hold_s: float,
+) -> NDArray[np.bool_]:
+    """The rows among ``taken`` that :meth:`FrontEnd._repeated` holds: a ``repeats`` row equal to the last
+    reading taken in its boot epoch, at most ``hold_s`` after it. A held row equals the last one taken, so
+    each run of equal consecutive readings keeps its first row, then every row more than ``hold_s`` after
+    the last one it kept."""
+    rows = np.flatnonzero(taken)
+    m, tr, same = mag[rows], t[rows], np.zeros(len(rows), dtype=bool)
+    same[1:] = (
+        repeats[rows[1:]]
+        & (epoch[rows[1:]] == epoch[rows[:-1]])
+        & (m[1:, 0] == m[:-1, 0])
+        & (m[1:, 1] == m[:-1, 1])
+        & (m[1:, 2] == m[:-1, 2])
+    )
+    starts = np.flatnonzero(~same)
+    stops = np.append(starts[1:], len(rows))
+    for a, b in zip(starts.tolist(), stops.tolist(), strict=True):
+        if tr[b - 1] - tr[a] > hold_s:  # a run longer than the hold (a constant field at rest): taken again
+            _retake(tr, a, b, hold_s, same)
+    held = np.zeros(len(t), dtype=bool)
+    held[rows[same]] = True
+    return held
+
+
+def _retake(tr: Array, a: int, b: int, hold_s: float, same: NDArray[np.bool_]) -> None:
+    """In the run ``a:b`` of one repeated reading, clear ``same`` for the rows taken again: each the first
+    more than ``hold_s`` after the last one taken (the comparison :meth:`FrontEnd._repeated` makes)."""
+    run = tr[a:b]  # increasing: one boot epoch
+    k = 0
+    while True:
+        j = max(k + 1, int(np.searchsorted(run, run[k] + hold_s, side="right")))
+        while j > k + 1 and run[j - 1] - run[k] > hold_s:  # the search's rounding, corrected to the rule's
+            j -= 1
+        while j < len(run) and not run[j] - run[k] > hold_s:
+            j += 1
+        if j >= len(run):
+            return
+        same[a + j] = False
+        k = j
 
 
 def _segments(t: Array, timeout_s: float) -> list[tuple[int, int]]:

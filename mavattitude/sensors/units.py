@@ -14,6 +14,10 @@ Units, checked against the senders:
   bound on |B| refuses it.
 - PX4 HIGHRES_IMU: m/s², rad/s, gauss, ``fields_updated`` bits 6–8 set when the magnetometer is new; PX4
   SCALED_IMU as ArduPilot's.
+- The integer messages carry the newest compass reading in every message (ArduPilot's ``send_raw_imu`` reads
+  ``compass.get_field()`` when it sends; a 10 Hz compass under a 50 Hz stream is repeated five times), so
+  their samples are marked ``mag_repeats``: the front end takes an exact repeat as the same reading held.
+  HIGHRES_IMU says which readings are new (``fields_updated``): its repeats are new readings.
 - ADIS16405 counts in RAW_IMU: 14-bit two's complement (upper register bits, the ND/EA flags, are
   ignored), accelerometer 3.33 mg/LSB, gyroscope 0.05 °/s/LSB, magnetometer 0.5 mgauss/LSB.
 1 gauss = 100 µT; 1 mG = 9.80665e-3 m/s².
@@ -85,6 +89,8 @@ class ImuSample:
     what the front end's clock needs to unwrap it, whichever message or log format the sample came from.
     ``saturated`` names the sensors (``"acc"``,
     ``"gyr"``, ``"mag"``) whose raw value sat at its integer limit, so the front end can screen them.
+    ``mag_repeats``: the message repeats the newest magnetometer reading until there is a new one (the
+    integer messages), so a reading exactly equal to the last one is that reading again, not a new one.
     Not frozen: building it is on the per-message path, and a frozen dataclass costs twice as much.
     """
 
@@ -94,6 +100,7 @@ class ImuSample:
     mag_uT: Vec3 | None
     time_wrap_s: float | None = None
     saturated: frozenset[str] = field(default=frozenset())
+    mag_repeats: bool = False
 
 
 @dataclass(frozen=True)
@@ -240,7 +247,13 @@ def decode(msg: Any, profile: UnitProfile) -> ImuSample:
         if norm > MAX_PLAUSIBLE_FIELD_UT:
             raise _implausible(kind, profile, norm)
     return ImuSample(
-        time_s, (ax * sa, ay * sa, az * sa), (gx * sg, gy * sg, gz * sg), mag, TIME_FIELDS[kind][2], saturated
+        time_s,
+        (ax * sa, ay * sa, az * sa),
+        (gx * sg, gy * sg, gz * sg),
+        mag,
+        TIME_FIELDS[kind][2],
+        saturated,
+        kind in INTEGER_MESSAGES,
     )
 
 
@@ -271,17 +284,22 @@ class ImuColumns:
     def time_wrap_s(self) -> float | None:
         return TIME_FIELDS[self.kind][2]
 
+    @property
+    def mag_repeats(self) -> bool:
+        """:attr:`ImuSample.mag_repeats` of every row."""
+        return self.kind in INTEGER_MESSAGES
+
     def error(self, row: int) -> SensorError:
         return _implausible(self.kind, self.profile, float(self.field_uT[row]))
 
     def samples(self) -> list[ImuSample | None]:
         """Each row as :func:`decode` returns it; ``None`` for a refused row."""
-        wrap = self.time_wrap_s
+        wrap, repeats = self.time_wrap_s, self.mag_repeats
         sat = [frozenset(n for n, s in zip(_SENSORS, row, strict=True) if s) for row in self.saturated.tolist()]
         mag = [tuple(m) if has else None for m, has in zip(self.mag_uT.tolist(), self.has_mag.tolist(), strict=True)]
         rows = zip(self.time_s.tolist(), self.acc_mps2.tolist(), self.gyr_radps.tolist(), mag, sat, strict=True)
         return [
-            None if bad else ImuSample(t, tuple(a), tuple(g), m, wrap, s or _NONE_SATURATED)  # type: ignore[arg-type]
+            None if bad else ImuSample(t, tuple(a), tuple(g), m, wrap, s or _NONE_SATURATED, repeats)  # type: ignore[arg-type]
             for (t, a, g, m, s), bad in zip(rows, self.refused.tolist(), strict=True)
         ]
 

@@ -46,9 +46,11 @@ def write_tlog(
     position: bool = False,
     second_vehicle: bool = True,
     gimbal_first: bool = False,
+    mag_every: int = 1,
 ) -> Path:
     """A ground station's recording: its own heartbeat, the autopilot(s') heartbeats, RAW_IMU at 100 Hz
-    (ArduPilot units, seeded noise), ATTITUDE at 10 Hz, optionally GLOBAL_POSITION_INT at 5 Hz."""
+    (ArduPilot units, seeded noise; each compass reading repeated in ``mag_every`` messages, as ArduPilot
+    sends a slower compass), ATTITUDE at 10 Hz, optionally GLOBAL_POSITION_INT at 5 Hz."""
     field = field_from_angles(DECL, INCL, F_UT) if field_ned_uT is None else field_ned_uT
     rng = np.random.default_rng(3)
     profile = PROFILES["ardupilot"]
@@ -72,6 +74,7 @@ def write_tlog(
         q = quat_from_euler(rpy[:, 0], rpy[:, 1], rpy[:, 2])
         acc = rotate_ned_to_body(q, [0.0, 0.0, -G]) + rng.normal(0, 0.03, (len(t), 3))
         mag = rotate_ned_to_body(q, field) + rng.normal(0, 0.3, (len(t), 3))
+        mag = mag[np.arange(len(t)) // mag_every * mag_every]  # the newest reading of a slower compass
         gyr = np.tile([0.0, 0.0, np.radians(YAW_RATE_DEG_S) if s == 1 else 0.0], (len(t), 1))
         for i, ti in enumerate(t):
             sample = ImuSample(float(ti), tuple(acc[i]), tuple(gyr[i]), tuple(mag[i]))

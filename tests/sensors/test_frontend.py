@@ -3,6 +3,7 @@ magnetometer on its own times, and the batch path against the streaming one."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -18,6 +19,7 @@ from mavattitude.sensors.frontend import (
     SampleFlag,
     batch_inputs,
     process_batch,
+    repeat_hold_s,
 )
 from mavattitude.sensors.lowpass import butter2, filter_batch
 from mavattitude.sensors.units import ImuSample
@@ -383,4 +385,78 @@ def test_batch_equals_streaming_on_random_timing(seed: int, rate_hz: float, mag_
     stream, fe = _stream(settings_, samples)
     batch = process_batch(settings_, **batch_inputs(samples))
     assert batch.counters.rejected == fe.counters.rejected and batch.counters.mag_rejected == fe.counters.mag_rejected
+    _assert_same_ticks(batch.samples(), stream)
+
+
+def _repeating(t, acc, mag_t, mag, repeats: bool = True) -> list[ImuSample]:
+    """An integer IMU message's stream: every sample carries the newest magnetometer reading of ``mag_t``
+    (none before the first)."""
+    newest = np.searchsorted(mag_t, t, side="right") - 1
+    rows = [None if k < 0 else tuple(map(float, mag[k])) for k in newest]
+    return [
+        ImuSample(float(ti), tuple(map(float, a)), (0.0, 0.0, 0.0), m, mag_repeats=repeats)
+        for ti, a, m in zip(t, acc, rows, strict=True)
+    ]
+
+
+def _once(samples: list[ImuSample], t, mag_t) -> list[ImuSample]:
+    """The same samples with each magnetometer reading once, on the first sample after it (a log's MAG)."""
+    first = np.searchsorted(t, mag_t, side="left")
+    return [
+        dataclasses.replace(s, mag_uT=s.mag_uT if i in first else None, mag_repeats=False)
+        for i, s in enumerate(samples)
+    ]
+
+
+def test_a_repeated_magnetometer_reading_is_held_as_a_separate_magnetometer_stream_is() -> None:
+    # RAW_IMU at 50 Hz repeating a 10 Hz compass: the ticks of a log that has each reading once (DataFlash MAG)
+    n = 500
+    t = np.arange(n) / 50.0
+    mag_t = np.arange(100) / 10.0
+    mag = np.column_stack([20 + 5 * np.sin(2 * np.pi * 0.5 * mag_t), np.zeros(100), np.full(100, 40.0)])
+    acc = np.tile([0.0, 0.0, -G], (n, 1))
+    repeated, once = _repeating(t, acc, mag_t, mag), _once(_repeating(t, acc, mag_t, mag), t, mag_t)
+    got, _ = _stream(FrontEndSettings(), repeated)
+    expected, _ = _stream(FrontEndSettings(), once)
+    _assert_same_ticks(got, expected)
+    assert max(o.mag_age_s for o in got) == pytest.approx(0.1 - 1 / 50, abs=1e-9)  # held up to one compass interval
+    # the same values from a message that says each is new (HIGHRES_IMU's fields_updated) are new readings
+    fresh, _ = _stream(FrontEndSettings(), _repeating(t, acc, mag_t, mag, repeats=False))
+    assert all(o.mag_age_s == 0.0 for o in fresh)
+
+
+def test_a_constant_field_at_rest_is_taken_again_never_lost() -> None:
+    # the same integers for 5 s (a quiet compass at rest): held up to repeat_hold_s, then taken again
+    n = 250
+    t = np.arange(n) / 50.0
+    acc = np.tile([0.0, 0.0, -G], (n, 1))
+    settings_ = FrontEndSettings(input_timeout_s=0.5)
+    out, fe = _stream(settings_, _repeating(t, acc, np.array([0.0]), np.array([[20.0, 1.0, 40.0]])))
+    assert all(o.mag_uT == pytest.approx((20.0, 1.0, 40.0)) for o in out)
+    assert not any(o.flags & SampleFlag.NO_MAG for o in out) and fe.counters.mag_gap_resets == 0
+    hold_s = repeat_hold_s(settings_)
+    assert hold_s < settings_.input_timeout_s
+    assert hold_s - 1 / 50 <= max(o.mag_age_s for o in out) <= hold_s  # taken again at the first sample after
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31), run=st.integers(1, 60), filtered=st.booleans())
+def test_batch_holds_the_repeated_readings_the_stream_holds(seed: int, run: int, filtered: bool) -> None:
+    rng = np.random.default_rng(seed)
+    n = 600
+    dt = rng.choice([1.0, 1.0, 2.0, 0.0, 40.0], n, p=[0.8, 0.1, 0.05, 0.03, 0.02]) / 50.0
+    t = 5.0 + np.cumsum(dt * rng.uniform(0.9, 1.1, n))  # drops, duplicates and gaps
+    t[n // 2 :] -= 4.0  # a reboot
+    mag_t = np.sort(rng.uniform(t.min(), t.max(), n // run))  # readings repeated over ~run messages
+    mag = np.round(rng.normal([20, 0, 40], 5.0, (len(mag_t), 3)), 1)
+    mag[rng.random(len(mag_t)) < 0.05] = 0.0  # dead readings
+    mag[len(mag_t) // 3 : len(mag_t) // 3 + 10] = mag[len(mag_t) // 3]  # a constant field longer than the hold
+    samples = _repeating(
+        np.sort(t[: n // 2]).tolist() + np.sort(t[n // 2 :]).tolist(), np.tile([0, 0, -G], (n, 1)), mag_t, mag
+    )
+    settings_ = FrontEndSettings(expected_field_uT=44.7, filter_enabled=filtered)
+    stream, fe = _stream(settings_, samples)
+    batch = process_batch(settings_, **batch_inputs(samples))
+    assert batch.counters.mag_rejected == fe.counters.mag_rejected and batch.counters.reboots == fe.counters.reboots
+    assert batch.counters.redesigns == fe.counters.redesigns
     _assert_same_ticks(batch.samples(), stream)

@@ -38,12 +38,14 @@ def test_ardupilot_raw_imu_units_are_milli_g_milliradian_and_milligauss() -> Non
     assert s.gyr_radps == pytest.approx((0.5, 0.0, 0.0), abs=1e-12)  # mrad/s
     assert s.mag_uT == pytest.approx((100.0, 0.0, -25.0), abs=1e-12)  # 1 gauss = 100 µT
     assert s.time_wrap_s is None and s.saturated == frozenset()  # a uint64 of µs: never wraps
+    assert s.mag_repeats  # the newest compass reading in every message: a repeat is no new reading
 
 
 def test_scaled_imu_time_is_time_boot_ms() -> None:
     s = decode(_packed("SCALED_IMU2", {"time_boot_ms": 123_456, **IMU_ZERO, "xmag": 1}), get_profile("px4"))
     assert s.time_s == pytest.approx(123.456, abs=1e-12)
     assert s.time_wrap_s == 2**32 * 1e-3  # a uint32 of ms: the front end's clock unwraps it
+    assert s.mag_repeats
 
 
 def test_px4_highres_imu_is_si_with_gauss_and_fields_updated() -> None:
@@ -55,6 +57,7 @@ def test_px4_highres_imu_is_si_with_gauss_and_fields_updated() -> None:
     assert with_mag.acc_mps2 == pytest.approx((1.5, 0.0, -9.75))
     assert with_mag.gyr_radps == pytest.approx((0.0, 0.0, 0.25))
     assert with_mag.mag_uT == pytest.approx((20.0, -5.0, 45.0), rel=1e-6)  # float32 on the wire
+    assert not with_mag.mag_repeats  # fields_updated says it is new, whatever its value
     without = decode(
         _packed("HIGHRES_IMU", {"time_usec": 8, **fields, **extra, "fields_updated": 0x3F}), get_profile("px4")
     )
