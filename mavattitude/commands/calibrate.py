@@ -216,24 +216,22 @@ def _read(
 
 
 def _log_samples(path: Path, args: argparse.Namespace) -> Iterator[units.ImuSample]:
-    """The autopilot's IMU samples of a .tlog, .bin or .ulg, through the service's source and dispatcher."""
+    """The autopilot's IMU samples of a .tlog, .bin or .ulg, through the service's source and dispatcher;
+    from a .tlog without ``--message``, the first of the profile's messages that the log holds."""
     from mavattitude.config import load_config
     from mavattitude.link.logs import detect_format, open_log
+    from mavattitude.link.source import MavlinkDecoder
+    from mavattitude.link.tlog import TlogSource
 
     profile = units.get_profile(args.profile)
-    message = args.message
-    if message is None and detect_format(path) == "tlog":
-        message = _first_imu_message(path, profile, args.system_id)
-    overrides = {"input.profile": args.profile, "input.message": message or profile.default_message}
+    overrides = {"input.profile": args.profile, "input.message": args.message or profile.default_message}
     config = load_config(None, overrides, env={})
-    return _read(open_log(path, config), args.system_id or 0, _Skipped(), lambda _: True)
-
-
-def _first_imu_message(path: Path, profile: units.UnitProfile, system_id: int | None) -> str | None:
-    """The first of the profile's IMU messages a telemetry log holds (None: none)."""
-    from mavattitude.link.tlog import read_messages
-
-    return next((msg.get_type() for msg in read_messages(path, list(profile.messages), system_id=system_id)), None)
+    source: MessageSource
+    if args.message is None and detect_format(path) == "tlog":
+        source = TlogSource(path, MavlinkDecoder.from_config(config), tuple(profile.messages), args.system_id)
+    else:
+        source = open_log(path, config)
+    return _read(source, args.system_id or 0, _Skipped(), lambda _: True)
 
 
 class _Live(_Skipped):

@@ -1,4 +1,4 @@
-"""Telemetry logs (.tlog) read as arrays: a message source, and plain message iteration.
+"""Telemetry logs (.tlog) read as arrays: a message source.
 
 A .tlog is what MAVProxy and ground stations record: each MAVLink packet (1 or 2, signed or not) preceded
 by its receive time (64-bit big-endian µs since 1970). :class:`TlogSource` frames the records once, keeps
@@ -25,8 +25,8 @@ from __future__ import annotations
 import datetime as dt
 import functools
 import logging
-from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -132,11 +132,17 @@ def _sender(code: int) -> Sender:
 
 
 class TlogSource:
-    """A telemetry log as a message source (see the module docstring)."""
+    """A telemetry log as a message source (see the module docstring).
+
+    With ``first_of``, the decoder reads the first of those IMU messages that the log holds (from
+    ``system_id``, if given) instead of its own: :attr:`decoder` then names the one found.
+    """
 
     vehicle: Sender | None = None  # a ground station's log holds every system it heard: lock on as live
 
-    def __init__(self, path: str | Path, decoder: MavlinkDecoder) -> None:
+    def __init__(
+        self, path: str | Path, decoder: MavlinkDecoder, first_of: Sequence[str] = (), system_id: int | None = None
+    ) -> None:
         self.path = Path(path)
         self.name = str(path)
         self.decoder = decoder
@@ -151,18 +157,24 @@ class TlogSource:
         except OSError as exc:
             raise DataFileError(f"{path}: cannot read: {exc.strerror or exc}") from exc
         self.size_bytes = len(data)
-        self.tables, self.count = self._read(data)
+        self.tables, self.count = self._read(data, first_of, system_id)
 
-    def _read(self, data: bytes) -> tuple[dict[str, _Table], int]:
+    def _read(self, data: bytes, first_of: Sequence[str], system_id: int | None) -> tuple[dict[str, _Table], int]:
         starts, skipped, first_skip, stop = _frame(data)
         if stop < len(data):
             self.damage = f"truncated: the record at byte {stop} is incomplete ({len(data) - stop} bytes)"
         if skipped:
             self.damage = f"damaged: {skipped} byte(s) skipped, the first at byte {first_skip}"
         frames = _Frames(data, np.asarray(starts, dtype=np.int64))
-        ids = {mavlink2.mavlink_map[i].msgname: i for i in frames.ids_of(self.decoder.types)}
+        ids = {mavlink2.mavlink_map[i].msgname: i for i in frames.ids_of(self.decoder.types | set(first_of))}
         frames.keep(np.isin(frames.msgid, list(ids.values())))
         good = frames.crc_ok()
+        if first_of:
+            self.decoder = self._first_imu(frames, good, [ids[n] for n in first_of if n in ids], system_id)
+            ids = {name: i for name, i in ids.items() if name in self.decoder.types}
+            wanted = np.isin(frames.msgid, list(ids.values()))
+            frames.keep(wanted)
+            good = good[wanted]
         if not good.all():
             self.bad_records = int(np.count_nonzero(~good))
             first = int(frames.start[~good][0])
@@ -170,6 +182,17 @@ class TlogSource:
         frames.keep(good)
         tables = {name: frames.table(name, msg_id) for name, msg_id in ids.items()}
         return {name: t for name, t in tables.items() if len(t.index)}, len(frames.start)
+
+    def _first_imu(
+        self, frames: _Frames, good: NDArray[np.bool_], imu_ids: list[int], system_id: int | None
+    ) -> MavlinkDecoder:
+        """The decoder for the first good record of ``imu_ids`` (from ``system_id``); its own if none."""
+        found = good & np.isin(frames.msgid, imu_ids)
+        if system_id is not None:
+            found &= frames.system == system_id
+        if not found.any():
+            return self.decoder
+        return replace(self.decoder, message=mavlink2.mavlink_map[int(frames.msgid[np.argmax(found)])].msgname)
 
     # --- one by one, as the live link --------------------------------------------------------------
 
@@ -435,33 +458,3 @@ class _Frames:
             t_us * 1e-6,
             {field: records[field] for field in cls.ordered_fieldnames},
         )
-
-
-def read_messages(
-    path: str | Path, types: Iterable[str], *, system_id: int | None = None, dialect: str = "ardupilotmega"
-) -> Iterator[Any]:
-    """Yield the messages of ``types`` (e.g. ``{"RAW_IMU"}``) in log order, optionally from one system,
-    as pymavlink decodes them.
-
-    Raises :class:`DataFileError` when the file cannot be opened; bad packets are skipped by pymavlink.
-    """
-    from pymavlink import mavutil
-
-    path = Path(path)
-    if not path.is_file():
-        raise DataFileError(f"{path}: no such telemetry log")
-    try:
-        log = mavutil.mavlink_connection(str(path), dialect=dialect, robust_parsing=True, notimestamps=False)
-    except Exception as exc:  # pymavlink indexes the file on open, and fails on a damaged one with anything
-        raise DataFileError(f"{path}: not a readable telemetry log ({type(exc).__name__}: {exc})") from exc
-    wanted = sorted(set(types))
-    try:
-        while True:
-            msg = log.recv_match(type=wanted)
-            if msg is None:
-                return
-            if system_id is not None and msg.get_srcSystem() != system_id:
-                continue
-            yield msg
-    finally:
-        log.close()

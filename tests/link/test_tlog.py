@@ -14,7 +14,7 @@ from mavattitude.dispatch import Dispatcher
 from mavattitude.errors import DataFileError
 from mavattitude.estimation.conventions import angle_between
 from mavattitude.link.source import PositionFix
-from mavattitude.link.tlog import TlogSource, read_messages, x25_crc
+from mavattitude.link.tlog import TlogSource, x25_crc
 
 
 def write_tlog(path: Path, packets: list[tuple[int, str, dict]]) -> None:
@@ -33,21 +33,35 @@ def _raw(i: int) -> dict:
     return dict(time_usec=1000 * i, xacc=i, yacc=0, zacc=-1000, xgyro=0, ygyro=0, zgyro=0, xmag=200, ymag=0, zmag=400)
 
 
-def test_reads_the_requested_types_in_order_and_filters_the_system(tmp_path: Path) -> None:
-    path = tmp_path / "flight.tlog"
-    packets = [(1, "HEARTBEAT", HEARTBEAT)]
-    packets += [(1 if i % 4 else 2, "RAW_IMU", _raw(i)) for i in range(20)]
-    write_tlog(path, packets)
-    got = list(read_messages(path, {"RAW_IMU"}))
-    assert [m.xacc for m in got] == list(range(20))
-    ones = list(read_messages(path, ["RAW_IMU", "HEARTBEAT"], system_id=1))
-    assert ones[0].get_type() == "HEARTBEAT"
-    assert [m.xacc for m in ones[1:]] == [i for i in range(20) if i % 4]
+def pymavlink_messages(path: Path, types: list[str] | frozenset[str]) -> list:
+    """The messages of ``types`` in log order as pymavlink decodes the file: what the array reader must match."""
+    from pymavlink import mavutil
+
+    log = mavutil.mavlink_connection(str(path), dialect="ardupilotmega", robust_parsing=True, notimestamps=False)
+    try:
+        return list(iter(lambda: log.recv_match(type=sorted(types)), None))
+    finally:
+        log.close()
 
 
 def test_missing_file_is_a_data_file_error(tmp_path: Path) -> None:
     with pytest.raises(DataFileError, match="no such telemetry log"):
-        list(read_messages(tmp_path / "nope.tlog", {"RAW_IMU"}))
+        _source(tmp_path / "nope.tlog", _config())
+
+
+def test_first_of_reads_the_first_imu_message_the_system_sent(tmp_path: Path) -> None:
+    """The log read once: the decoder given ``first_of`` reads the first of them that ``system_id`` sent."""
+    from mavattitude.link.source import MavlinkDecoder
+
+    path = tmp_path / "scaled.tlog"
+    scaled = dict(time_boot_ms=5, xacc=0, yacc=0, zacc=-1000, xgyro=0, ygyro=0, zgyro=0, xmag=200, ymag=0, zmag=400)
+    write_tlog(path, [(2, "RAW_IMU", _raw(0)), (1, "SCALED_IMU2", scaled), (1, "RAW_IMU", _raw(1))])
+    decoder = MavlinkDecoder.from_config(_config())
+    imus = ("RAW_IMU", "SCALED_IMU2", "HIGHRES_IMU")
+    assert TlogSource(path, decoder, imus, system_id=1).decoder.message == "SCALED_IMU2"
+    source = TlogSource(path, decoder, imus)
+    assert source.decoder.message == "RAW_IMU" and source.count == 2  # SCALED_IMU2 is not read
+    assert TlogSource(path, decoder, ("HIGHRES_IMU",)).decoder.message == "RAW_IMU"  # none: its own
 
 
 # --- the array reader: every frame kind a ground station records, against pymavlink's decode of the file ---
@@ -121,7 +135,7 @@ def test_the_columns_are_pymavlinks_decode_of_every_frame_kind(tmp_path: Path) -
     source = _source(path, _config())
     assert source.count == len(written) and source.bad_records == 0 and source.damage is None
     names = ["HEARTBEAT", "RAW_IMU", "ATTITUDE", "GLOBAL_POSITION_INT", "SYSTEM_TIME", "GPS_RAW_INT"]
-    theirs = list(read_messages(path, names))
+    theirs = pymavlink_messages(path, names)
     assert len(theirs) == len(written)
     for name in names:
         table = source.tables[name]
@@ -145,7 +159,7 @@ def test_each_record_is_the_live_decoders_item(tmp_path: Path) -> None:
     decode = MavlinkDecoder.from_config(
         config, lambda m: dt.datetime.fromtimestamp(m._timestamp, dt.timezone.utc).date()
     )
-    theirs = list(read_messages(path, decode.types))
+    theirs = pymavlink_messages(path, decode.types)
     assert [s for _, s, _ in ours] == [(m.get_srcSystem(), m.get_srcComponent()) for m in theirs]
     assert [item for _, _, item in ours] == [decode(m) for m in theirs]
     dates = [item.date for _, _, item in ours if isinstance(item, PositionFix)]
