@@ -26,7 +26,9 @@ Units, checked against the senders:
 from __future__ import annotations
 
 import datetime as dt
+import itertools
 import math
+import operator
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -51,23 +53,36 @@ INT16_MIN, INT16_MAX = -32768, 32767
 
 BOOT_MS_WRAP_S = 2.0**32 * 1e-3  # a uint32 of milliseconds wraps after this (≈ 49.7 days)
 
-#: The time field of each IMU message, its size in seconds, and the period after which it wraps.
-TIME_FIELDS: dict[str, tuple[str, float, float | None]] = {
-    "RAW_IMU": ("time_usec", 1e-6, None),
-    "SCALED_IMU": ("time_boot_ms", 1e-3, BOOT_MS_WRAP_S),
-    "SCALED_IMU2": ("time_boot_ms", 1e-3, BOOT_MS_WRAP_S),
-    "SCALED_IMU3": ("time_boot_ms", 1e-3, BOOT_MS_WRAP_S),
-    "HIGHRES_IMU": ("time_usec", 1e-6, None),
-}
-#: The IMU messages the project reads (``input.message``) and the fake vehicle sends.
-MESSAGES = tuple(TIME_FIELDS)
-INTEGER_MESSAGES = frozenset({"RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3"})
-
-_ACC = ("xacc", "yacc", "zacc")
-_GYR = ("xgyro", "ygyro", "zgyro")
-_MAG = ("xmag", "ymag", "zmag")
 HIGHRES_ACC_GYRO_UPDATED = 0x3F  # fields_updated bits 0–5
 HIGHRES_MAG_UPDATED = 0x1C0  # fields_updated bits 6–8
+
+
+@dataclass(frozen=True)
+class MessageLayout:
+    """An IMU message's time field (unit, wrap period) and kind of fields, as every conversion here reads them.
+    ``integer``: int16 fields, saturated at their limits, an all-zero magnetometer is none and the newest one is
+    repeated (:attr:`ImuSample.mag_repeats`); else ``fields_updated`` marks a new magnetometer (HIGHRES_IMU)."""
+
+    time_field: str
+    time_unit_s: float
+    time_wrap_s: float | None
+    integer: bool
+
+
+_BOOT_MS = MessageLayout("time_boot_ms", 1e-3, BOOT_MS_WRAP_S, integer=True)
+LAYOUTS: dict[str, MessageLayout] = {
+    "RAW_IMU": MessageLayout("time_usec", 1e-6, None, integer=True),
+    "SCALED_IMU": _BOOT_MS,
+    "SCALED_IMU2": _BOOT_MS,
+    "SCALED_IMU3": _BOOT_MS,
+    "HIGHRES_IMU": MessageLayout("time_usec", 1e-6, None, integer=False),
+}
+#: The IMU messages the project reads (``input.message``) and the fake vehicle sends.
+MESSAGES = tuple(LAYOUTS)
+
+#: The IMU fields of every message, in :func:`decode_columns`' column order: acceleration, rates, field.
+IMU_FIELDS = ("xacc", "yacc", "zacc", "xgyro", "ygyro", "zgyro", "xmag", "ymag", "zmag")
+_imu_fields = operator.attrgetter(*IMU_FIELDS)
 
 #: The fields of each message that the IMU fields do not cover, with the values :func:`encode` sends.
 _OTHER_FIELDS: dict[str, dict[str, int | float]] = {
@@ -207,37 +222,47 @@ def get_profile(name: str, custom: CustomScales | None = None) -> UnitProfile:
         raise SensorError(f"unknown unit profile {name!r}; known: {', '.join(PROFILE_NAMES)}") from None
 
 
-def _sign_extend(value: int, bits: int) -> int:
-    value &= (1 << bits) - 1
-    return value - (1 << bits) if value >> (bits - 1) else value
+def _sign_extend(counts: Any, bits: int) -> Any:
+    """Two's-complement counts of ``bits`` (the bits above ignored) as signed numbers: an int or an integer array."""
+    counts = counts & ((1 << bits) - 1)
+    return counts - ((counts >> (bits - 1)) << bits)
+
+
+def _at_limits(values: NDArray[np.float64], lo: int, hi: int) -> NDArray[np.bool_]:
+    """Which sensors (acc, gyr, mag: (n, 3)) have a field of ``values`` (n, 9: :data:`IMU_FIELDS`) at a limit."""
+    return ((values <= lo) | (values >= hi)).reshape(-1, 3, 3).any(axis=2)
+
+
+_NONE_SATURATED: frozenset[str] = frozenset()
+_SENSORS = ("acc", "gyr", "mag")
+
+
+def _sensor_names(flags: list[bool]) -> frozenset[str]:
+    return frozenset(itertools.compress(_SENSORS, flags)) or _NONE_SATURATED
 
 
 def decode(msg: Any, profile: UnitProfile) -> ImuSample:
-    """One IMU message → :class:`ImuSample` (SI, board frame, time from the message).
+    """One IMU message → :class:`ImuSample` (SI, board frame, time from the message): :func:`decode_columns`
+    for one message, by the same table and rules, in floats (it runs on every message of the live link).
 
     Raises :class:`SensorError` for a message the profile does not read and for an implausible field
     magnitude (wrong units at the sender, e.g. ArduPilot's HIGHRES_IMU magnetometer).
     """
     kind = msg.get_type()
     scale = profile.messages.get(kind) or profile.scale(kind)
-    ax, ay, az = msg.xacc, msg.yacc, msg.zacc
-    gx, gy, gz = msg.xgyro, msg.ygyro, msg.zgyro
-    mx, my, mz = msg.xmag, msg.ymag, msg.zmag
+    layout = LAYOUTS[kind]
+    values = _imu_fields(msg)
     saturated = _NONE_SATURATED
-    if kind == "HIGHRES_IMU":
-        time_s = msg.time_usec * 1e-6
-        has_mag = bool(msg.fields_updated & HIGHRES_MAG_UPDATED)
-    else:
-        time_s = msg.time_usec * 1e-6 if kind == "RAW_IMU" else msg.time_boot_ms * 1e-3
-        bits = scale.count_bits
-        if bits is not None:
-            ax, ay, az, gx, gy, gz, mx, my, mz = (
-                _sign_extend(int(v), bits) for v in (ax, ay, az, gx, gy, gz, mx, my, mz)
-            )
+    if layout.integer:
+        if scale.count_bits is not None:
+            values = tuple(_sign_extend(int(v), scale.count_bits) for v in values)
         lo, hi = scale.limits
-        if not (lo < min(ax, ay, az, gx, gy, gz, mx, my, mz) and max(ax, ay, az, gx, gy, gz, mx, my, mz) < hi):
-            saturated = _saturated((ax, ay, az), (gx, gy, gz), (mx, my, mz), lo, hi)
-        has_mag = not (mx == 0 and my == 0 and mz == 0)  # an integer message with no compass reads exactly zero
+        if not (lo < min(values) and max(values) < hi):  # only then can _at_limits find one
+            saturated = _sensor_names(_at_limits(np.array([values], dtype=float), lo, hi)[0].tolist())
+        has_mag = any(values[6:])  # an integer message with no compass reads exactly zero
+    else:
+        has_mag = bool(msg.fields_updated & HIGHRES_MAG_UPDATED)
+    ax, ay, az, gx, gy, gz, mx, my, mz = values
     sa, sg = scale.acc_mps2, scale.gyr_radps
     mag: Vec3 | None = None
     if has_mag:
@@ -247,18 +272,14 @@ def decode(msg: Any, profile: UnitProfile) -> ImuSample:
         if norm > MAX_PLAUSIBLE_FIELD_UT:
             raise _implausible(kind, profile, norm)
     return ImuSample(
-        time_s,
+        getattr(msg, layout.time_field) * layout.time_unit_s,
         (ax * sa, ay * sa, az * sa),
         (gx * sg, gy * sg, gz * sg),
         mag,
-        TIME_FIELDS[kind][2],
+        layout.time_wrap_s,
         saturated,
-        kind in INTEGER_MESSAGES,
+        layout.integer,
     )
-
-
-_NONE_SATURATED: frozenset[str] = frozenset()
-_SENSORS = ("acc", "gyr", "mag")
 
 
 @dataclass
@@ -282,12 +303,12 @@ class ImuColumns:
 
     @property
     def time_wrap_s(self) -> float | None:
-        return TIME_FIELDS[self.kind][2]
+        return LAYOUTS[self.kind].time_wrap_s
 
     @property
     def mag_repeats(self) -> bool:
         """:attr:`ImuSample.mag_repeats` of every row."""
-        return self.kind in INTEGER_MESSAGES
+        return LAYOUTS[self.kind].integer
 
     def error(self, row: int) -> SensorError:
         return _implausible(self.kind, self.profile, float(self.field_uT[row]))
@@ -295,11 +316,11 @@ class ImuColumns:
     def samples(self) -> list[ImuSample | None]:
         """Each row as :func:`decode` returns it; ``None`` for a refused row."""
         wrap, repeats = self.time_wrap_s, self.mag_repeats
-        sat = [frozenset(n for n, s in zip(_SENSORS, row, strict=True) if s) for row in self.saturated.tolist()]
+        sat = [_sensor_names(row) for row in self.saturated.tolist()]
         mag = [tuple(m) if has else None for m, has in zip(self.mag_uT.tolist(), self.has_mag.tolist(), strict=True)]
         rows = zip(self.time_s.tolist(), self.acc_mps2.tolist(), self.gyr_radps.tolist(), mag, sat, strict=True)
         return [
-            None if bad else ImuSample(t, tuple(a), tuple(g), m, wrap, s or _NONE_SATURATED, repeats)  # type: ignore[arg-type]
+            None if bad else ImuSample(t, tuple(a), tuple(g), m, wrap, s, repeats)  # type: ignore[arg-type]
             for (t, a, g, m, s), bad in zip(rows, self.refused.tolist(), strict=True)
         ]
 
@@ -309,22 +330,18 @@ def decode_columns(kind: str, fields: Mapping[str, NDArray[Any]], profile: UnitP
     numbers, the same units (a log read as arrays). Raises :class:`SensorError` if the profile does not read
     ``kind``."""
     scale = profile.scale(kind)
-    values = np.empty((len(fields[_ACC[0]]), 9))
-    for i, name in enumerate((*_ACC, *_GYR, *_MAG)):
+    layout = LAYOUTS[kind]
+    values = np.empty((len(fields[IMU_FIELDS[0]]), 9))
+    for i, name in enumerate(IMU_FIELDS):
         values[:, i] = fields[name]
-    time_field, unit_s, _ = TIME_FIELDS[kind]
-    time_s = fields[time_field] * unit_s
-    if kind == "HIGHRES_IMU":
-        has_mag = (fields["fields_updated"] & HIGHRES_MAG_UPDATED) != 0
-        saturated = np.zeros((len(values), 3), dtype=bool)
-    else:
-        bits = scale.count_bits
-        if bits is not None:
-            counts = values.astype(np.int64) & ((1 << bits) - 1)
-            values = (counts - np.where(counts >> (bits - 1), 1 << bits, 0)).astype(np.float64)
-        lo, hi = scale.limits
-        saturated = ((values <= lo) | (values >= hi)).reshape(-1, 3, 3).any(axis=2)
+    if layout.integer:
+        if scale.count_bits is not None:
+            values = _sign_extend(values.astype(np.int64), scale.count_bits).astype(np.float64)
+        saturated = _at_limits(values, *scale.limits)
         has_mag = np.any(values[:, 6:] != 0.0, axis=1)
+    else:
+        saturated = np.zeros((len(values), 3), dtype=bool)
+        has_mag = (fields["fields_updated"] & HIGHRES_MAG_UPDATED) != 0
     mag = values[:, 6:] * scale.mag_uT
     field_uT = np.sqrt(np.einsum("ij,ij->i", mag, mag))
     mag[~has_mag] = np.nan
@@ -332,7 +349,7 @@ def decode_columns(kind: str, fields: Mapping[str, NDArray[Any]], profile: UnitP
     return ImuColumns(
         kind,
         profile,
-        time_s,
+        fields[layout.time_field] * layout.time_unit_s,
         values[:, :3] * scale.acc_mps2,
         values[:, 3:6] * scale.gyr_radps,
         mag,
@@ -340,12 +357,6 @@ def decode_columns(kind: str, fields: Mapping[str, NDArray[Any]], profile: UnitP
         saturated,
         field_uT > MAX_PLAUSIBLE_FIELD_UT,
         field_uT,
-    )
-
-
-def _saturated(acc: tuple, gyr: tuple, mag: tuple, lo: int, hi: int) -> frozenset[str]:
-    return frozenset(
-        name for name, part in (("acc", acc), ("gyr", gyr), ("mag", mag)) if min(part) <= lo or max(part) >= hi
     )
 
 
@@ -371,17 +382,20 @@ def encode(sample: ImuSample, profile: UnitProfile, message: str) -> dict[str, i
     """
     kind = message
     scale = profile.scale(kind)
-    time_field, time_unit_s, wrap_s = TIME_FIELDS[kind]
-    ticks = round(sample.time_s / time_unit_s)
-    fields: dict[str, int | float] = {time_field: ticks % round(wrap_s / time_unit_s) if wrap_s else ticks}
+    layout = LAYOUTS[kind]
+    ticks = round(sample.time_s / layout.time_unit_s)
+    wrap_s = layout.time_wrap_s
+    fields: dict[str, int | float] = {
+        layout.time_field: ticks % round(wrap_s / layout.time_unit_s) if wrap_s else ticks
+    }
     mag = sample.mag_uT if sample.mag_uT is not None else (0.0, 0.0, 0.0)
     values = [v / scale.acc_mps2 for v in sample.acc_mps2]
     values += [v / scale.gyr_radps for v in sample.gyr_radps]
     values += [v / scale.mag_uT for v in mag]
-    if kind in INTEGER_MESSAGES:
+    if layout.integer:
         lo, hi = scale.limits
         values = [min(hi, max(lo, round(v))) for v in values]
-    fields.update(zip((*_ACC, *_GYR, *_MAG), values, strict=True))
+    fields.update(zip(IMU_FIELDS, values, strict=True))
     fields.update(_OTHER_FIELDS[kind])
     if kind == "HIGHRES_IMU":
         updated = HIGHRES_ACC_GYRO_UPDATED | (HIGHRES_MAG_UPDATED if sample.mag_uT is not None else 0)

@@ -129,7 +129,8 @@ def test_encode_is_the_inverse_of_decode_through_pymavlink(profile, t, acc, gyr,
         sample = ImuSample(t, acc, gyr, mag)
         back = decode(_packed(kind, encode(sample, p, kind)), p)
         scale = p.messages[kind]
-        integer = kind in units.INTEGER_MESSAGES
+        layout = units.LAYOUTS[kind]
+        integer = layout.integer
         # integer fields: half a unit of rounding; float32 fields: 1e-7 relative of the largest component
         tol = [0.5 * scale.acc_mps2, 0.5 * scale.gyr_radps, 0.5 * scale.mag_uT] if integer else [1e-5, 1e-6, 1e-5]
         assert back.acc_mps2 == pytest.approx(acc, abs=tol[0] * 1.0001)
@@ -139,9 +140,9 @@ def test_encode_is_the_inverse_of_decode_through_pymavlink(profile, t, acc, gyr,
             assert back.mag_uT is None
         else:
             assert back.mag_uT == pytest.approx(mag, abs=tol[2] * 1.0001)
-        wrap = units.TIME_FIELDS[kind][2]
+        wrap = layout.time_wrap_s
         expected_t = t % wrap if wrap else t
-        assert back.time_s == pytest.approx(expected_t, abs=0.0005 if "boot_ms" in units.TIME_FIELDS[kind][0] else 5e-7)
+        assert back.time_s == pytest.approx(expected_t, abs=0.5 * layout.time_unit_s)  # half a tick of the time field
 
 
 def test_time_boot_ms_wraps_at_2_to_the_32() -> None:
