@@ -85,3 +85,16 @@ def load_numbers(f: IO[str], path: str | Path, usecols: Sequence[int]) -> np.nda
             return np.loadtxt(f, delimiter=",", usecols=usecols, ndmin=2)
     except ValueError:
         raise DataFileError(first_bad_row(path, usecols)) from None
+
+
+def read_columns(path: str | Path, required: Sequence[str], optional: Sequence[str] = ()) -> dict[str, np.ndarray]:
+    """The named columns of a CSV of numbers, by its header: every ``required`` one (those missing are one
+    DataFileError naming them) and those of ``optional`` that it has."""
+    with reading(path), open_text(path, "r") as f:
+        header = [name.strip() for name in next(csv.reader([f.readline()]), [])]
+        missing = [c for c in required if c not in header]
+        if missing:
+            raise DataFileError(f"{path}: missing column(s) {', '.join(missing)} (header: {', '.join(header)[:200]})")
+        names = [*required, *(c for c in optional if c in header)]
+        data = load_numbers(f, path, [header.index(c) for c in names])
+    return {name: data[:, i] for i, name in enumerate(names)}

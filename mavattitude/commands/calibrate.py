@@ -15,7 +15,6 @@ calibration: a fit on it finds what that calibration left.
 from __future__ import annotations
 
 import argparse
-import csv
 import logging
 import sys
 import time
@@ -27,8 +26,8 @@ import numpy as np
 import yaml
 
 from mavattitude.config import DEFAULTS
-from mavattitude.errors import CalibrationError, DataFileError
-from mavattitude.files import LOG_SUFFIXES, MAG_COLUMNS, open_text, reading
+from mavattitude.errors import CalibrationError
+from mavattitude.files import LOG_SUFFIXES, MAG_COLUMNS, read_columns
 from mavattitude.link.requests import RequestSchedule, StreamRequest
 from mavattitude.sensors import magfit, units
 from mavattitude.sensors.calibration import mag_block
@@ -134,30 +133,9 @@ def report(fit: magfit.MagFit, output: str) -> str:
 
 def read_csv_mag(path: Path) -> np.ndarray:
     """The magnetometer columns of a CSV (µT), skipping rows marked ``mag_new == 0``."""
-    if not path.is_file():
-        raise DataFileError(f"{path}: no such file")
-    with reading(path), open_text(path, "r") as f:
-        reader = csv.reader(f)
-        header = next(reader, None)
-        if header is None:
-            raise DataFileError(f"{path}: empty file")
-        header = [h.strip() for h in header]
-        missing = [c for c in MAG_COLUMNS if c not in header]
-        if missing:
-            raise DataFileError(f"{path}: missing column(s) {', '.join(missing)} (have {', '.join(header)})")
-        cols = [header.index(c) for c in MAG_COLUMNS]
-        new = header.index("mag_new") if "mag_new" in header else None
-        rows = []
-        for row in reader:
-            if not row:
-                continue
-            try:
-                if new is not None and float(row[new]) == 0.0:
-                    continue
-                rows.append([float(row[c]) for c in cols])
-            except (ValueError, IndexError) as exc:
-                raise DataFileError(f"{path}:{reader.line_num}: not a row of numbers: {exc}") from exc
-    return np.array(rows, dtype=float).reshape(-1, 3)
+    data = read_columns(path, MAG_COLUMNS, ["mag_new"])
+    mag = np.column_stack([data[c] for c in MAG_COLUMNS])
+    return mag[data["mag_new"] != 0.0] if "mag_new" in data else mag
 
 
 class _Readings:

@@ -16,7 +16,6 @@ position for the World Magnetic Model): --declination/--inclination, --mag-ref-n
 from __future__ import annotations
 
 import argparse
-import csv
 import logging
 from pathlib import Path
 
@@ -33,16 +32,7 @@ from mavattitude.commands._offline import (
 )
 from mavattitude.config import Config
 from mavattitude.errors import ConfigError, DataFileError
-from mavattitude.files import (
-    ACC_COLUMNS,
-    GYR_COLUMNS,
-    LOG_SUFFIXES,
-    MAG_COLUMNS,
-    TIME_COLUMN,
-    load_numbers,
-    open_text,
-    reading,
-)
+from mavattitude.files import ACC_COLUMNS, GYR_COLUMNS, LOG_SUFFIXES, MAG_COLUMNS, TIME_COLUMN, read_columns
 
 NAME = "solve"
 HELP = "attitude for every sample of a CSV file (offline, same pipeline as the service)"
@@ -74,24 +64,13 @@ def read_samples(path: str | Path) -> dict[str, np.ndarray]:
     """The solve columns of a CSV: ``t_s`` (N,), ``acc``, ``mag`` and, if present, ``gyr`` (N, 3)."""
     if Path(path).suffix.lower() in LOG_SUFFIXES:
         raise DataFileError(f"{path}: a flight log, not a CSV of samples: `mavattitude replay {path}` reads it")
-    with reading(path), open_text(path, "r") as f:
-        header = next(csv.reader([f.readline()]), [])
-        columns = [name.strip() for name in header]
-        missing = [c for c in (TIME_COLUMN, *ACC_COLUMNS, *MAG_COLUMNS) if c not in columns]
-        if missing:
-            shown = ", ".join(columns)[:200]
-            raise DataFileError(f"{path}: missing column(s) {', '.join(missing)} (header: {shown})")
-        has_gyr = all(c in columns for c in GYR_COLUMNS)
-        usecols = [
-            columns.index(c) for c in (TIME_COLUMN, *ACC_COLUMNS, *MAG_COLUMNS, *(GYR_COLUMNS if has_gyr else ()))
-        ]
-        data = load_numbers(f, path, usecols)
-    if len(data) == 0:
+    data = read_columns(path, (TIME_COLUMN, *ACC_COLUMNS, *MAG_COLUMNS), GYR_COLUMNS)
+    if len(data[TIME_COLUMN]) == 0:
         raise DataFileError(f"{path}: no data rows")
-    out = {"t_s": data[:, 0], "acc": data[:, 1:4], "mag": data[:, 4:7]}
-    if has_gyr:
-        out["gyr"] = data[:, 7:10]
-    return out
+    sensors = {"acc": ACC_COLUMNS, "mag": MAG_COLUMNS, "gyr": GYR_COLUMNS}  # gyr only where all three are there
+    return {"t_s": data[TIME_COLUMN]} | {
+        key: np.column_stack([data[c] for c in names]) for key, names in sensors.items() if set(names) <= data.keys()
+    }
 
 
 def check_offline_config(config: Config, has_gyro: bool, source: str) -> None:
