@@ -62,7 +62,7 @@ def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(x))))
 
 
-# --- the plain-float helpers equal the project's conventions -----------------------------------------
+# --- the plain-float functions equal the project's conventions -----------------------------------------
 
 
 def _random_covariance(rng: np.random.Generator) -> np.ndarray:

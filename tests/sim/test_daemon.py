@@ -1,4 +1,4 @@
-"""The service-subprocess helpers: the counters line parser and the config built for a fake vehicle."""
+"""mavattitude.sim.daemon: the counters line parser and the config built for a fake vehicle."""
 
 from __future__ import annotations
 
