@@ -59,7 +59,6 @@ CHUNK_MESSAGES = 4096  # messages per recv(): large enough to amortise the call,
 TIME_LEN = 8  # the record's receive time before each frame
 MAGIC_V1, MAGIC_V2 = 0xFE, 0xFD
 HEADER_LEN = {MAGIC_V1: 6, MAGIC_V2: 10}  # magic to message id inclusive
-CRC_LEN = 2
 SIGNATURE_LEN = 13
 IFLAG_SIGNED = 0x01
 MIN_RECORD = TIME_LEN + 3  # enough to read a frame's length and flags
@@ -156,7 +155,6 @@ class TlogSource:
             data = self.path.read_bytes()
         except OSError as exc:
             raise DataFileError(f"{path}: cannot read: {exc.strerror or exc}") from exc
-        self.size_bytes = len(data)
         self.tables, self.count = self._read(data, first_of, system_id)
 
     def _read(self, data: bytes, first_of: Sequence[str], system_id: int | None) -> tuple[dict[str, _Table], int]:
