@@ -321,16 +321,17 @@ class TurnCheck:
         ``S_M = Σ |R_k Mᵀ B_k − R_j Mᵀ B_j|² = Σ (|B_j|² + |B_k|²) − 2 tr(M Q_jk Mᵀ B_j B_kᵀ)``, ``Q_jk = R_kᵀ R_j``,
         linear in the window's ``Σ Q_jk ⊗ B_j B_kᵀ``: every candidate of :data:`MOUNTINGS` is scored at once.
         Returns ``S_I − min S_M`` (µT²) over the candidates other than the configured one, and the share of
-        ``S_I`` it explains (NaN without a residual). A turn about a mirror's or a misorientation's own axis moves
-        both hypotheses alike, so only the part of the turn that tells them apart counts, however small its share
-        of the whole turn; and what the gyroscope and the calibration leave (a bias, a hard-iron residual) is no
-        closer to a wrong mounting than to the configured one, so it needs no allowance here.
+        ``S_I`` it explains (0 without a residual: nothing to explain). A turn about a mirror's or a
+        misorientation's own axis moves both hypotheses alike, so only the part of the turn that tells them apart
+        counts, however small its share of the whole turn; and what the gyroscope and the calibration leave (a
+        bias, a hard-iron residual) is no closer to a wrong mounting than to the configured one, so it needs no
+        allowance here.
         """
         if self._scored is None:
             scores = self._norms2 - 2.0 * (_MOUNTING_WEIGHTS @ self._products)
             configured = float(scores[0])
             gain = configured - float(scores[1:].min())
-            self._scored = (gain, gain / configured if configured > 0.0 else math.nan)
+            self._scored = (gain, gain / configured if configured > 0.0 else 0.0)
         return self._scored
 
     def second_axis_share(self) -> float:
