@@ -44,7 +44,7 @@ from mavattitude.sensors.calibration import Calibration
 from mavattitude.sensors.frontend import FrontEndSettings
 from mavattitude.sensors.magref import MagneticReference
 from mavattitude.sensors.mounting import mounting_matrix
-from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES, CustomScales
+from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES, PROFILES, CustomScales
 
 ENV_VAR = "MAVATTITUDE_CONFIG"
 
@@ -394,8 +394,9 @@ def _cross_check(c: Config) -> None:
     """Rules that span keys."""
     if c.link.signing.require_signing and c.link.signing.key_file is None:
         _fail("link.signing.require_signing", "true needs link.signing.key_file")
-    if c.input.profile == "adis16405" and c.input.message != "RAW_IMU":
-        _fail("input.message", "the adis16405 profile reads raw counts carried in RAW_IMU")
+    profile = PROFILES.get(c.input.profile)
+    if profile is not None and c.input.message not in profile.messages:
+        _fail("input.message", f"profile {c.input.profile} reads {', '.join(profile.messages)}, not {c.input.message}")
     scales = dataclasses.asdict(c.input.custom)
     if c.input.profile == "custom":
         for key, value in scales.items():

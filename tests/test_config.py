@@ -93,7 +93,11 @@ def test_example_file_comments_every_key_with_its_default(path):
             r"reference\.magnetic\.declination_deg: unknown key",
         ),
         ({"link": {"signing": {"require_signing": True}}}, r"require_signing: true needs link\.signing\.key_file"),
-        ({"input": {"profile": "adis16405", "message": "SCALED_IMU"}}, r"input\.message: the adis16405 profile"),
+        (
+            {"input": {"profile": "adis16405", "message": "SCALED_IMU"}},
+            r"input\.message: profile adis16405 reads RAW_IMU",
+        ),
+        ({"input": {"profile": "px4", "message": "RAW_IMU"}}, r"input\.message: profile px4 reads HIGHRES_IMU"),
         ({"input": {"profile": "custom"}}, r"input\.custom\.accel_mps2_per_lsb: required with profile: custom"),
         ({"input": {"custom": {"mag_uT_per_lsb": 0.1}}}, r"input\.custom: scales are only used with profile"),
         ({"filter": {"cutoff_hz": 25}}, r"filter\.cutoff_hz: must be below half of filter\.output_rate_hz \(25 Hz\)"),
