@@ -102,13 +102,14 @@ def quat_normalize_parts(q: tuple) -> tuple[float, float, float, float]:
 
 
 def rotation_matrix_parts(q: tuple) -> tuple:
-    """``R(q)`` of a unit quaternion on components, row-major ``(r00, r01, ..., r22)``."""
+    """``R(q)`` of a unit quaternion on components, row-major ``(r00, r01, ..., r22)``. The constants are
+    floats: an int operand takes CPython's slow mixed-type path, twice the time on plain floats (same values)."""
     w, x, y, z = q
     xx, yy, zz, xy, xz, yz, wx, wy, wz = x * x, y * y, z * z, x * y, x * z, y * z, w * x, w * y, w * z
     return (
-        1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy),
-        2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx),
-        2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy),
+        1.0 - 2.0 * (yy + zz), 2.0 * (xy - wz), 2.0 * (xz + wy),
+        2.0 * (xy + wz), 1.0 - 2.0 * (xx + zz), 2.0 * (yz - wx),
+        2.0 * (xz - wy), 2.0 * (yz + wx), 1.0 - 2.0 * (xx + yy),
     )  # fmt: skip
 
 

@@ -71,7 +71,10 @@ class ErrorStateFilter:
         """``Δq ← Δq ⊗ exp(ω Δt)`` with the sample's bias-corrected rate."""
         b = self.bias
         vx, vy, vz = dt * (gx - b[0]), dt * (gy - b[1]), dt * (gz - b[2])
-        self.dq = quat_multiply_parts(self.dq, quat_from_rotvec_parts(vx, vy, vz))
+        step = quat_from_rotvec_parts(vx, vy, vz)
+        # The first sample after a propagation (every sample when each one is an update): Δq is the identity,
+        # and the identity times the step is the step, the same floats.
+        self.dq = step if self.duration_s == 0.0 else quat_multiply_parts(self.dq, step)
         self.duration_s += dt
         self.angle_rad += math.sqrt(vx * vx + vy * vy + vz * vz)
 

@@ -331,12 +331,7 @@ class FusedFilter:
         """The accelerometer direction, along the two axes it measures; its gain is kept off the heading."""
         h0, h1, h2 = h = rotate_ned_to_body_parts(r, self._v_acc)
         d0, d1, d2 = acc[0] / acc_norm - h0, acc[1] / acc_norm - h1, acc[2] / acc_norm - h2  # u − h
-        # e₁ = unit(h × x̂), or unit(h × ŷ) near x̂: the cross product with the axis written out term by term
-        e1 = _unit(
-            (h1 * 0.0 - h2 * 0.0, h2 * 1.0 - h0 * 0.0, h0 * 0.0 - h1 * 1.0)
-            if abs(h0) < 0.6
-            else (h1 * 0.0 - h2 * 1.0, h2 * 0.0 - h0 * 0.0, h0 * 1.0 - h1 * 0.0)
-        )
+        e1 = _unit((0.0, h2, -h1) if abs(h0) < 0.6 else (-h2, 0.0, h0))  # unit(h × x̂), or unit(h × ŷ) near x̂
         e2 = cross(h, e1)
         var = (sigma_a / acc_norm) ** 2
         update = self._ekf.update
@@ -399,7 +394,7 @@ class FusedFilter:
         # np.fromiter: a small array from floats in half the time of np.array, which first guesses the shape.
         rates = np.fromiter((wx, wy, wz), float, 3)
         p_tt = self._ekf.p_tt
-        q_now = self._current_q()
+        q_now = self._ekf.current_q()
         out = []
         while self._next_output_s <= time_s:
             back = self._next_output_s - time_s
