@@ -306,16 +306,18 @@ def _collect(samples: Iterable[units.ImuSample], args: argparse.Namespace, out: 
     Coverage is judged around the midpoint of the readings' range on each axis (a cheap hard-iron
     estimate: the offset is not fitted yet); the fit judges it again around the fitted centre.
     """
-    rows: list[tuple[float, float, float]] = []
+    rows: list[tuple[float, ...]] = []
     frac, shown = 0.0, (-1.0, False)
     tty = out.isatty()  # redrawn in place on a terminal; a log or a pipe gets a line per change of coverage
     seen = _Coverage()
     fastest_radps = 0.0  # the fastest rotation in the current batch: a batch without turning is at rest
     for sample in samples:
-        if sample.mag_uT is None:
-            continue
-        rows.append(sample.mag_uT)
         fastest_radps = max(fastest_radps, float(np.linalg.norm(sample.gyr_radps)))
+        # a message that repeats the newest reading (RAW_IMU between 10 Hz compass updates) would weigh
+        # it once per message in the fit: each reading is taken once
+        if sample.mag_uT is None or (sample.mag_repeats and rows and tuple(sample.mag_uT) == rows[-1]):
+            continue
+        rows.append(tuple(sample.mag_uT))
         if len(rows) % PROGRESS_EVERY == 0:
             counts = seen.add(np.array(rows[-PROGRESS_EVERY:], dtype=float))
             frac = magfit.covered(counts)

@@ -195,6 +195,20 @@ def test_a_vehicle_at_rest_covers_nothing_and_is_told_to_turn() -> None:
     assert all(line.endswith("the vehicle is at rest, turn it through every orientation") for line in lines)
 
 
+def test_a_reading_its_messages_repeat_is_taken_once() -> None:
+    readings = _distorted(300, seed=3)
+    # five RAW_IMU messages per compass reading, as ArduPilot streams a 10 Hz compass in a 50 Hz RAW_IMU
+    samples = [
+        ImuSample(0.02 * i, (0.0, 0.0, -9.8), (0.0, 0.0, 0.1), tuple(readings[i // 5]), mag_repeats=True)
+        for i in range(5 * len(readings))
+    ]
+    args = argparse.Namespace(min_coverage=0.6, input="x")
+    assert np.array_equal(_collect(samples, args, io.StringIO(), live=False), readings)
+    # a message that does not repeat (HIGHRES_IMU says when it has a new reading) keeps every one
+    plain = [ImuSample(s.time_s, s.acc_mps2, s.gyr_radps, s.mag_uT) for s in samples]
+    assert len(_collect(plain, args, io.StringIO(), live=False)) == len(samples)
+
+
 def test_the_written_block_is_a_config_the_front_end_applies(tmp_path: Path) -> None:
     from mavattitude.config import load_config
     from mavattitude.pipeline import frontend_settings
