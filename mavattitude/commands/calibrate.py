@@ -34,6 +34,7 @@ from mavattitude.sensors.calibration import mag_block
 
 if TYPE_CHECKING:
     from mavattitude.dispatch import Dispatcher
+    from mavattitude.estimation.conventions import Vec3
     from mavattitude.link.connection import MavlinkLink
     from mavattitude.link.source import MessageSource
 
@@ -197,18 +198,13 @@ def _log_samples(path: Path, args: argparse.Namespace) -> Iterator[units.ImuSamp
     """The autopilot's IMU samples of a .tlog, .bin or .ulg, through the service's source and dispatcher;
     from a .tlog without ``--message``, the first of the profile's messages that the log holds."""
     from mavattitude.config import load_config
-    from mavattitude.link.logs import detect_format, open_log
-    from mavattitude.link.source import MavlinkDecoder
-    from mavattitude.link.tlog import TlogSource
+    from mavattitude.link.logs import open_log
 
     profile = units.get_profile(args.profile)
     overrides = {"input.profile": args.profile, "input.message": args.message or profile.default_message}
     config = load_config(None, overrides, env={})
-    source: MessageSource
-    if args.message is None and detect_format(path) == "tlog":
-        source = TlogSource(path, MavlinkDecoder.from_config(config), tuple(profile.messages), args.system_id)
-    else:
-        source = open_log(path, config)
+    first_of = () if args.message else tuple(profile.messages)
+    source = open_log(path, config, first_of=first_of, system_id=args.system_id)
     return _read(source, args.system_id or 0, _Skipped(), lambda _: True)
 
 
@@ -306,7 +302,7 @@ def _collect(samples: Iterable[units.ImuSample], args: argparse.Namespace, out: 
     Coverage is judged around the midpoint of the readings' range on each axis (a cheap hard-iron
     estimate: the offset is not fitted yet); the fit judges it again around the fitted centre.
     """
-    rows: list[tuple[float, ...]] = []
+    rows: list[Vec3] = []
     frac, shown = 0.0, (-1.0, False)
     tty = out.isatty()  # redrawn in place on a terminal; a log or a pipe gets a line per change of coverage
     seen = _Coverage()
@@ -315,9 +311,9 @@ def _collect(samples: Iterable[units.ImuSample], args: argparse.Namespace, out: 
         fastest_radps = max(fastest_radps, float(np.linalg.norm(sample.gyr_radps)))
         # a message that repeats the newest reading (RAW_IMU between 10 Hz compass updates) would weigh
         # it once per message in the fit: each reading is taken once
-        if sample.mag_uT is None or (sample.mag_repeats and rows and tuple(sample.mag_uT) == rows[-1]):
+        if sample.mag_uT is None or (sample.mag_repeats and rows and sample.mag_uT == rows[-1]):
             continue
-        rows.append(tuple(sample.mag_uT))
+        rows.append(sample.mag_uT)
         if len(rows) % PROGRESS_EVERY == 0:
             counts = seen.add(np.array(rows[-PROGRESS_EVERY:], dtype=float))
             frac = magfit.covered(counts)

@@ -224,8 +224,20 @@ class LogSource(MessageSource, Protocol):
     def streams_for(self, dispatcher: Dispatcher) -> LogStreams: ...
 
 
-def open_log(path: str | Path, config: Config, imu_instance: int = 0, mag_instance: int = 0) -> LogSource:
-    """The message source of one log file, its format recognised from its content (see the module docstring)."""
+def open_log(
+    path: str | Path,
+    config: Config,
+    imu_instance: int = 0,
+    mag_instance: int = 0,
+    *,
+    first_of: Sequence[str] = (),
+    system_id: int | None = None,
+) -> LogSource:
+    """The message source of one log file, its format recognised from its content (see the module docstring).
+
+    ``first_of``: a telemetry log's IMU message is the first of these it holds (from ``system_id``, if
+    given) rather than the config's (:class:`~mavattitude.link.tlog.TlogSource`); other formats name theirs.
+    """
     from mavattitude.link.source import MavlinkDecoder
 
     path = Path(path)
@@ -233,7 +245,7 @@ def open_log(path: str | Path, config: Config, imu_instance: int = 0, mag_instan
     if kind == "tlog":
         from mavattitude.link.tlog import TlogSource
 
-        return TlogSource(path, MavlinkDecoder.from_config(config))
+        return TlogSource(path, MavlinkDecoder.from_config(config), first_of, system_id)
     if kind == "dataflash":
         from mavattitude.link.dataflash import read_dataflash
 
