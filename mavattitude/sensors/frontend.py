@@ -744,13 +744,7 @@ def _held_repeats(
     the last one it kept."""
     rows = np.flatnonzero(taken)
     m, tr, same = mag[rows], t[rows], np.zeros(len(rows), dtype=bool)
-    same[1:] = (
-        repeats[rows[1:]]
-        & (epoch[rows[1:]] == epoch[rows[:-1]])
-        & (m[1:, 0] == m[:-1, 0])
-        & (m[1:, 1] == m[:-1, 1])
-        & (m[1:, 2] == m[:-1, 2])
-    )
+    same[1:] = repeats[rows[1:]] & (epoch[rows[1:]] == epoch[rows[:-1]]) & (m[1:] == m[:-1]).all(axis=1)
     starts = np.flatnonzero(~same)
     stops = np.append(starts[1:], len(rows))
     for a, b in zip(starts.tolist(), stops.tolist(), strict=True):
