@@ -57,6 +57,7 @@ from mavattitude.estimation import SNAPSHOT_METHODS, NoiseModel, solve
 from mavattitude.estimation.compass import CompassEvent, CompassMonitor, heading_uncertain
 from mavattitude.estimation.conventions import Array, is_unit_quaternion_parts
 from mavattitude.sensors.frontend import (
+    BatchOutput,
     FrontEnd,
     FrontEndCounters,
     FrontEndSettings,
@@ -460,15 +461,40 @@ class AttitudePipeline:
         fe.counters.add(batch.counters)
         out: list[AttitudeOutput] = []
         reference = self.mag_ref_ned_uT
+        if reference is not None and self.compass.settings.enabled:
+            self._judge_compass_rows(batch, batch.time_s > reference_after_s)
         with _collector_paused():
             for tick in batch.samples():
                 self.counters.ticks += 1
                 self.mag_ref_ned_uT = reference if tick.time_s > reference_after_s else None
-                out += self._estimate(tick)
+                out += self._estimate(tick, judge=False)
         self.mag_ref_ned_uT = reference
         return out
 
-    def _estimate(self, tick: ProcessedSample) -> list[AttitudeOutput]:
+    def _judge_compass_rows(self, batch: BatchOutput, referenced: NDArray[np.bool_]) -> None:
+        """:meth:`_judge_compass` of every tick of ``batch`` with a reference and a magnetometer reading, in order,
+        the monitor taking all its ticks at once (:meth:`CompassMonitor.update_rows`): the flags set in ``batch``."""
+        rows = np.flatnonzero(referenced & (batch.mag_uT[:, 0] == batch.mag_uT[:, 0])).tolist()  # NaN: no reading
+        taken = []
+        at_s = self._compass_at_s
+        for i, t in zip(rows, batch.time_s[rows].tolist(), strict=True):
+            if not 0.0 <= t - at_s < COMPASS_PERIOD_S:
+                taken.append(i)
+                at_s = t
+        self._compass_at_s = at_s
+        before = self.compass.inconsistent
+        events, suspect, inconsistent = self.compass.update_rows(
+            batch.time_s[taken], batch.acc_mps2[taken], batch.mag_uT[taken], batch.gyr_radps[taken]
+        )
+        self.compass_events += [e for e in events if e is not None]
+        # a tick the monitor took is flagged when suspect, one it skipped when the verdict is inconsistent
+        count = np.searchsorted(taken, rows, side="right")  # the ticks taken up to each row
+        verdict = np.array([before, *inconsistent], dtype=bool)[count]
+        flagged = np.where(np.isin(rows, taken), np.array([False, *suspect], dtype=bool)[count], verdict)
+        batch.flags[np.asarray(rows, dtype=np.int64)[flagged]] |= int(SampleFlag.MAG_INCONSISTENT)
+
+    def _estimate(self, tick: ProcessedSample, judge: bool = True) -> list[AttitudeOutput]:
+        """The tick's outputs; ``judge=False``: the compass monitor has taken it already (:meth:`push_batch`)."""
         c = self.counters
         if self.mag_ref_ned_uT is None:
             c.waiting += 1
@@ -477,7 +503,7 @@ class AttitudePipeline:
             if self.estimator.wants_filtered:
                 c.rejected["no_mag"] += 1
                 return []
-        elif self.compass.settings.enabled:
+        elif judge and self.compass.settings.enabled:
             tick = self._judge_compass(tick, tick.mag_uT)
         try:
             outputs = self.estimator.estimate(tick, self.mag_ref_ned_uT)

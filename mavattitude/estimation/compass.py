@@ -72,6 +72,7 @@ from mavattitude.fields import described, ranged
 
 from .conventions import (
     STANDARD_GRAVITY_MPS2,
+    Array,
     Vec3,
     quat_from_rotvec_parts,
     quat_multiply_parts,
@@ -99,6 +100,21 @@ def measured_dip_deg(acc_mps2: Vec3, mag_uT: Vec3) -> float:
     """The field's dip below the horizontal the accelerometer shows, degrees (positive: field points down)."""
     dot = -(acc_mps2[0] * mag_uT[0] + acc_mps2[1] * mag_uT[1] + acc_mps2[2] * mag_uT[2])
     return math.degrees(math.asin(max(-1.0, min(1.0, dot / (_norm(acc_mps2) * _norm(mag_uT))))))
+
+
+def measured_dip_deg_rows(acc_mps2: Array, mag_uT: Array) -> Array:
+    """:func:`measured_dip_deg` of each row, the same operations in the same order (``asin`` by :mod:`math`:
+    numpy's vectorised one differs in the last bit)."""
+    dot = -(acc_mps2[:, 0] * mag_uT[:, 0] + acc_mps2[:, 1] * mag_uT[:, 1] + acc_mps2[:, 2] * mag_uT[:, 2])
+    ratio = dot / (_norm_rows(acc_mps2) * _norm_rows(mag_uT))
+    ratio = np.where(ratio < 1.0, ratio, 1.0)  # min(1.0, ratio) and max(-1.0, ...): NaN becomes 1, as there
+    ratio = np.where(ratio > -1.0, ratio, -1.0)
+    return np.degrees(np.fromiter(map(math.asin, ratio.tolist()), float, len(ratio)))
+
+
+def _norm_rows(v: Array) -> Array:
+    """:func:`_norm` of each row, the same operations in the same order."""
+    return np.sqrt(v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1] + v[:, 2] * v[:, 2])
 
 
 def reference_dip_deg(field_ned_uT: Vec3) -> float:
@@ -240,7 +256,8 @@ class TurnCheck:
         self.window_s = window_s
         self._q = (1.0, 0.0, 0.0, 0.0)  # body → a frame the integrated gyroscope keeps fixed
         self._t: float | None = None
-        self._recent: deque[tuple[float, tuple, Vec3, Vec3]] = deque()  # (t, q, F, B) within TURN_SPAN_S
+        # [t, q, B, F or None] within TURN_SPAN_S: F, the field in the fixed frame, is made when a step needs it
+        self._recent: deque[list] = deque()
         # (t, |ΔF|², |ΔB|², the step's turn v v^T: 6 terms, |B_j|² + |B_k|², Q ⊗ B_j B_kᵀ) within window_s
         self._steps: deque[tuple[float, float, float, tuple[float, ...], float, NDArray[np.float64]]] = deque()
         self.moved2 = self.changed2 = 0.0
@@ -268,28 +285,30 @@ class TurnCheck:
             step = quat_from_rotvec_parts(gyr_radps[0] * dt, gyr_radps[1] * dt, gyr_radps[2] * dt)
             self._q = quat_normalize_parts(quat_multiply_parts(self._q, step))
         self._t = time_s
-        fixed = rotate_body_to_ned_parts(rotation_matrix_parts(self._q), mag_uT)  # into the gyroscope's fixed frame
         recent = self._recent
-        recent.append((time_s, self._q, fixed, mag_uT))
+        now = [time_s, self._q, mag_uT, None]
+        recent.append(now)
         while len(recent) > 1 and recent[1][0] <= time_s - TURN_SPAN_S:
             recent.popleft()
-        t0, q0, f0, b0 = recent[0]
+        then = recent[0]
+        t0, q0, b0, _ = then
         if time_s - t0 >= TURN_SPAN_S and self._turned(q0):
             self._add(
                 time_s,
-                _distance2(fixed, f0),
+                _distance2(_fixed(now), _fixed(then)),
                 _distance2(mag_uT, b0),
                 _turn_outer(q0, self._q),
                 _dot(b0, b0) + _dot(mag_uT, mag_uT),
                 _step_products(q0, self._q, b0, mag_uT),
                 1,
             )
-        while self._steps and self._steps[0][0] <= time_s - self.window_s:
-            self._add(*self._steps.popleft(), -1)
-        if not self._steps:  # nothing in the window: the running sums start again from exact zeros
-            self.moved2 = self.changed2 = self._norms2 = 0.0
-            self._axes = [0.0] * 6
-            self._products[:] = 0.0
+        steps = self._steps
+        while steps and steps[0][0] <= time_s - self.window_s:
+            self._add(*steps.popleft(), -1)
+            if not steps:  # nothing in the window: the running sums start again from exact zeros
+                self.moved2 = self.changed2 = self._norms2 = 0.0
+                self._axes = [0.0] * 6
+                self._products[:] = 0.0
 
     def _add(
         self,
@@ -351,6 +370,13 @@ class TurnCheck:
     def _turned(self, q0: tuple) -> bool:
         q = self._q
         return abs(q0[0] * q[0] + q0[1] * q[1] + q0[2] * q[2] + q0[3] * q[3]) <= _COS_HALF_MIN_TURN
+
+
+def _fixed(entry: list) -> Vec3:
+    """A recent tick's field carried into the gyroscope's fixed frame, made once (most ticks end no step)."""
+    if entry[3] is None:
+        entry[3] = rotate_body_to_ned_parts(rotation_matrix_parts(entry[1]), entry[2])
+    return entry[3]
 
 
 def _turn_outer(q0: tuple, q1: tuple) -> tuple[float, ...]:
@@ -499,11 +525,14 @@ class CompassMonitor:
             return True
         if self.confirmed:
             return False  # a compass found consistent in dip and turn: every sample is trusted (IGN is the paper's)
-        dip = measured_dip_deg(_floats(acc_mps2), _floats(mag_uT))
+        return self._dip_suspect(measured_dip_deg(_floats(acc_mps2), _floats(mag_uT)), self.quiet(acc_mps2, gyr_radps))
+
+    def _dip_suspect(self, dip: float, quiet: bool) -> bool:
+        """:meth:`suspect` of a sample whose dip is ``dip``, neither judged inconsistent nor confirmed."""
         if self.warnings:
             return abs(dip - self._expected_dip) > self._thresholds.dip_noise_deg
         if self._judged_dip != self._judged_dip:  # never judged yet
-            return abs(dip - self._expected_dip) > self._thresholds.dip_deg and self.quiet(acc_mps2, gyr_radps)
+            return abs(dip - self._expected_dip) > self._thresholds.dip_deg and quiet
         return abs(dip - self._judged_dip) > self._thresholds.dip_noise_deg
 
     def update(self, time_s: float, acc_mps2: Vec3, mag_uT: Vec3, gyr_radps: Vec3) -> CompassEvent | None:
@@ -511,15 +540,52 @@ class CompassMonitor:
             return None
         # plain floats: numpy scalars (the batch front end's ticks) make this arithmetic ten times slower
         acc_mps2, mag_uT, gyr_radps = _floats(acc_mps2), _floats(mag_uT), _floats(gyr_radps)
-        time_s = float(time_s)
+        quiet = self.quiet(acc_mps2, gyr_radps)
+        dip = measured_dip_deg(acc_mps2, mag_uT) if quiet else math.nan
+        field = _norm(mag_uT) if quiet and self._field_uT is not None else None
+        return self._take(float(time_s), mag_uT, gyr_radps, quiet, dip, field)
+
+    def update_rows(
+        self, time_s: Array, acc_mps2: Array, mag_uT: Array, gyr_radps: Array
+    ) -> tuple[list[CompassEvent | None], list[bool], list[bool]]:
+        """:meth:`update` then :meth:`suspect` for each row of ``(n,)`` times and ``(n, 3)`` vectors, in order:
+        each row's event, whether it is suspect, and whether the compass is judged inconsistent after it.
+
+        What needs no state (quietness, dip, |B|) is computed for all rows at once, with the same operations as
+        one by one (the same values); the state machine then steps through the rows on plain floats.
+        """
+        events: list[CompassEvent | None] = []
+        suspect: list[bool] = []
+        inconsistent: list[bool] = []
+        known = self._expected_dip == self._expected_dip  # else update() judges nothing
+        quiet = self._quiet_rows(acc_mps2, gyr_radps).tolist()
+        dips = measured_dip_deg_rows(acc_mps2, mag_uT).tolist()
+        fields = _norm_rows(mag_uT).tolist() if self._field_uT is not None else [None] * len(time_s)
+        for t, m, g, q, dip, field in zip(
+            time_s.tolist(), mag_uT.tolist(), gyr_radps.tolist(), quiet, dips, fields, strict=True
+        ):
+            events.append(self._take(t, tuple(m), tuple(g), q, dip, field) if known else None)
+            suspect.append(self.inconsistent or (not self.confirmed and self._dip_suspect(dip, q)))
+            inconsistent.append(self.inconsistent)
+        return events, suspect, inconsistent
+
+    def _quiet_rows(self, acc_mps2: Array, gyr_radps: Array) -> NDArray[np.bool_]:
+        """:meth:`quiet` of each row, the same operations in the same order."""
+        g = STANDARD_GRAVITY_MPS2
+        return (np.abs(_norm_rows(acc_mps2) - g) <= self.settings.low_accel_fraction * g) & (
+            _norm_rows(gyr_radps) <= self._max_rate_radps
+        )
+
+    def _take(
+        self, time_s: float, mag_uT: Vec3, gyr_radps: Vec3, quiet: bool, dip: float, field: float | None
+    ) -> CompassEvent | None:
+        """One tick into the turn check, the quiet window (when ``quiet``: its ``dip``, ``field``), the verdict."""
         self._turn.update(time_s, mag_uT, gyr_radps)
-        if self.quiet(acc_mps2, gyr_radps):
-            self._add_quiet(time_s, acc_mps2, mag_uT)
+        if quiet:
+            self._add_quiet(time_s, dip, field)
         return self._judge(time_s) if self.judged or self.turn_judged else None
 
-    def _add_quiet(self, time_s: float, acc_mps2: Vec3, mag_uT: Vec3) -> None:
-        dip = measured_dip_deg(acc_mps2, mag_uT)
-        field = _norm(mag_uT) if self._field_uT is not None else None
+    def _add_quiet(self, time_s: float, dip: float, field: float | None) -> None:
         self.samples += 1
         if self._first_until_s != self._first_until_s:
             self._first_until_s = time_s + FIRST_PERIOD_S

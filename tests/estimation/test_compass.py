@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -14,6 +15,7 @@ from mavattitude.estimation.compass import (
     CompassSettings,
     heading_uncertain,
     measured_dip_deg,
+    measured_dip_deg_rows,
     reference_dip_deg,
     thresholds,
 )
@@ -262,3 +264,36 @@ def test_no_new_evidence_does_not_clear_the_verdict():
         m.update(2.0 + 0.02 * i, strong, mag, STILL)
     m.update(30.0, acc, mag, STILL)  # one quiet sample: too few to judge anew
     assert m.inconsistent and m.warnings == 1
+
+
+def test_the_dip_of_many_rows_is_each_rows_bit_for_bit():
+    rng = np.random.default_rng(17)
+    acc = rng.normal(0.0, 9.8, (2000, 3))
+    mag = np.concatenate([rng.normal(0.0, 50.0, (1990, 3)), -acc[-10:-5], acc[-5:]])  # ten at asin's clamp
+    rows = measured_dip_deg_rows(acc, mag)
+    one_by_one = [measured_dip_deg(tuple(a), tuple(m)) for a, m in zip(acc.tolist(), mag.tolist(), strict=True)]
+    assert rows.tolist() == one_by_one and np.allclose(one_by_one[-10:], [90.0] * 5 + [-90.0] * 5)
+
+
+@pytest.mark.parametrize("flip", [np.eye(3), TURNED_90_Z, np.diag([1.0, 1.0, -1.0])], ids=["good", "turned", "flipped"])
+def test_rows_at_once_are_update_then_suspect_one_by_one(flip):
+    """update_rows: the same events, suspect verdicts and figures as update then suspect per row (turning, the
+    field noisy, a fifth of the rows accelerated, so not quiet; a compass turned or upside down is warned about)."""
+    rng = np.random.default_rng(23)
+    t = np.arange(0.0, 12.0, 0.02)
+    angles = np.radians([[25.0], [25.0], [90.0]]) * np.sin(2 * np.pi * np.array([[0.3], [0.4], [0.25]]) * t)
+    q = quat_from_euler(*angles)
+    acc = np.array([_body(qk)[0] for qk in q]) * rng.choice([1.0, 1.2], (len(t), 1), p=[0.8, 0.2])
+    mag = np.array([flip @ np.array(_body(qk)[1]) for qk in q]) + rng.normal(0.0, 0.5, (len(t), 3))
+    gyr = np.array([rotvec_from_quat(quat_multiply(quat_conjugate(a), b)) / 0.02 for a, b in itertools.pairwise(q)])
+    t, acc, mag = t[1:], acc[1:], mag[1:]
+    one, rows = _monitor(), _monitor()
+    events, suspect = [], []
+    for row in zip(t.tolist(), acc.tolist(), mag.tolist(), gyr.tolist(), strict=True):
+        events.append(one.update(*row))
+        suspect.append(one.suspect(*row[1:]))
+    at_once, suspect_rows, inconsistent = rows.update_rows(t, acc, mag, gyr)
+    assert repr(at_once) == repr(events) and suspect_rows == suspect and inconsistent[-1] == one.inconsistent
+    assert repr(rows.figures()) == repr(one.figures())  # NaN figures compare equal as text
+    good = np.array_equal(flip, np.eye(3))  # both paths: vouched for, never suspect; or warned, then suspect
+    assert (one.confirmed, one.warnings, any(suspect)) == ((True, 0, False) if good else (False, 1, True))
