@@ -19,6 +19,7 @@ that branch or call ``math`` (the scalar twins of an array function) take plain 
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -218,14 +219,30 @@ def quat_from_euler_parts(roll_rad: float, pitch_rad: float, yaw_rad: float) -> 
     return _quat_from_half_angles(math.cos(hr), math.sin(hr), math.cos(hp), math.sin(hp), math.cos(hy), math.sin(hy))
 
 
+def _euler_terms(w: Any, x: Any, y: Any, z: Any) -> tuple:
+    """What ZYX Euler angles take the atan2 / asin / atan2 of: roll's two terms, pitch's sine, yaw's two
+    (one formula for arrays and plain floats)."""
+    return (
+        2.0 * (w * x + y * z),
+        1.0 - 2.0 * (x * x + y * y),
+        2.0 * (w * y - x * z),
+        2.0 * (w * z + x * y),
+        1.0 - 2.0 * (y * y + z * z),
+    )
+
+
 def euler_from_quat(q: ArrayLike) -> Array:
     """ZYX Euler angles ``[..., (roll, pitch, yaw)]`` in radians; yaw in (−π, π]."""
     q = np.asarray(q, dtype=float)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    roll = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    pitch = np.arcsin(np.clip(2 * (w * y - x * z), -1.0, 1.0))
-    yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-    return np.stack([roll, pitch, yaw], -1)
+    roll_y, roll_x, sin_pitch, yaw_y, yaw_x = _euler_terms(q[..., 0], q[..., 1], q[..., 2], q[..., 3])
+    pitch = np.arcsin(np.clip(sin_pitch, -1.0, 1.0))
+    return np.stack([np.arctan2(roll_y, roll_x), pitch, np.arctan2(yaw_y, yaw_x)], -1)
+
+
+def euler_from_quat_parts(q: tuple) -> Vec3:
+    """Scalar (plain-float) twin of :func:`euler_from_quat`: ``(roll, pitch, yaw)``, rad."""
+    roll_y, roll_x, sin_pitch, yaw_y, yaw_x = _euler_terms(*q)
+    return math.atan2(roll_y, roll_x), math.asin(min(max(sin_pitch, -1.0), 1.0)), math.atan2(yaw_y, yaw_x)
 
 
 def quat_from_rotvec(theta: ArrayLike) -> Array:
@@ -268,3 +285,9 @@ def angle_between(q_a: ArrayLike, q_b: ArrayLike) -> Array:
     """
     d = quat_multiply(quat_conjugate(q_a), q_b)
     return 2.0 * np.arctan2(np.linalg.norm(d[..., 1:], axis=-1), np.abs(d[..., 0]))
+
+
+def angle_between_parts(q_a: tuple, q_b: tuple) -> float:
+    """Scalar (plain-float) twin of :func:`angle_between`."""
+    w, x, y, z = quat_multiply_parts((q_a[0], -q_a[1], -q_a[2], -q_a[3]), q_b)
+    return 2.0 * math.atan2(math.sqrt(x * x + y * y + z * z), abs(w))

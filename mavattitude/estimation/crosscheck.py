@@ -5,7 +5,8 @@ paired with ours *interpolated to its time* (normalised linear interpolation bet
 around it, at most ``max_gap_s`` apart): no extrapolation, and an autopilot attitude that arrives before
 our output for its time waits until that output is there. The difference is ours minus the autopilot's:
 roll, pitch and yaw (ZYX Euler angles, yaw wrapped to ±180°) and the total rotation angle between the
-two, degrees.
+two, degrees. The live service runs it on every output and autopilot attitude, so it works on plain floats
+(numpy's per-call overhead on four-element arrays was most of its cost).
 
 The verdict: *disagreeing* once the total stays above ``threshold_deg`` for ``hold_s`` of vehicle time,
 *agreeing* again once it stays below ``CLEAR_FRACTION · threshold_deg`` for ``hold_s`` (hysteresis, so a
@@ -17,6 +18,7 @@ from __future__ import annotations
 import bisect
 import math
 from collections import deque
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -24,7 +26,7 @@ import numpy as np
 
 from mavattitude.fields import described, ranged
 
-from .conventions import angle_between, euler_from_quat
+from .conventions import Quat, angle_between_parts, euler_from_quat_parts
 
 CLEAR_FRACTION = 0.8
 KEEP_S = 5.0  # our outputs kept for pairing, s of vehicle time
@@ -63,19 +65,28 @@ class CrossCheckEvent:
     total_deg: float
 
 
-def difference(time_s: float, ours: np.ndarray, theirs: np.ndarray) -> Difference:
+def difference(time_s: float, ours: Quat, theirs: Quat) -> Difference:
     """Ours minus theirs (quaternions ``[w, x, y, z]`` body → NED) in degrees."""
-    roll, pitch, yaw = np.degrees(euler_from_quat(ours) - euler_from_quat(theirs)).tolist()
-    yaw = (yaw + 180.0) % 360.0 - 180.0
-    return Difference(time_s, roll, pitch, yaw, math.degrees(float(angle_between(ours, theirs))))
+    (r1, p1, y1), (r2, p2, y2) = euler_from_quat_parts(ours), euler_from_quat_parts(theirs)
+    yaw = (math.degrees(y1 - y2) + 180.0) % 360.0 - 180.0
+    total = math.degrees(angle_between_parts(ours, theirs))
+    return Difference(time_s, math.degrees(r1 - r2), math.degrees(p1 - p2), yaw, total)
 
 
-def interpolate(t0: float, q0: np.ndarray, t1: float, q1: np.ndarray, t: float) -> np.ndarray:
+def interpolate(t0: float, q0: Quat, t1: float, q1: Quat, t: float) -> Quat:
     """Normalised linear interpolation between two attitudes, the shorter way round."""
-    if float(np.dot(q0, q1)) < 0.0:
-        q1 = -q1
-    q = q0 + (q1 - q0) * ((t - t0) / (t1 - t0))
-    return q / np.linalg.norm(q)
+    if q0[0] * q1[0] + q0[1] * q1[1] + q0[2] * q1[2] + q0[3] * q1[3] < 0.0:
+        q1 = (-q1[0], -q1[1], -q1[2], -q1[3])
+    f = (t - t0) / (t1 - t0)
+    w, x, y, z = (a + (b - a) * f for a, b in zip(q0, q1, strict=True))
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    return (w / n, x / n, y / n, z / n)
+
+
+def _quat(q: Iterable[float]) -> Quat:
+    """A quaternion as plain floats (an array row, a tuple from a message)."""
+    w, x, y, z = map(float, q)
+    return (w, x, y, z)
 
 
 class CrossCheck:
@@ -84,9 +95,9 @@ class CrossCheck:
     def __init__(self, settings: CrossCheckSettings) -> None:
         self.settings = settings
         self._times: deque[float] = deque()
-        self._quats: deque[np.ndarray] = deque()
+        self._quats: deque[Quat] = deque()
         # autopilot attitudes ahead of our outputs (bounded: while we output nothing, the oldest go)
-        self._waiting: deque[tuple[float, np.ndarray]] = deque(maxlen=MAX_WAITING)
+        self._waiting: deque[tuple[float, Quat]] = deque(maxlen=MAX_WAITING)
         self.last: Difference | None = None
         self.pairs = 0
         self.disagree = False
@@ -98,18 +109,18 @@ class CrossCheck:
     def rms_total_deg(self) -> float:
         return math.sqrt(self._sum_total2 / self.pairs) if self.pairs else math.nan
 
-    def add_ours(self, time_s: float, q: np.ndarray) -> None:
+    def add_ours(self, time_s: float, q: Iterable[float]) -> None:
         if self._times and time_s <= self._times[-1]:  # a reboot or a gap reset: start over
             self._times.clear()
             self._quats.clear()
         self._times.append(time_s)
-        self._quats.append(np.asarray(q, dtype=float))
+        self._quats.append(_quat(q))
         while self._times[0] < time_s - KEEP_S:
             self._times.popleft()
             self._quats.popleft()
 
-    def add_autopilot(self, time_s: float, q: np.ndarray) -> None:
-        self._waiting.append((time_s, np.asarray(q, dtype=float)))
+    def add_autopilot(self, time_s: float, q: Iterable[float]) -> None:
+        self._waiting.append((time_s, _quat(q)))
 
     def update(self) -> tuple[list[Difference], list[CrossCheckEvent]]:
         """Pair every waiting autopilot attitude that our outputs now reach; the differences and verdicts."""
@@ -130,7 +141,7 @@ class CrossCheck:
                 events.append(event)
         return diffs, events
 
-    def _ours_at(self, t: float) -> np.ndarray | None:
+    def _ours_at(self, t: float) -> Quat | None:
         times = self._times
         i = bisect.bisect_left(times, t)
         if i < len(times) and times[i] == t:
