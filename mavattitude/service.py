@@ -403,7 +403,7 @@ class AttitudeService:
 
     def on_autopilot_attitude(self, attitude: AutopilotAttitude, t_rx: float) -> None:
         if self._xcheck is not None:
-            self._xcheck.add_autopilot(attitude.time_s, np.asarray(attitude.q))
+            self._xcheck.add_autopilot(attitude.time_s, attitude.q)
             self._cross_check(self._xcheck)
 
     def _cross_check(self, xcheck: CrossCheck) -> None:
@@ -496,10 +496,11 @@ class AttitudeService:
         if self._input_lost:
             self._input_lost = False
             log.info("input %s is back", self._input_name)
-        self._degenerate_before = self.pipeline.counters.rejected[DEGENERATE]
+        # .get: a Counter's missing key goes through its Python-level __missing__, and this runs per sample
+        self._degenerate_before = self.pipeline.counters.rejected.get(DEGENERATE, 0)
 
     def on_outputs(self, outputs: list[AttitudeOutput], t_rx: float) -> None:
-        if self.pipeline.counters.rejected[DEGENERATE] != self._degenerate_before:
+        if self.pipeline.counters.rejected.get(DEGENERATE, 0) != self._degenerate_before:
             self._statustext("degenerate", "mavattitude: acc and mag near collinear, no attitude", "warning")
         if self.pipeline.compass_events:
             for event in self.pipeline.take_compass_events():
@@ -526,12 +527,12 @@ class AttitudeService:
             log.error("internal error in the pipeline; sample dropped (please report this)", exc_info=exc)
 
     def _emit(self, out: AttitudeOutput, t_rx: float) -> None:
-        sent = self.link.send_attitude_quaternion(units.time_boot_ms(out.time_s), out.q, out.rates_radps)
-        if not sent:
+        q, rates_radps = out.q.tolist(), out.rates_radps.tolist()  # floats once for both messages' fields
+        if not self.link.send_attitude_quaternion(units.time_boot_ms(out.time_s), q, rates_radps):
             return
         if self.config.output.covariance:
             covariance = out.covariance_or_nan().ravel().tolist()  # NaN first: "unknown", as MAVLink says
-            self.link.send_attitude_quaternion_cov(units.time_usec(out.time_s), out.q, out.rates_radps, covariance)
+            self.link.send_attitude_quaternion_cov(units.time_usec(out.time_s), q, rates_radps, covariance)
         latency_s = self.link.last_send_s - t_rx
         self.counters.emitted += 1
         if len(self._latencies_s) < MAX_LATENCY_SAMPLES:
