@@ -240,3 +240,26 @@ def test_the_crc_is_mavlinks_x25(length: int) -> None:
     extra = rng.integers(0, 256, size=50, dtype=np.uint8)
     ours = x25_crc(strings, extra)
     assert ours.tolist() == [x25crc(bytes(s) + bytes([e])).crc for s, e in zip(strings, extra, strict=True)]
+
+
+@pytest.mark.parametrize("damage", ["none", "truncated", "skipped", "crc", "receive_time_zero"])
+def test_framing_the_whole_log_at_once_is_framing_it_record_by_record(tmp_path: Path, damage: str) -> None:
+    from mavattitude.link.tlog import _frame, _frame_by_record, _frame_whole
+
+    written = _mixed_log(tmp_path / "mixed.tlog")
+    data = bytearray((tmp_path / "mixed.tlog").read_bytes())
+    cut = written[10][2]
+    if damage == "truncated":
+        data = data[: written[-1][2] + 15]
+    elif damage == "skipped":
+        data[cut:cut] = b"\x00" * 7
+    elif damage == "crc":
+        data[cut + 8 + 12] ^= 0x40
+    elif damage == "receive_time_zero":  # every record's time zero: its top bytes are no record's mark
+        for _, _, ofs in written:
+            data[ofs : ofs + 8] = bytes(8)
+    starts, *rest = _frame(bytes(data))
+    one_by_one, *rest_by_record = _frame_by_record(bytes(data))
+    assert starts.tolist() == one_by_one and rest == rest_by_record
+    # at once where nothing is skipped (a CRC is framing's business no more than a cut-short end)
+    assert (_frame_whole(bytes(data)) is not None) == (damage != "skipped")
