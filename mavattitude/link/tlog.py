@@ -328,7 +328,7 @@ class TlogSource:
         imu_table = tables.get(self.decoder.message)
         imu = self._imu_columns(imu_table, dispatcher) if imu_table is not None else None
         if imu is not None:
-            ok = ~imu.refused
+            ok = ~imu.refused if imu.refused.any() else np.s_[:]  # every row decoded, usually: views, no copies
             imu_index = imu_table.index[ok]  # type: ignore[union-attr]
             t, acc, gyr, wrap = imu.time_s[ok], imu.acc_mps2[ok], imu.gyr_radps[ok], imu.time_wrap_s
             repeats = imu.mag_repeats
@@ -437,6 +437,8 @@ def _attitudes(name: str, f: dict[str, NDArray[Any]]) -> list[AutopilotAttitude]
 
 
 def _rows(table: _Table, keep: NDArray[np.bool_]) -> _Table:
+    if keep.all():  # the usual case: one vehicle's log
+        return table
     return _Table(
         table.name,
         table.index[keep],

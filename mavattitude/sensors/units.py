@@ -229,8 +229,10 @@ def _sign_extend(counts: Any, bits: int) -> Any:
 
 
 def _at_limits(values: NDArray[np.float64], lo: int, hi: int) -> NDArray[np.bool_]:
-    """Which sensors (acc, gyr, mag: (n, 3)) have a field of ``values`` (n, 9: :data:`IMU_FIELDS`) at a limit."""
-    return ((values <= lo) | (values >= hi)).reshape(-1, 3, 3).any(axis=2)
+    """Which sensors (acc, gyr, mag: (n, 3)) have a field of ``values`` (n, 9: :data:`IMU_FIELDS`) at a limit.
+    The three fields or'd one by one: numpy's reduction over an axis of three costs four times as much."""
+    at = ((values <= lo) | (values >= hi)).reshape(-1, 3, 3)
+    return at[:, :, 0] | at[:, :, 1] | at[:, :, 2]
 
 
 _NONE_SATURATED: frozenset[str] = frozenset()
@@ -338,7 +340,7 @@ def decode_columns(kind: str, fields: Mapping[str, NDArray[Any]], profile: UnitP
         if scale.count_bits is not None:
             values = _sign_extend(values.astype(np.int64), scale.count_bits).astype(np.float64)
         saturated = _at_limits(values, *scale.limits)
-        has_mag = np.any(values[:, 6:] != 0.0, axis=1)
+        has_mag = (values[:, 6] != 0.0) | (values[:, 7] != 0.0) | (values[:, 8] != 0.0)
     else:
         saturated = np.zeros((len(values), 3), dtype=bool)
         has_mag = (fields["fields_updated"] & HIGHRES_MAG_UPDATED) != 0
