@@ -66,7 +66,7 @@ from mavattitude.sensors.lowpass import Biquad, butter2
 
 from .ekf import ErrorStateFilter
 from .magnetic import MagneticChecks
-from .mat3 import Block, cross, dot, symmetric
+from .mat3 import Block, clip_unit, cross, dot, symmetric
 from .mat3 import matvec as _matvec
 from .rest import RestDetector
 from .settings import FusedSettings
@@ -220,7 +220,8 @@ class FusedFilter:
         # A due update waits up to half a period for a sample that carries a magnetometer reading.
         due = self._next_update_s
         if time_s >= due and (mag_uT is not None or time_s >= due + 0.5 * self._update_period_s):
-            self._next_update_s = max(due + self._update_period_s, time_s)
+            due += self._update_period_s
+            self._next_update_s = time_s if time_s > due else due  # max(): the builtin parses its arguments
             self._update(acc_mps2, mag_uT, time_s, mag_age_s)
         if time_s < self._next_output_s:
             return []
@@ -280,10 +281,12 @@ class FusedFilter:
             residual = self._vector_residual(acc, acc_norm, mag, mag_norm)
             sigma_a2 += (s.accel_residual_gain * s.gravity_mps2 * residual) ** 2
         # Past half a radian of direction noise the accelerometer tells nothing the gyro does not know.
-        self._tilt_update(acc, acc_norm, min(math.sqrt(sigma_a2), _MAX_UNIT_STD * acc_norm), r)
+        sigma_a, sigma_max = math.sqrt(sigma_a2), _MAX_UNIT_STD * acc_norm
+        self._tilt_update(acc, acc_norm, sigma_max if sigma_max < sigma_a else sigma_a, r)
         if mag is not None and d < 1.0:
             sigma_m2 = s.mag_std_uT**2 * self._mag.sigma2_factor(d, time_s) + self._skew_var(mag, rate)
-            sigma_m2 = min(sigma_m2, (_MAX_UNIT_STD * mag_norm) ** 2)
+            sigma_max2 = (_MAX_UNIT_STD * mag_norm) ** 2
+            sigma_m2 = sigma_max2 if sigma_max2 < sigma_m2 else sigma_m2
             if self._heading_update(mag, mag_norm, sigma_m2, r):
                 return
         self.counters["tilt_only_updates"] += 1
@@ -325,7 +328,7 @@ class FusedFilter:
     def _vector_residual(self, acc: Vec3, acc_norm: float, mag: Vec3, mag_norm: float) -> float:
         """IGN residual as an angle: measured angle between the vectors minus the reference angle."""
         cos_m = dot(acc, mag) / (acc_norm * mag_norm)
-        return abs(math.acos(max(-1.0, min(1.0, cos_m))) - self._ref_angle)
+        return abs(math.acos(clip_unit(cos_m)) - self._ref_angle)
 
     def _tilt_update(self, acc: Vec3, acc_norm: float, sigma_a: float, r: Sequence[float]) -> None:
         """The accelerometer direction, along the two axes it measures; its gain is kept off the heading."""

@@ -33,7 +33,7 @@ import math
 from collections.abc import Sequence
 
 from ..conventions import Vec3
-from .mat3 import dot
+from .mat3 import clip_unit, dot
 from .settings import FusedSettings
 
 
@@ -80,13 +80,14 @@ class MagneticChecks:
         norm = math.sqrt(dot(mag, mag))
         if not math.isfinite(norm) or norm == 0.0:
             return math.inf, norm, 0.0
-        dip = math.asin(max(-1.0, min(1.0, dot(down_body, mag) / norm)))
+        dip = math.asin(clip_unit(dot(down_body, mag) / norm))
         d_norm = abs(norm - self.norm_ref) / (s.mag_norm_tolerance_fraction * self.norm_ref)
         if s.mag_dip_tolerance_deg == 0.0:
             return d_norm, norm, dip
         # The predicted vertical is itself uncertain: widen the dip tolerance by 3σ of the attitude error.
         tolerance = math.radians(s.mag_dip_tolerance_deg) + 3.0 * math.sqrt(p_trace)
-        return max(d_norm, abs(dip - self.dip_ref) / tolerance), norm, dip
+        d_dip = abs(dip - self.dip_ref) / tolerance
+        return (d_dip if d_dip > d_norm else d_norm), norm, dip  # max(): the builtin parses its arguments
 
     def observe(self, d: float, norm: float, dip: float, time_s: float) -> bool:
         """Track the disturbance and learn the field; True when a disturbed field was adopted."""
