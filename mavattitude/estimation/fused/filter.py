@@ -143,6 +143,9 @@ class FusedFilter:
         self._lp_reject = EarthFrameLowpass(s.accel_rejection_lowpass_s, s.update_rate_hz)
         self._design_period_s = self._update_period_s  # the update interval the per-update filters are for
         self._update_times: deque[float] = deque(maxlen=PACE_WINDOW + 1)
+        # The squared settings the updates weigh with, once: a float's ** is a libm pow call, every update.
+        self._accel_var, self._lag_gain2 = s.accel_std_mps2**2, s.accel_lag_gain**2
+        self._mag_var, self._skew2 = s.mag_std_uT**2, s.mag_skew_s**2
         self._noise = NoiseModel(accel_std=(s.accel_std_mps2,) * 3, mag_std=(s.mag_std_uT,) * 3)
         self._t_last = 0.0
         self._gyr_last: Vec3 = (0.0, 0.0, 0.0)
@@ -284,7 +287,7 @@ class FusedFilter:
         sigma_a, sigma_max = math.sqrt(sigma_a2), _MAX_UNIT_STD * acc_norm
         self._tilt_update(acc, acc_norm, sigma_max if sigma_max < sigma_a else sigma_a, r)
         if mag is not None and d < 1.0:
-            sigma_m2 = s.mag_std_uT**2 * self._mag.sigma2_factor(d, time_s) + self._skew_var(mag, rate)
+            sigma_m2 = self._mag_var * self._mag.sigma2_factor(d, time_s) + self._skew_var(mag, rate)
             sigma_max2 = (_MAX_UNIT_STD * mag_norm) ** 2
             sigma_m2 = sigma_max2 if sigma_max2 < sigma_m2 else sigma_m2
             if self._heading_update(mag, mag_norm, sigma_m2, r):
@@ -306,7 +309,7 @@ class FusedFilter:
         j0, j1, j2 = lp_r
         lag2 = (m0 - j0) ** 2 + (m1 - j1) ** 2 + (m2 - j2) ** 2
         norm_dev = math.sqrt(j0 * j0 + j1 * j1 + j2 * j2) - s.gravity_mps2
-        sigma_a2 = s.accel_std_mps2**2 + (s.accel_norm_gain * norm_dev) ** 2 + s.accel_lag_gain**2 * lag2
+        sigma_a2 = self._accel_var + (s.accel_norm_gain * norm_dev) ** 2 + self._lag_gain2 * lag2
         return rotate_ned_to_body_parts(r_g, lp_m), sigma_a2
 
     def _check_field(self, mag: Vec3, r: Sequence[float], time_s: float) -> tuple[float, float]:
@@ -322,8 +325,9 @@ class FusedFilter:
     def _skew_var(self, mag: Vec3, rate: Vec3) -> float:
         """``(τ_m ‖ω × m‖)²``: the field error a sample-time skew ``τ_m`` between gyro and magnetometer makes
         while the body turns at ``rate`` (``ω``, :meth:`_body_rate`)."""
-        turn = cross(rate, mag)
-        return self.settings.mag_skew_s**2 * dot(turn, turn)
+        (w0, w1, w2), (m0, m1, m2) = rate, mag
+        t0, t1, t2 = w1 * m2 - w2 * m1, w2 * m0 - w0 * m2, w0 * m1 - w1 * m0  # ω × m, written out as below
+        return self._skew2 * (t0 * t0 + t1 * t1 + t2 * t2)
 
     def _vector_residual(self, acc: Vec3, acc_norm: float, mag: Vec3, mag_norm: float) -> float:
         """IGN residual as an angle: measured angle between the vectors minus the reference angle."""
@@ -334,12 +338,14 @@ class FusedFilter:
         """The accelerometer direction, along the two axes it measures; its gain is kept off the heading."""
         h0, h1, h2 = h = rotate_ned_to_body_parts(r, self._v_acc)
         d0, d1, d2 = acc[0] / acc_norm - h0, acc[1] / acc_norm - h1, acc[2] / acc_norm - h2  # u − h
-        e1 = _unit((0.0, h2, -h1) if abs(h0) < 0.6 else (-h2, 0.0, h0))  # unit(h × x̂), or unit(h × ŷ) near x̂
-        e2 = cross(h, e1)
+        # The products written out: the cross and dot products cost as much as calls as in arithmetic.
+        v0, v1, v2 = (0.0, h2, -h1) if abs(h0) < 0.6 else (-h2, 0.0, h0)  # h × x̂, or h × ŷ near x̂
+        n = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+        e1 = v0, v1, v2 = v0 / n, v1 / n, v2 / n
+        e2 = (h1 * v2 - h2 * v1, h2 * v0 - h0 * v2, h0 * v1 - h1 * v0)  # h × e₁
         var = (sigma_a / acc_norm) ** 2
         update = self._ekf.update
-        # e × h and e · (u − h) written out: the cross and dot products cost as much as calls as in arithmetic.
-        for a0, a1, a2 in (e1, e2):
+        for a0, a1, a2 in (e1, e2):  # along e: z = e · (u − h), h_θ = e × h
             update(a0 * d0 + a1 * d1 + a2 * d2, (a1 * h2 - a2 * h1, a2 * h0 - a0 * h2, a0 * h1 - a1 * h0), var, off=h)
 
     def _heading_update(self, mag: Vec3, mag_norm: float, sigma_m2: float, r: Sequence[float]) -> bool:
@@ -349,7 +355,8 @@ class FusedFilter:
         mn = r[0] * mag[0] + r[1] * mag[1] + r[2] * mag[2]
         me = r[3] * mag[0] + r[4] * mag[1] + r[5] * mag[2]
         horizontal2 = mn * mn + me * me
-        if horizontal2 < (_MIN_HORIZONTAL * mag_norm) ** 2:
+        min_horizontal = _MIN_HORIZONTAL * mag_norm
+        if horizontal2 < min_horizontal * min_horizontal:  # a threshold: x * x, not a pow call
             self.counters["degenerate"] += 1
             return False
         n, e = self._mag.north
@@ -444,11 +451,6 @@ class EarthFrameLowpass:
         )
         self._state = (x, x_1, y, y_1)
         return y
-
-
-def _unit(v: Vec3) -> Vec3:
-    n = math.sqrt(dot(v, v))
-    return (v[0] / n, v[1] / n, v[2] / n)
 
 
 _AXES: tuple[Vec3, Vec3, Vec3] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))

@@ -77,10 +77,11 @@ class MagneticChecks:
         """``(d, |m|, dip)``: ``d`` of the module docstring (≥ 1 disturbed); ``down_body``: the predicted
         vertical (NED down in the body frame), ``p_trace``: ``tr P_θθ``."""
         s = self.s
-        norm = math.sqrt(dot(mag, mag))
+        (m0, m1, m2), (v0, v1, v2) = mag, down_body  # the dot products written out: a call costs as much
+        norm = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
         if not math.isfinite(norm) or norm == 0.0:
             return math.inf, norm, 0.0
-        dip = math.asin(clip_unit(dot(down_body, mag) / norm))
+        dip = math.asin(clip_unit((v0 * m0 + v1 * m1 + v2 * m2) / norm))
         d_norm = abs(norm - self.norm_ref) / (s.mag_norm_tolerance_fraction * self.norm_ref)
         if s.mag_dip_tolerance_deg == 0.0:
             return d_norm, norm, dip
