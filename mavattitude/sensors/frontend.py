@@ -59,7 +59,7 @@ import dataclasses
 import logging
 import math
 from collections import Counter, deque
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from enum import IntFlag
 from typing import Any
@@ -552,22 +552,17 @@ class BatchOutput:
 
     def samples(self) -> list[ProcessedSample]:
         """The same ticks as :class:`ProcessedSample` objects (what :meth:`FrontEnd.push` returns)."""
-        columns = (
-            self.time_s,
-            self.acc_mps2,
-            self.mag_uT,
-            self.gyr_radps,
-            self.flags,
-            self.acc_std_scale,
-            self.mag_std_scale,
-            self.mag_age_s,
-        )
+        vectors = (_tuples(self.acc_mps2), _tuples(self.mag_uT), _tuples(self.gyr_radps))
+        scalars = (c.tolist() for c in (self.flags, self.acc_std_scale, self.mag_std_scale, self.mag_age_s))
         return [
-            ProcessedSample(
-                t, tuple(a), None if m[0] != m[0] else tuple(m), tuple(g), _FLAGS[f], sa, sm, age
-            )  # NaN: no mag
-            for t, a, m, g, f, sa, sm, age in zip(*(c.tolist() for c in columns), strict=True)
+            ProcessedSample(t, a, None if m[0] != m[0] else m, g, _FLAGS[f], sa, sm, age)  # NaN: no mag
+            for t, a, m, g, f, sa, sm, age in zip(self.time_s.tolist(), *vectors, *scalars, strict=True)
         ]
+
+
+def _tuples(rows: Array) -> Iterator[tuple[float, ...]]:
+    """The rows of an (n, 3) array as tuples of floats, made from its columns (no list per row)."""
+    return zip(*rows.T.tolist(), strict=True)
 
 
 def batch_inputs(samples: Sequence[ImuSample]) -> dict[str, Any]:
