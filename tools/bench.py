@@ -608,7 +608,7 @@ def bench_replay(settings: Settings) -> list[Row]:
         second.write_bytes(bin_path.read_bytes())
         jobs = [replay_command.Job(p, Path(tmp) / f"{p.stem}.csv", None, ign, 0, 0, False) for p in (bin_path, second)]
         flags = [f"--{k.removesuffix('_deg')}={v}" for k, v in reference["reference.magnetic"].items()]
-        walls = [_replay_command_s([bin_path, second], Path(tmp) / f"j{n}", n, flags) for n in (1, 2)]
+        walls = [_replay_command_s([bin_path, second], Path(tmp) / f"j{j}", j, flags) for j in (1, 2)]
         rows.append(_row(sec, names[9], walls[0] / walls[1], "×", 1.7, higher_is_better=True))
         rows.append(_row(sec, names[10], _in_processes(jobs, False) / _in_processes(jobs, True), "×"))
     return rows

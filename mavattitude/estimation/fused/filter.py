@@ -192,7 +192,7 @@ class FusedFilter:
         self.mag_ref = mag
         self._v_acc: Vec3 = tuple(float(v) / norms[1] for v in self.acc_ref)  # type: ignore[assignment]
         field: Vec3 = tuple(mag.tolist())  # type: ignore[assignment]
-        self._ref_angle = math.acos(max(-1.0, min(1.0, dot(self._v_acc, field) / norms[0])))
+        self._ref_angle = math.acos(clip_unit(dot(self._v_acc, field) / norms[0]))
         self._mag.set_reference(field, self._v_acc, self._started)
 
     # --- the per-sample entry point -----------------------------------------------------------------

@@ -58,7 +58,7 @@ class MagneticChecks:
     def set_reference(self, field_ned_uT: Vec3, acc_ref_unit: Vec3, started: bool) -> None:
         """A new reference direction (magnitude too before the start: it is learnt from the data after)."""
         norm = math.sqrt(dot(field_ned_uT, field_ned_uT))
-        self.dip_ref = math.asin(max(-1.0, min(1.0, -dot(field_ned_uT, acc_ref_unit) / norm)))
+        self.dip_ref = math.asin(clip_unit(-dot(field_ned_uT, acc_ref_unit) / norm))
         horizontal = math.hypot(field_ned_uT[0], field_ned_uT[1])
         if horizontal > 0.0:
             self.north = (field_ned_uT[0] / horizontal, field_ned_uT[1] / horizontal)

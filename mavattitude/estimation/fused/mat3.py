@@ -47,8 +47,8 @@ def symmetric(a: Block, diag: float = 0.0) -> Block:
 
 
 def clip_unit(x: float) -> float:
-    """``max(-1.0, min(1.0, x))`` (NaN gives 1.0 as it does there) without the builtins, which parse their
-    arguments: ten times the cost of the comparisons, on every update."""
+    """``x`` clamped to [−1, 1] for ``asin`` / ``acos`` (NaN gives 1.0, as ``max(-1.0, min(1.0, x))`` does),
+    without the builtins, which parse their arguments: ten times the cost of the comparisons, on every update."""
     x = x if x < 1.0 else 1.0
     return x if x > -1.0 else -1.0
 
