@@ -73,6 +73,12 @@ log = logging.getLogger(__name__)
 COMPASS_PERIOD_S = 0.0199  # the monitor takes one tick per 20 ms (50 Hz) at most; just under: ticks jitter
 
 
+def _compass_skips(since_s: float) -> bool:
+    """Whether the compass monitor passes over a tick ``since_s`` after the last it took (the one rule of the
+    live ticks and a replayed batch's): within ``COMPASS_PERIOD_S``; a negative interval (a reboot) is taken."""
+    return 0.0 <= since_s < COMPASS_PERIOD_S
+
+
 @dataclass(frozen=True)
 class AttitudeOutput:
     """One attitude: at ``time_s`` (vehicle clock), ``q`` = ``[w, x, y, z]`` body FRD → NED, unit, finite.
@@ -478,7 +484,7 @@ class AttitudePipeline:
         taken = []
         at_s = self._compass_at_s
         for i, t in zip(rows, batch.time_s[rows].tolist(), strict=True):
-            if not 0.0 <= t - at_s < COMPASS_PERIOD_S:
+            if not _compass_skips(t - at_s):
                 taken.append(i)
                 at_s = t
         self._compass_at_s = at_s
@@ -518,8 +524,7 @@ class AttitudePipeline:
         """Feed the compass monitor (at most one tick per ``COMPASS_PERIOD_S``: the fused filter's ticks are its input
         samples, and the figures need no more); flag the tick ``MAG_INCONSISTENT`` when it judges the field off."""
         compass = self.compass
-        since_s = tick.time_s - self._compass_at_s
-        if 0.0 <= since_s < COMPASS_PERIOD_S:
+        if _compass_skips(tick.time_s - self._compass_at_s):
             return self._flagged(tick) if compass.inconsistent else tick
         self._compass_at_s = tick.time_s
         event = compass.update(tick.time_s, tick.acc_mps2, mag_uT, tick.gyr_radps)
