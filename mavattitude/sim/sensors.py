@@ -83,15 +83,24 @@ class SensorModel:
 
     def sample_times(self, start_s: float, stop_s: float, rng: np.random.Generator) -> Array:
         """Sample times in ``[start_s, stop_s)``: nominal grid + jitter, minus dropped samples."""
-        n0, n1 = int(np.ceil(start_s * self.rate_hz)), int(np.ceil(stop_s * self.rate_hz))
-        t = np.arange(n0, n1) / self.rate_hz
+        return self.ticks(int(np.ceil(start_s * self.rate_hz)), stop_s, rng)[0]
+
+    def ticks(self, first: int, stop_s: float, rng: np.random.Generator) -> tuple[Array, int]:
+        """The samples of grid ticks ``first, first + 1, …`` due before ``stop_s``, and the next tick.
+
+        Tick ``k`` is nominally at ``k / rate_hz``; the times returned carry jitter and miss dropped samples.
+        A stream counts its ticks, not their times: ``k / rate_hz * rate_hz`` comes out above ``k`` for one
+        ``k`` in 22 at 200 Hz, so a stream resumed from the time of its next tick would skip that tick.
+        """
+        stop = max(first, int(np.ceil(stop_s * self.rate_hz)))
+        t = np.arange(first, stop) / self.rate_hz
         if self.jitter_std_s > 0:
             # Clipped at ±0.4 period so the stream stays strictly increasing.
             half = 0.4 / self.rate_hz
             t = t + np.clip(rng.standard_normal(t.shape) * self.jitter_std_s, -half, half)
         if self.drop_probability > 0:
             t = t[rng.random(t.shape) >= self.drop_probability]
-        return t
+        return t, stop
 
     def measure(self, script: Script, t_s: Array, rng: np.random.Generator) -> tuple[Array, Array, Array]:
         """``(acc_mps2, gyr_radps, mag_uT)`` measured at script times ``t_s`` (each ``(N, 3)``)."""

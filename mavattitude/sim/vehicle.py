@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import threading
 import time
 from array import array
@@ -114,8 +115,41 @@ class ImuRow:
 
 @dataclass
 class _Stream:
+    """A telemetry stream, paced by the clock."""
+
     rate_hz: float
-    next_t_s: float  # when the next is due: script time (IMU), time.monotonic() (telemetry)
+    next_t_s: float  # when the next is due, time.monotonic()
+
+
+@dataclass
+class _ImuStream:
+    """An IMU stream on its rate's grid of script time: sample ``next_tick`` is due at ``next_tick / rate_hz``."""
+
+    rate_hz: float
+    next_tick: int = 0
+
+    def restart(self, script_s: float) -> _ImuStream:
+        """Go on from the first tick at or after ``script_s``; returns itself."""
+        self.next_tick = math.ceil(script_s * self.rate_hz)
+        return self
+
+    def set_rate(self, rate_hz: float) -> None:
+        """Go on at ``rate_hz`` from the next sample's time (the same tick when the rate is the same)."""
+        self.next_tick = math.ceil(self.next_tick * rate_hz / self.rate_hz)  # exact where the two grids meet
+        self.rate_hz = rate_hz
+
+    @property
+    def next_t_s(self) -> float:
+        return self.next_tick / self.rate_hz
+
+
+def _next_deadline(deadline_s: float, now_s: float, period_s: float) -> float:
+    """The first deadline after ``now_s`` on the grid ``deadline_s + k · period_s``.
+
+    Deadlines are absolute, so the time a send takes and a late wake-up do not stretch the period (the
+    rate stays what was asked); ticks missed by a stall are skipped, not sent in a burst of stale values.
+    """
+    return deadline_s + period_s * (1 + max(0.0, (now_s - deadline_s) // period_s))
 
 
 @dataclass
@@ -149,7 +183,7 @@ class FakeVehicle:
         self._threads: list[threading.Thread] = []
         self._epoch = _Epoch()
         self._imu_paused = False
-        self._streams: dict[int, _Stream] = {}
+        self._streams: dict[int, _Stream | _ImuStream] = {}
         # the telemetry it sends (paced by the clock) and how
         self._telemetry: dict[int, Callable[[float], None]] = {
             _MSG_GLOBAL_POSITION_INT: self._send_position,
@@ -302,9 +336,10 @@ class FakeVehicle:
             self._imu_paused = paused
         if not paused:  # resume from now, not with a backlog of the silent time
             now = self.script_time()
-            for msg_id, stream in list(self._streams.items()):
-                if msg_id in _IMU_MESSAGE_IDS:
-                    stream.next_t_s = now
+            with self._cond:
+                for stream in self._streams.values():
+                    if isinstance(stream, _ImuStream):
+                        stream.restart(now)
 
     def set_rate(self, message: str, rate_hz: float | None) -> None:
         """Stream ``message`` at ``rate_hz`` (None stops it), as if a SET_MESSAGE_INTERVAL arrived."""
@@ -334,19 +369,20 @@ class FakeVehicle:
         return getattr(mavlink2, f"MAVLink_{kind.lower()}_message")(**fields)
 
     def _send_loop(self) -> None:
-        next_heartbeat = 0.0
+        next_heartbeat = time.monotonic()
         while not self._stop.is_set():
             mono = time.monotonic()
             if mono >= next_heartbeat:
                 self._send_heartbeat()
-                next_heartbeat = mono + _HEARTBEAT_PERIOD_S
+                next_heartbeat = _next_deadline(next_heartbeat, mono, _HEARTBEAT_PERIOD_S)
             now = self.script_time(mono)
             wake = now + _MAX_SLEEP_S * self.config.speed
             for msg_id, stream in list(self._streams.items()):
-                if msg_id not in _IMU_MESSAGE_IDS:  # telemetry: paced by the clock, flying or not
+                if not isinstance(stream, _ImuStream):  # telemetry: paced by the clock, flying or not
                     if mono >= stream.next_t_s:
                         self._telemetry[msg_id](now)
-                        stream.next_t_s = mono + 1.0 / (stream.rate_hz * self.config.speed)
+                        period_s = 1.0 / (stream.rate_hz * self.config.speed)
+                        stream.next_t_s = _next_deadline(stream.next_t_s, mono, period_s)
                     continue
                 if not self._imu_paused:
                     self._send_imu_until(msg_id, stream, now)
@@ -355,10 +391,10 @@ class FakeVehicle:
             if delay > 0:
                 self._stop.wait(min(delay, _MAX_SLEEP_S))
 
-    def _send_imu_until(self, msg_id: int, stream: _Stream, now_s: float) -> None:
-        sensors = self.sensors.at_rate(stream.rate_hz)
-        t = sensors.sample_times(stream.next_t_s, now_s, self._rng)
-        stream.next_t_s = max(stream.next_t_s, np.ceil(now_s * stream.rate_hz) / stream.rate_hz)
+    def _send_imu_until(self, msg_id: int, stream: _ImuStream, now_s: float) -> None:
+        with self._cond:  # the rate and the tick counted on its grid change together (_set_stream)
+            sensors = self.sensors.at_rate(stream.rate_hz)
+            t, stream.next_tick = sensors.ticks(stream.next_tick, now_s, self._rng)
         # One epoch for the batch, and only its samples: a reboot (another thread) may have come after this
         # loop took its time, and jitter may put a sample just before the boot. Samples due before the boot
         # are lost with it; stamped in the new epoch they would go out with a negative time.
@@ -519,12 +555,16 @@ class FakeVehicle:
                 self._take_off()
             if self.config.link_max_imu_hz is not None:
                 rate_hz = min(rate_hz, self.config.link_max_imu_hz)
-        stream = self._streams.get(msg_id)
-        if stream is None:
-            start = self.script_time() if msg_id in _IMU_MESSAGE_IDS else time.monotonic()
-            self._streams[msg_id] = _Stream(rate_hz, start)
-        else:
-            stream.rate_hz = rate_hz
+        with self._cond:  # the send loop reads an IMU stream's rate and tick under this lock
+            stream = self._streams.get(msg_id)
+            if isinstance(stream, _ImuStream):
+                stream.set_rate(rate_hz)
+            elif msg_id in _IMU_MESSAGE_IDS:
+                self._streams[msg_id] = _ImuStream(rate_hz).restart(self.script_time())
+            elif stream is None:
+                self._streams[msg_id] = _Stream(rate_hz, time.monotonic())
+            else:
+                stream.rate_hz = rate_hz
 
     def _take_off(self) -> None:
         """Start the script now; the vehicle clock runs on from where it was (``fly_when_asked``)."""

@@ -12,7 +12,7 @@ from mavattitude.estimation.conventions import quat_multiply
 from mavattitude.link.mavlink2 import force_mavlink2, mavlink2, mavutil
 from mavattitude.sensors.units import decode, get_profile
 from mavattitude.sim import scenarios
-from mavattitude.sim.vehicle import FakeVehicle, VehicleConfig
+from mavattitude.sim.vehicle import FakeVehicle, VehicleConfig, _next_deadline
 
 TIMEOUT_S = 5.0
 
@@ -75,6 +75,58 @@ def test_silent_until_asked_then_streams_the_truth(vehicle: FakeVehicle, gcs: ob
     assert _set_interval(gcs, mavlink2.MAVLINK_MSG_ID_RAW_IMU, -1) == mavlink2.MAV_RESULT_ACCEPTED
     assert vehicle.stream_rate("RAW_IMU") is None
     assert _set_interval(gcs, mavlink2.MAVLINK_MSG_ID_PARAM_VALUE, 1000) == mavlink2.MAV_RESULT_DENIED
+
+
+def _stamps(gcs: object, kind: str, count: int) -> np.ndarray:
+    """The vehicle times (µs) of the next ``count`` messages of ``kind``."""
+    msgs = [_recv(gcs, kind) for _ in range(count)]
+    return np.array([m.time_usec if kind == "RAW_IMU" else 1000 * m.time_boot_ms for m in msgs])  # type: ignore[attr-defined]
+
+
+def test_the_imu_stream_sends_every_tick_of_the_asked_rate() -> None:
+    # At 200 Hz the stream restarted each loop from the time of its next sample, k / 200 · 200, which is
+    # above k for one k in 22: ceil skipped that sample (and the next loop's start), 187 a second were sent.
+    # Noise-free sensors without jitter or drops: every 5 ms tick goes out, stamped k · 5000 µs exactly.
+    config = VehicleConfig("udpin:127.0.0.1:0", stream_on_start=True)
+    with FakeVehicle(scenarios.static(600.0), scenarios.ideal_sensors(200.0), config) as vehicle:
+        conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{vehicle.port}", source_system=1, source_component=191)
+        try:
+            conn.mav.heartbeat_send(mavlink2.MAV_TYPE_ONBOARD_CONTROLLER, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            at_200 = _stamps(conn, "RAW_IMU", 400)
+            vehicle.set_rate("RAW_IMU", 300.0)  # a grid 200 Hz meets every 10 ms
+            _recv(conn, "RAW_IMU")  # what was on the way at 200 Hz
+            at_300 = _stamps(conn, "RAW_IMU", 600)
+        finally:
+            conn.close()
+    np.testing.assert_array_equal(np.diff(at_200), 5000)
+    assert np.all(at_200 % 5000 == 0)
+    # 300 Hz: 1e6/300 µs rounded to whole µs, so 3333 or 3334; 600 ticks span exactly 2 s less one tick.
+    assert set(np.diff(at_300)) <= {3333, 3334} and at_300[-1] - at_300[0] == round(599 * 1e6 / 300)
+
+
+def test_telemetry_keeps_its_rate_on_absolute_deadlines() -> None:
+    # ATTITUDE at 50 Hz was sent a period after the loop woke for it, so each wake-up's lateness (the loop
+    # sleeps up to 2 ms) stretched the period: 47.2 a second, the stamps drifting through every phase of the
+    # 20 ms grid. On absolute deadlines they stay on one phase, late by the wake-up only, and a stall skips
+    # ticks without moving it. Phase coherence |mean(exp(2πi t/T))| is exp(-(2πσ/T)²/2) for a lateness of
+    # rms σ: above 0.5 while σ < 3.7 ms; a drift through all phases gives ~1/√100 = 0.1.
+    config = VehicleConfig("udpin:127.0.0.1:0", attitude_rate_hz=50.0)
+    with FakeVehicle(scenarios.static(600.0), scenarios.ideal_sensors(200.0), config) as vehicle:
+        conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{vehicle.port}", source_system=1, source_component=191)
+        try:
+            conn.mav.heartbeat_send(mavlink2.MAV_TYPE_ONBOARD_CONTROLLER, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            stamps_us = _stamps(conn, "ATTITUDE", 100)
+        finally:
+            conn.close()
+    coherence = abs(np.mean(np.exp(2j * np.pi * stamps_us / 20_000)))
+    assert coherence > 0.5, f"ATTITUDE stamps drift off the 20 ms grid (coherence {coherence:.2f})"
+
+
+def test_a_deadline_stays_on_its_grid_and_a_stall_skips_ticks() -> None:
+    assert _next_deadline(1.0, 1.0, 0.25) == 1.25  # on time: one period on
+    assert _next_deadline(1.0, 1.2, 0.25) == 1.25  # late within the period: still the grid's next
+    assert _next_deadline(1.0, 2.1, 0.25) == 2.25  # a stall of four periods: those ticks are skipped
+    assert _next_deadline(1.0, 0.5, 0.25) == 1.25  # called early: the next after the deadline
 
 
 def test_records_and_scores_attitude_it_receives(vehicle: FakeVehicle, gcs: object) -> None:
