@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mavattitude.errors import MavAttitudeError
-from mavattitude.link.source import AutopilotAttitude, Heartbeat, PositionFix, Received, Sender, Undecodable
+from mavattitude.link.source import AutopilotAttitude, Heartbeat, PositionFix, Received, Sender, Undecodable, locks_on
 from mavattitude.pipeline import AttitudeOutput
 from mavattitude.sensors.units import ImuSample
 
@@ -103,7 +103,7 @@ class Dispatcher:
     def handle(self, received: Received) -> None:
         t_rx, sender, item = received
         if sender != self.vehicle:
-            if self.vehicle is None and type(item) is Heartbeat and item.autopilot and self.system_id in (0, sender[0]):
+            if self.vehicle is None and locks_on(item, sender, self.system_id):
                 self._lock(sender)
             else:
                 self.counters.ignored += 1

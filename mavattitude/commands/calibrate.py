@@ -70,9 +70,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--message",
         choices=units.MESSAGES,
         help="IMU message to read from a .tlog or the link (default: the first one the profile reads that the "
-        "log holds; live, the one its sender streams by default, e.g. RAW_IMU for ardupilot)",
+        "autopilot followed sent in the log; live, the one its sender streams by default, e.g. RAW_IMU for ardupilot)",
     )
-    parser.add_argument("--system-id", type=int, help="read only this MAVLink system (default: any)")
+    parser.add_argument(
+        "--system-id", type=int, help="read only this MAVLink system (default: the first autopilot heard)"
+    )
     parser.add_argument(
         "--field-uT",
         type=float,
@@ -196,7 +198,8 @@ def _read(
 
 def _log_samples(path: Path, args: argparse.Namespace) -> Iterator[units.ImuSample]:
     """The autopilot's IMU samples of a .tlog, .bin or .ulg, through the service's source and dispatcher;
-    from a .tlog without ``--message``, the first of the profile's messages that the log holds."""
+    from a .tlog without ``--message``, the first of the profile's messages that the autopilot followed (the one
+    the dispatcher locks onto, as replay's) sent in the log."""
     from mavattitude.config import load_config
     from mavattitude.link.logs import open_log
 

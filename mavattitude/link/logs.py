@@ -235,8 +235,9 @@ def open_log(
 ) -> LogSource:
     """The message source of one log file, its format recognised from its content (see the module docstring).
 
-    ``first_of``: a telemetry log's IMU message is the first of these it holds (from ``system_id``, if
-    given) rather than the config's (:class:`~mavattitude.link.tlog.TlogSource`); other formats name theirs.
+    ``first_of``: a telemetry log's IMU message is the first of these that the autopilot followed (the first
+    autopilot HEARTBEAT's, from ``system_id`` if given) sent, rather than the config's
+    (:class:`~mavattitude.link.tlog.TlogSource`); other formats name theirs.
     """
     from mavattitude.link.source import MavlinkDecoder
 

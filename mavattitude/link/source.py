@@ -43,6 +43,12 @@ class Heartbeat:
     autopilot: bool
 
 
+def locks_on(item: Any, sender: Sender, system_id: int) -> bool:
+    """Whether a dispatcher not yet locked locks onto ``sender`` on receiving ``item``: the first autopilot
+    HEARTBEAT, from ``system_id`` unless it is 0 (any system)."""
+    return type(item) is Heartbeat and item.autopilot and system_id in (0, sender[0])
+
+
 @dataclass(frozen=True, slots=True)
 class PositionFix:
     """A vehicle position; ``date`` is the vehicle's GPS date or the day a log was recorded; ``None``: unknown

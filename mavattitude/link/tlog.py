@@ -47,6 +47,7 @@ from mavattitude.link.source import (
     Sender,
     Undecodable,
     euler_attitude,
+    locks_on,
 )
 from mavattitude.sensors import units
 
@@ -191,8 +192,10 @@ def _sender(code: int) -> Sender:
 class TlogSource:
     """A telemetry log as a message source (see the module docstring).
 
-    With ``first_of``, the decoder reads the first of those IMU messages that the log holds (from
-    ``system_id``, if given) instead of its own: :attr:`decoder` then names the one found.
+    With ``first_of``, the decoder reads the first of those IMU messages that the followed autopilot sent
+    (the one a dispatcher locks onto: the first autopilot HEARTBEAT, from ``system_id`` if given) after the
+    HEARTBEAT it is locked on by, instead of its own: :attr:`decoder` then names the one found. Another
+    vehicle's or a ground station's messages in the log do not choose it.
     """
 
     vehicle: Sender | None = None  # a ground station's log holds every system it heard: lock on as live
@@ -242,10 +245,15 @@ class TlogSource:
     def _first_imu(
         self, frames: _Frames, good: NDArray[np.bool_], imu_ids: list[int], system_id: int | None
     ) -> MavlinkDecoder:
-        """The decoder for the first good record of ``imu_ids`` (from ``system_id``); its own if none."""
-        found = good & np.isin(frames.msgid, imu_ids)
-        if system_id is not None:
-            found &= frames.system == system_id
+        """The decoder for the first good record of ``imu_ids`` that the followed autopilot sent after its
+        locking HEARTBEAT (:func:`locks_on`, as the dispatcher locks); its own if none."""
+        heartbeat = mavlink2.MAVLINK_MSG_ID_HEARTBEAT
+        lock = _lock(_rows(frames.table("HEARTBEAT", heartbeat), good[frames.msgid == heartbeat]), system_id or 0)
+        if lock is None:
+            return self.decoder
+        locked_at, (system, component) = lock
+        found = good & np.isin(frames.msgid, imu_ids) & (frames.system == system) & (frames.component == component)
+        found[: locked_at + 1] = False
         if not found.any():
             return self.decoder
         return replace(self.decoder, message=mavlink2.mavlink_map[int(frames.msgid[np.argmax(found)])].msgname)
@@ -308,18 +316,9 @@ class TlogSource:
         code = np.full(self.count, -1, dtype=np.int64)
         for table in self.tables.values():
             code[table.index] = table.sender
-        taken = dispatcher.follow(code, self._heartbeat_items())
+        heartbeats = self.tables.get("HEARTBEAT")
+        taken = dispatcher.follow(code, _heartbeat_items(heartbeats) if heartbeats is not None else iter(()))
         return self._streams({name: _rows(t, taken[t.index]) for name, t in self.tables.items()}, dispatcher)
-
-    def _heartbeat_items(self) -> Iterator[tuple[int, Received]]:
-        table = self.tables.get("HEARTBEAT")
-        if table is None:
-            return
-        autopilot = _autopilot_heartbeats(table).tolist()
-        for i, t_rx, code, ap in zip(
-            table.index.tolist(), table.t_rx.tolist(), table.sender.tolist(), autopilot, strict=True
-        ):
-            yield i, (t_rx, _sender(code), Heartbeat(ap))
 
     def _streams(self, tables: dict[str, _Table], dispatcher: Dispatcher) -> LogStreams:
         empty1, empty3 = np.empty(0), np.empty((0, 3))
@@ -412,6 +411,22 @@ class TlogSource:
 
 def _utc_date(unix_s: float) -> dt.date:
     return dt.datetime.fromtimestamp(unix_s, dt.timezone.utc).date()
+
+
+def _heartbeat_items(table: _Table) -> Iterator[tuple[int, Received]]:
+    """The HEARTBEAT records as the live link's items, with their place in the log."""
+    autopilot = _autopilot_heartbeats(table).tolist()
+    rows = zip(table.index.tolist(), table.t_rx.tolist(), table.sender.tolist(), autopilot, strict=True)
+    for i, t_rx, code, ap in rows:
+        yield i, (t_rx, _sender(code), Heartbeat(ap))
+
+
+def _lock(heartbeats: _Table, system_id: int) -> tuple[int, Sender] | None:
+    """The record a dispatcher locks on among these HEARTBEATs (:func:`locks_on`) and its sender; None: none."""
+    for i, (_, sender, item) in _heartbeat_items(heartbeats):
+        if locks_on(item, sender, system_id):
+            return i, sender
+    return None
 
 
 def _autopilot_heartbeats(table: _Table) -> NDArray[np.bool_]:

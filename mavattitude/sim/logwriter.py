@@ -10,6 +10,7 @@ the logged units of :mod:`mavattitude.sensors.dataflash_units` (MAG in milligaus
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -172,15 +173,37 @@ def static_log(
     return SensorLog(t, acc, gyr, mag_t, mag, att_t, att_rpy, pos_t, pos)
 
 
-def write_tlog(path: str | Path, log: SensorLog, system: int = 1) -> Path:
-    """Write ``log`` as a ground station's telemetry log: a HEARTBEAT a second, RAW_IMU per IMU row with
+def write_tlog(
+    path: str | Path,
+    log: SensorLog,
+    system: int = 1,
+    message: str = "RAW_IMU",
+    others: Sequence[tuple[SensorLog, int, str]] = (),
+) -> Path:
+    """Write ``log`` as a ground station's telemetry log: a HEARTBEAT a second, ``message`` per IMU row with
     the newest magnetometer reading (ArduPilot units), ATTITUDE and GLOBAL_POSITION_INT; each packet after
-    its 8-byte big-endian receive time (µs since 1970, the log's clock starting on 2026-03-01)."""
+    its 8-byte big-endian receive time (µs since 1970, the log's clock starting on 2026-03-01).
+
+    ``others``: more vehicles the ground station heard, ``(log, system, message)`` each; all packets in time
+    order, at equal times in the order the vehicles are given (``log`` first)."""
+    records = [r for vehicle in [(log, system, message), *others] for r in _tlog_records(*vehicle)]
+    records.sort(key=lambda r: r[0])
+    start_us = 1_772_323_200_000_000  # 2026-03-01 00:00 UTC
+    path = Path(path)
+    with path.open("wb") as f:
+        for t, buf in records:
+            f.write(round(start_us + t * 1e6).to_bytes(8, "big") + buf)
+    return path
+
+
+def _tlog_records(log: SensorLog, system: int, message: str) -> list[tuple[float, bytes]]:
+    """One vehicle's packets, each with its vehicle time (see :func:`write_tlog`)."""
     from mavattitude.link.mavlink2 import mavlink2
     from mavattitude.sensors.units import PROFILES, ImuSample, Position, encode, encode_position
 
     mav = mavlink2.MAVLink(None, srcSystem=system, srcComponent=1)
     profile = PROFILES["ardupilot"]
+    imu_message = getattr(mavlink2, f"MAVLink_{message.lower()}_message")
     newest = np.searchsorted(log.mag_t_s, log.imu_t_s, side="right") - 1
     records: list[tuple[float, bytes]] = []
     for t in np.arange(0.0, log.imu_t_s[-1] + 1.0, 1.0):
@@ -189,7 +212,7 @@ def write_tlog(path: str | Path, log: SensorLog, system: int = 1) -> Path:
     acc, gyr, mag = log.acc_mps2.tolist(), log.gyr_radps.tolist(), log.mag_uT.tolist()
     for i, t in enumerate(log.imu_t_s.tolist()):
         sample = ImuSample(t, tuple(acc[i]), tuple(gyr[i]), tuple(mag[newest[i]]) if newest[i] >= 0 else None)
-        records.append((t, mavlink2.MAVLink_raw_imu_message(**encode(sample, profile, "RAW_IMU")).pack(mav)))
+        records.append((t, imu_message(**encode(sample, profile, message)).pack(mav)))
     if log.attitude_t_s is not None and log.attitude_rpy_rad is not None:
         for t, (r, p, y) in zip(log.attitude_t_s.tolist(), log.attitude_rpy_rad.tolist(), strict=True):
             records.append((t, mavlink2.MAVLink_attitude_message(round(t * 1e3), r, p, y, 0.0, 0.0, 0.0).pack(mav)))
@@ -197,10 +220,4 @@ def write_tlog(path: str | Path, log: SensorLog, system: int = 1) -> Path:
         for t, (lat, lon, alt) in zip(log.position_t_s.tolist(), log.position.tolist(), strict=True):
             fields = (round(t * 1e3), *encode_position(Position(lat, lon, alt)), 0, 0, 0, 0, 0)
             records.append((t, mavlink2.MAVLink_global_position_int_message(*fields).pack(mav)))
-    records.sort(key=lambda r: r[0])
-    start_us = 1_772_323_200_000_000  # 2026-03-01 00:00 UTC
-    path = Path(path)
-    with path.open("wb") as f:
-        for t, buf in records:
-            f.write(round(start_us + t * 1e6).to_bytes(8, "big") + buf)
-    return path
+    return records

@@ -22,6 +22,7 @@ from mavattitude.config import from_dict
 from mavattitude.link.mavlink2 import mavlink2
 from mavattitude.sensors.calibration import Calibration
 from mavattitude.sensors.units import ImuSample, encode, get_profile
+from mavattitude.sim import logwriter
 from mavattitude.sim.logwriter import SensorLog, write_dataflash
 from tests.link.test_tlog import HEARTBEAT, write_tlog
 
@@ -77,6 +78,22 @@ def test_from_a_tlog(tmp_path: Path, message: str) -> None:
     out = tmp_path / "mag.yaml"
     assert main(["calibrate", "mag", str(log), "-o", str(out), "--profile", "ardupilot"]) == 0
     _check_yaml(out)
+
+
+def test_from_a_tlog_of_two_vehicles_the_followed_one_names_the_imu_message(tmp_path: Path) -> None:
+    # The ground station heard vehicle 1 first (its HEARTBEAT is the one locked onto, as replay and the service
+    # lock), then vehicle 2's SCALED_IMU2 half a second before vehicle 1's first RAW_IMU. The IMU message was
+    # the log's first of any system: SCALED_IMU2, which vehicle 1 never sent, so no reading was found.
+    mags = _distorted(1000)
+    t = 1.0 + np.arange(len(mags)) * 0.01
+    level = np.tile([0.0, 0.0, -9.8], (len(t), 1))
+    ours = SensorLog(t, level, np.zeros((len(t), 3)), t, mags)
+    other = SensorLog(t - 0.5, level, np.zeros((len(t), 3)), t - 0.5, np.tile([20.0, 0.0, 40.0], (len(t), 1)))
+    log = logwriter.write_tlog(tmp_path / "two.tlog", ours, system=1, others=[(other, 2, "SCALED_IMU2")])
+    out = tmp_path / "mag.yaml"
+    assert main(["calibrate", "mag", str(log), "-o", str(out)]) == 0
+    cal = _check_yaml(out)
+    assert np.asarray(cal.mag.hard_iron_uT) == pytest.approx(OFFSET, abs=0.3)  # RAW_IMU's milligauss: 0.1 µT steps
 
 
 def test_from_a_dataflash_log(tmp_path: Path) -> None:

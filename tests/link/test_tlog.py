@@ -49,18 +49,23 @@ def test_missing_file_is_a_data_file_error(tmp_path: Path) -> None:
         _source(tmp_path / "nope.tlog", _config())
 
 
-def test_first_of_reads_the_first_imu_message_the_system_sent(tmp_path: Path) -> None:
-    """The log read once: the decoder given ``first_of`` reads the first of them that ``system_id`` sent."""
+def test_first_of_reads_the_first_imu_message_the_followed_autopilot_sent(tmp_path: Path) -> None:
+    """The log read once: the decoder given ``first_of`` reads the first of them that the autopilot a
+    dispatcher locks onto sent after its HEARTBEAT; another system's earlier message does not choose it."""
     from mavattitude.link.source import MavlinkDecoder
 
     path = tmp_path / "scaled.tlog"
     scaled = dict(time_boot_ms=5, xacc=0, yacc=0, zacc=-1000, xgyro=0, ygyro=0, zgyro=0, xmag=200, ymag=0, zmag=400)
-    write_tlog(path, [(2, "RAW_IMU", _raw(0)), (1, "SCALED_IMU2", scaled), (1, "RAW_IMU", _raw(1))])
+    write_tlog(
+        path,
+        [(2, "RAW_IMU", _raw(0)), (1, "HEARTBEAT", HEARTBEAT), (1, "SCALED_IMU2", scaled), (1, "RAW_IMU", _raw(1))],
+    )
     decoder = MavlinkDecoder.from_config(_config())
     imus = ("RAW_IMU", "SCALED_IMU2", "HIGHRES_IMU")
     assert TlogSource(path, decoder, imus, system_id=1).decoder.message == "SCALED_IMU2"
-    source = TlogSource(path, decoder, imus)
-    assert source.decoder.message == "RAW_IMU" and source.count == 2  # SCALED_IMU2 is not read
+    source = TlogSource(path, decoder, imus)  # locked onto system 1, the first autopilot HEARTBEAT
+    assert source.decoder.message == "SCALED_IMU2" and source.count == 2  # its HEARTBEAT and SCALED_IMU2
+    assert TlogSource(path, decoder, imus, system_id=2).decoder.message == "RAW_IMU"  # no lock: its own
     assert TlogSource(path, decoder, ("HIGHRES_IMU",)).decoder.message == "RAW_IMU"  # none: its own
 
 
