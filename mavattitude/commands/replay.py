@@ -32,6 +32,7 @@ import csv
 import dataclasses
 import logging
 import math
+import multiprocessing
 import sys
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -199,6 +200,14 @@ def _jobs(args: argparse.Namespace, config: Config) -> list[Job]:
     ]
 
 
+#: How -j's worker processes start, the same on every Python (the default on Linux is fork up to 3.13,
+#: forkserver from 3.14): each from a server process that holds no thread, not a copy of this process, which
+#: runs numpy's OpenBLAS thread (a fork copies the locks other threads hold; CPython 3.12+ warns of it) and
+#: whatever state the caller left. A worker imports the package itself (~0.35 s of CPU) and logs as the
+#: caller does (its level, the command line's format).
+WORKER_START_METHOD = "forkserver"
+
+
 def replay_all(jobs: list[Job], workers: int) -> list[LogResult]:
     progress = Progress(len(jobs), len(jobs) > 1 and sys.stderr.isatty(), "replayed logs")
     if workers == 1 or len(jobs) == 1:
@@ -207,7 +216,15 @@ def replay_all(jobs: list[Job], workers: int) -> list[LogResult]:
             results.append(replay_log(job))
             progress.update(len(results))
         return results
-    with concurrent.futures.ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as pool:
+    from mavattitude.cli import configure_logging
+
+    level = logging.getLevelName(logging.getLogger().getEffectiveLevel())
+    with concurrent.futures.ProcessPoolExecutor(
+        max_workers=min(workers, len(jobs)),
+        mp_context=multiprocessing.get_context(WORKER_START_METHOD),
+        initializer=configure_logging,
+        initargs=(level,),
+    ) as pool:
         futures = [pool.submit(replay_log, job) for job in jobs]
         for done, _ in enumerate(concurrent.futures.as_completed(futures), start=1):
             progress.update(done)

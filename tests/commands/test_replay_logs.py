@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import re
 import subprocess
 import sys
 
@@ -10,6 +11,7 @@ import numpy as np
 import pytest
 
 from mavattitude.cli import main
+from mavattitude.errors import DataFileError
 from mavattitude.estimation.conventions import angle_between, quat_from_euler
 from mavattitude.sim.logwriter import static_log, write_dataflash
 from tests.commands.test_replay import ENV_WITHOUT_OVERLAY, read_rows
@@ -44,6 +46,23 @@ def test_one_dataflash_log_of_either_generation(tmp_path, capsys, new):
     assert len(rows) == pytest.approx(150, abs=2)  # 3 s at 50 Hz
     assert errors_deg(rows[10:]).max() < MAX_ERR_DEG
     assert "autopilot attitudes compared with ours" in capsys.readouterr().out
+
+
+def test_workers_start_as_fresh_processes_not_copies_of_the_caller(tmp_path, monkeypatch, capfd):
+    # -j's workers start the same way on every Python (forkserver): forked from the caller, as Python up to
+    # 3.13 does on Linux, they carried its state, here a replay that refuses every log. They log as the
+    # command line does, which a fork inherited.
+    def refuse(*_: object, **__: object) -> None:
+        raise DataFileError("the caller's replay, not a fresh process's")
+
+    monkeypatch.setattr("mavattitude.replay.replay", refuse)
+    logs = [write_dataflash(tmp_path / f"{name}.bin", static_log(1.0)) for name in "ab"]
+    out = tmp_path / "out"
+    assert main(["replay", *map(str, logs), "-o", str(out), "-j", "2", "--no-plot", *REF]) == 0
+    assert [row["status"] for row in summary(out / "summary.csv").values()] == ["ok", "ok"]
+    err = capfd.readouterr().err
+    for log in logs:
+        assert re.search(rf" INFO mavattitude\.commands\.replay: {re.escape(str(log))}: wrote \d+ attitudes", err)
 
 
 def test_a_directory_of_logs_with_bad_ones_among_them(tmp_path, capsys):
