@@ -97,18 +97,25 @@ def _norm(v: Vec3) -> float:
 
 
 def measured_dip_deg(acc_mps2: Vec3, mag_uT: Vec3) -> float:
-    """The field's dip below the horizontal the accelerometer shows, degrees (positive: field points down)."""
+    """The field's dip below the horizontal the accelerometer shows, degrees (positive: field points down);
+    NaN when either vector is zero (it has no direction, so there is no dip)."""
+    norms = _norm(acc_mps2) * _norm(mag_uT)
+    if norms == 0.0:
+        return math.nan
     dot = -(acc_mps2[0] * mag_uT[0] + acc_mps2[1] * mag_uT[1] + acc_mps2[2] * mag_uT[2])
-    return math.degrees(math.asin(max(-1.0, min(1.0, dot / (_norm(acc_mps2) * _norm(mag_uT))))))
+    return math.degrees(math.asin(max(-1.0, min(1.0, dot / norms))))
 
 
 def measured_dip_deg_rows(acc_mps2: Array, mag_uT: Array) -> Array:
     """:func:`measured_dip_deg` of each row, the same operations in the same order (``asin`` by :mod:`math`:
     numpy's vectorised one differs in the last bit)."""
     dot = -(acc_mps2[:, 0] * mag_uT[:, 0] + acc_mps2[:, 1] * mag_uT[:, 1] + acc_mps2[:, 2] * mag_uT[:, 2])
-    ratio = dot / (_norm_rows(acc_mps2) * _norm_rows(mag_uT))
+    norms = _norm_rows(acc_mps2) * _norm_rows(mag_uT)
+    with np.errstate(divide="ignore", invalid="ignore"):  # a zero vector's row: NaN below
+        ratio = dot / norms
     ratio = np.where(ratio < 1.0, ratio, 1.0)  # min(1.0, ratio) and max(-1.0, ...): NaN becomes 1, as there
     ratio = np.where(ratio > -1.0, ratio, -1.0)
+    ratio = np.where(norms == 0.0, np.nan, ratio)  # no direction, no dip, as there
     return np.degrees(np.fromiter(map(math.asin, ratio.tolist()), float, len(ratio)))
 
 

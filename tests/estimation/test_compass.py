@@ -270,9 +270,13 @@ def test_the_dip_of_many_rows_is_each_rows_bit_for_bit():
     rng = np.random.default_rng(17)
     acc = rng.normal(0.0, 9.8, (2000, 3))
     mag = np.concatenate([rng.normal(0.0, 50.0, (1990, 3)), -acc[-10:-5], acc[-5:]])  # ten at asin's clamp
+    # a zero vector has no direction: no dip (NaN) either way, where one by one divided by zero
+    acc[:3], mag[3:6] = 0.0, 0.0
     rows = measured_dip_deg_rows(acc, mag)
     one_by_one = [measured_dip_deg(tuple(a), tuple(m)) for a, m in zip(acc.tolist(), mag.tolist(), strict=True)]
-    assert rows.tolist() == one_by_one and np.allclose(one_by_one[-10:], [90.0] * 5 + [-90.0] * 5)
+    np.testing.assert_array_equal(rows, one_by_one)  # bit for bit, NaN where NaN
+    assert np.isnan(one_by_one[:6]).all() and not np.isnan(one_by_one[6:]).any()
+    assert np.allclose(one_by_one[-10:], [90.0] * 5 + [-90.0] * 5)
 
 
 @pytest.mark.parametrize("flip", [np.eye(3), TURNED_90_Z, np.diag([1.0, 1.0, -1.0])], ids=["good", "turned", "flipped"])
