@@ -111,7 +111,9 @@ class MagneticChecks:
     def sigma2_factor(self, d: float, time_s: float) -> float:
         """``(1 + (d/d₀)⁶) ρ``: the σ_m² multiplier below the disturbance threshold."""
         s = self.s
-        factor = 1.0 + (d / s.mag_soft_fraction) ** 6
+        x = d / s.mag_soft_fraction
+        x2 = x * x
+        factor = 1.0 + x2 * x2 * x2  # not ** 6: a float's ** is a libm pow call, every update
         elapsed = time_s - self._clean_since_s
         if s.mag_recovery_s == 0.0 or not elapsed < s.mag_recovery_s:
             return factor
