@@ -385,7 +385,8 @@ class AttitudePipeline:
         except MavAttitudeError as exc:
             raise ConfigError(f"front end: {exc}") from exc
         self.counters = PipelineCounters(self.frontend.counters, estimator=self.estimator.counters)
-        # the sensors' per-sample σ in every mode, not the fused filter's effective ones (docs/vehicle.md)
+        # the sensors' per-sample σ (the defaults with fused, which refuses noise:), never the fused filter's
+        # effective ones (docs/vehicle.md)
         self.compass = CompassMonitor(config.compass, config.noise.accel_std_mps2, config.noise.mag_std_uT)
         self.compass_events: list[CompassEvent] = []  # verdict changes not yet taken by the service or replay
         self._compass_at_s = -math.inf  # vehicle time of the last tick the monitor took
