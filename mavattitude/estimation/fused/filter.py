@@ -86,7 +86,7 @@ _MAX_UNIT_STD = 0.5  # rad: the largest direction noise handed to a measurement 
 PACE_WINDOW = 32
 PACE_MIN_INTERVALS = 4
 PACE_TOLERANCE = 0.1
-_SAME_TIME_S = 1e-6  # an output tick this close to a sample takes the sample's attitude
+_SAME_TIME_S = 1e-6  # an output tick this close before a sample takes the sample's attitude
 _MIN_HORIZONTAL = math.sin(math.radians(5.0))  # |m_h| / |m| below this: no heading from the field
 
 
@@ -189,6 +189,7 @@ class FusedFilter:
             raise InputError(f"references must be finite and non-zero, got {mag_ref!r} and {self.acc_ref!r}")
         self.mag_ref = mag
         self._v_acc: Vec3 = tuple(float(v) / norms[1] for v in self.acc_ref)  # type: ignore[assignment]
+        self._acc_ref_up = self._v_acc == (0.0, 0.0, -1.0)
         field: Vec3 = tuple(mag.tolist())  # type: ignore[assignment]
         self._ref_angle = math.acos(clip_unit(dot(self._v_acc, field) / norms[0]))
         self._mag.set_reference(field, self._v_acc, self._started)
@@ -336,7 +337,8 @@ class FusedFilter:
 
     def _tilt_update(self, acc: Vec3, acc_norm: float, sigma_a: float, r: Sequence[float]) -> None:
         """The accelerometer direction, along the two axes it measures; its gain is kept off the heading."""
-        h0, h1, h2 = h = rotate_ned_to_body_parts(r, self._v_acc)
+        # h = A(q) v_a: for the usual reference (up, −e_D) the last row of R(q) negated, the same floats.
+        h0, h1, h2 = h = (-r[6], -r[7], -r[8]) if self._acc_ref_up else rotate_ned_to_body_parts(r, self._v_acc)
         d0, d1, d2 = acc[0] / acc_norm - h0, acc[1] / acc_norm - h1, acc[2] / acc_norm - h2  # u − h
         # The products written out: the cross and dot products cost as much as calls as in arithmetic.
         v0, v1, v2 = (0.0, h2, -h1) if abs(h0) < 0.6 else (-h2, 0.0, h0)  # h × x̂, or h × ŷ near x̂

@@ -40,12 +40,16 @@ class RestDetector:
         l0, l1, l2 = l0 + k * (g0 - l0), l1 + k * (g1 - l1), l2 + k * (g2 - l2)
         l3, l4, l5 = l3 + k * (a0 - l3), l4 + k * (a1 - l4), l5 + k * (a2 - l5)
         self._lp = (l0, l1, l2, l3, l4, l5)
-        # Squares written x * x, not x ** 2 (a libm pow call): they are only compared with thresholds.
-        x0, x1, x2, y0, y1, y2 = g0 - l0, g1 - l1, g2 - l2, a0 - l3, a1 - l4, a2 - l5
-        dev_g2, dev_a2 = x0 * x0 + x1 * x1 + x2 * x2, y0 * y0 + y1 * y1 + y2 * y2
+        # Squares written x * x, not x ** 2 (a libm pow call): they are only compared with thresholds. Each
+        # test only once the one before has passed: a moving sensor fails the first (the same outcome).
+        x0, x1, x2 = g0 - l0, g1 - l1, g2 - l2
         rate = w0, w1, w2 = (l0 - bias[0], l1 - bias[1], l2 - bias[2])
-        rate2 = w0 * w0 + w1 * w1 + w2 * w2
-        if not (dev_g2 < self._gyro2 and rate2 < self._gyro2 and dev_a2 < self._accel2):
+        y0, y1, y2 = a0 - l3, a1 - l4, a2 - l5
+        if not (
+            x0 * x0 + x1 * x1 + x2 * x2 < self._gyro2
+            and w0 * w0 + w1 * w1 + w2 * w2 < self._gyro2
+            and y0 * y0 + y1 * y1 + y2 * y2 < self._accel2
+        ):
             self._still_since_s = math.inf
             return None
         self._still_since_s = min(self._still_since_s, time_s)
