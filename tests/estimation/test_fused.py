@@ -141,7 +141,7 @@ def test_plain_float_propagation_is_phi_p_phi_t() -> None:
 def test_the_pre_filter_is_the_front_ends_butterworth_with_the_stated_cut_off() -> None:
     """Second-order Butterworth at the 50 Hz update rate: gain 1 at DC, 1/√2 at √2/(2π τ)."""
     f = FusedFilter(FusedSettings(accel_lowpass_s=0.7, update_rate_hz=50.0), MAG_NED_UT)
-    bq = f._lp_measure._bq
+    bq = f._prefilters.biquads[0]
     assert bq is not None
     z = np.exp(-2j * np.pi * np.array([0.0, math.sqrt(2.0) / (2.0 * math.pi * 0.7)]) / 50.0)
     gain = np.abs((bq.b0 + bq.b1 * z + bq.b2 * z**2) / (1.0 + bq.a1 * z + bq.a2 * z**2))
@@ -159,12 +159,13 @@ def test_the_pre_filters_keep_their_time_constants_in_seconds_at_any_input_rate(
     t, acc, gyr, mag = _measure(script, _sensors(input_hz))
     f, _ = _run(t, acc, gyr, mag)
     s = FusedSettings()
-    for lp, tau_s in ((f._lp_measure, s.accel_lowpass_s), (f._lp_reject, s.accel_rejection_lowpass_s)):
-        assert lp._bq is not None
-        assert lp._bq.fs_hz == pytest.approx(update_hz, rel=0.1)
-        assert lp._bq.cutoff_hz == pytest.approx(math.sqrt(2.0) / (2.0 * math.pi * tau_s), rel=1e-12)
+    for bq, tau_s in zip(f._prefilters.biquads, (s.accel_lowpass_s, s.accel_rejection_lowpass_s), strict=True):
+        assert bq is not None
+        assert bq.fs_hz == pytest.approx(update_hz, rel=0.1)
+        assert bq.cutoff_hz == pytest.approx(math.sqrt(2.0) / (2.0 * math.pi * tau_s), rel=1e-12)
     if input_hz > s.update_rate_hz:
-        assert f._lp_measure._bq.fs_hz == s.update_rate_hz  # exactly: the BROAD-tuned filter is untouched
+        bq = f._prefilters.biquads[0]
+        assert bq is not None and bq.fs_hz == s.update_rate_hz  # exactly: the BROAD-tuned filter is untouched
 
 
 # --- start-up, rest and bias -----------------------------------------------------------------------

@@ -137,8 +137,7 @@ class FusedFilter:
         self._ekf = ErrorStateFilter(s.gyro_noise_radps, s.gyro_scale_fraction, s.gyro_bias_walk_radps2)
         self._mag = MagneticChecks(s, self._update_period_s)
         self._rest = RestDetector(s, self._update_period_s)
-        self._lp_measure = EarthFrameLowpass(s.accel_lowpass_s, s.update_rate_hz)
-        self._lp_reject = EarthFrameLowpass(s.accel_rejection_lowpass_s, s.update_rate_hz)
+        self._prefilters = EarthFramePrefilters((s.accel_lowpass_s, s.accel_rejection_lowpass_s), s.update_rate_hz)
         self._design_period_s = self._update_period_s  # the update interval the per-update filters are for
         self._update_times: deque[float] = deque(maxlen=PACE_WINDOW + 1)
         # The squared settings the updates weigh with, once: a float's ** is a libm pow call, every update.
@@ -254,8 +253,7 @@ class FusedFilter:
         period = (time_s - times[0]) / (len(times) - 1)
         if abs(period - self._design_period_s) > PACE_TOLERANCE * self._design_period_s:
             self._design_period_s = period
-            self._lp_measure.design(1.0 / period)
-            self._lp_reject.design(1.0 / period)
+            self._prefilters.design(1.0 / period)
             self._rest.set_period(period)
             self._mag.period_s = period
 
@@ -304,7 +302,7 @@ class FusedFilter:
         s = self.settings
         r_g = rotation_matrix_parts(self._ekf.q_gyro)
         a_earth = _matvec(r_g, raw)  # R(q_g) a
-        lp_m, lp_r = self._lp_measure.step(a_earth), self._lp_reject.step(a_earth)
+        lp_m, lp_r = self._prefilters.step(a_earth)
         m0, m1, m2 = lp_m
         j0, j1, j2 = lp_r
         # Squares as x * x, here and in every update: a float's ** is a libm pow call (same value to an ulp).
@@ -392,8 +390,7 @@ class FusedFilter:
             self._ekf.start(q, p_tt, symmetric((0.0,) * 9, self.settings.gyro_bias_init_radps**2))  # type: ignore[arg-type]
             self._mag.start(self._mag.corrected((float(mag[0]), float(mag[1]), float(mag[2]))))
         self._started = True
-        self._lp_measure.reset()
-        self._lp_reject.reset()
+        self._prefilters.reset()
         self._update_times.clear()
         self._t_last = time_s
         self._gyr_last = gyr
@@ -421,42 +418,52 @@ class FusedFilter:
         return out
 
 
-class EarthFrameLowpass:
-    """Second-order Butterworth low-pass of a vector in the quasi-inertial frame, cut-off ``√2 / (2π τ)``
-    (τ = 0: the input as it is); it starts at steady state on its first input."""
+_UNUSED = (0.25, 0.0, 0.0)  # an output that is the input (τ = 0) runs as a 4-sample mean, never returned
 
-    def __init__(self, tau_s: float, rate_hz: float) -> None:
-        self._tau_s = tau_s
-        self._bq: Biquad | None = None
-        self._coefficients: tuple[float, float, float, float, float] | None = None  # the step's, read once
+
+class EarthFramePrefilters:
+    """The two accelerometer pre-filters (module docstring): second-order Butterworth low-passes of the same
+    quasi-inertial vector, cut-offs ``√2 / (2π τ)`` for ``τ_a`` and ``τ_j`` (τ = 0: that output is the input),
+    started at steady state on their first input. A Butterworth low-pass's numerator is ``b₀ (1, 2, 1)``, so
+    ``x + 2 x₋₁ + x₋₂`` is formed once for both: 39 float operations a step instead of 54."""
+
+    def __init__(self, taus_s: tuple[float, float], rate_hz: float) -> None:
+        self._taus_s = taus_s
+        self._passed = (taus_s[0] == 0.0, taus_s[1] == 0.0)  # τ = 0: the input as it is
+        self.biquads: tuple[Biquad | None, Biquad | None] = (None, None)
+        self._coefficients = (_UNUSED, _UNUSED)  # (b₀, a₁, a₂) of each, read once a step
         self.design(rate_hz)
-        self._state: tuple[Vec3, Vec3, Vec3, Vec3] | None = None
+        self._state: tuple[Vec3, Vec3, Vec3, Vec3, Vec3, Vec3] | None = None
 
     def design(self, rate_hz: float) -> None:
         """(Re-)design for inputs at ``rate_hz``; the state (the last inputs and outputs) carries on."""
-        if self._tau_s > 0.0:
-            bq = self._bq = butter2(math.sqrt(2.0) / (2.0 * math.pi * self._tau_s), rate_hz)
-            self._coefficients = (bq.b0, bq.b1, bq.b2, bq.a1, bq.a2)
+        self.biquads = tuple(  # type: ignore[assignment]
+            butter2(math.sqrt(2.0) / (2.0 * math.pi * tau_s), rate_hz) if tau_s > 0.0 else None
+            for tau_s in self._taus_s
+        )
+        self._coefficients = tuple(  # type: ignore[assignment]
+            _UNUSED if bq is None else (bq.b0, bq.a1, bq.a2) for bq in self.biquads
+        )
 
     def reset(self) -> None:
         self._state = None
 
-    def step(self, x: Vec3) -> Vec3:
-        if self._coefficients is None:
-            return x
+    def step(self, x: Vec3) -> tuple[Vec3, Vec3]:
+        """Both outputs for the next input ``x``."""
         if self._state is None:
-            self._state = (x, x, x, x)  # x₋₁, x₋₂, y₋₁, y₋₂ at steady state
-        x_1, x_2, y_1, y_2 = self._state
-        (p0, p1, p2), (q0, q1, q2), (y0, y1, y2), (z0, z1, z2) = x_1, x_2, y_1, y_2
+            self._state = (x, x, x, x, x, x)  # x₋₁, x₋₂ and each filter's y₋₁, y₋₂, at steady state
+        x_1, x_2, y_1, y_2, z_1, z_2 = self._state
+        (p0, p1, p2), (q0, q1, q2) = x_1, x_2
         x0, x1, x2 = x
-        b0, b1, b2, a1, a2 = self._coefficients
-        y = (
-            b0 * x0 + b1 * p0 + b2 * q0 - a1 * y0 - a2 * z0,
-            b0 * x1 + b1 * p1 + b2 * q1 - a1 * y1 - a2 * z1,
-            b0 * x2 + b1 * p2 + b2 * q2 - a1 * y2 - a2 * z2,
-        )
-        self._state = (x, x_1, y, y_1)
-        return y
+        s0, s1, s2 = x0 + 2.0 * p0 + q0, x1 + 2.0 * p1 + q1, x2 + 2.0 * p2 + q2
+        (b, a1, a2), (c, e1, e2) = self._coefficients
+        (m0, m1, m2), (n0, n1, n2) = y_1, y_2
+        y = (b * s0 - a1 * m0 - a2 * n0, b * s1 - a1 * m1 - a2 * n1, b * s2 - a1 * m2 - a2 * n2)
+        (m0, m1, m2), (n0, n1, n2) = z_1, z_2
+        z = (c * s0 - e1 * m0 - e2 * n0, c * s1 - e1 * m1 - e2 * n1, c * s2 - e1 * m2 - e2 * n2)
+        self._state = (x, x_1, y, y_1, z, z_1)
+        passed_y, passed_z = self._passed
+        return (x if passed_y else y), (x if passed_z else z)
 
 
 _AXES: tuple[Vec3, Vec3, Vec3] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
