@@ -431,7 +431,8 @@ def test_outputs_are_the_50hz_ticks_with_bias_corrected_rates() -> None:
     out = []
     for i in range(len(t)):
         ticks = f.push(t[i], gyr[i], acc[i], mag[i])
-        assert all(t[i] - 0.02 < e.time_s <= t[i] for e in ticks)  # ticks the sample passed, no later
+        # Ticks the sample passed, or at its time: within the timestamps' resolution (1 µs) after it.
+        assert all(t[i] - 0.02 < e.time_s <= t[i] + 1e-6 for e in ticks)
         assert all(np.allclose(e.rates_radps, gyr[i] - e.bias_radps) for e in ticks)
         out += ticks
     ticks = np.array([o.time_s for o in out])
@@ -439,6 +440,26 @@ def test_outputs_are_the_50hz_ticks_with_bias_corrected_rates() -> None:
     assert ticks[0] == t[0]
     assert all(o.covariance.shape == (3, 3) and np.all(np.linalg.eigvalsh(o.covariance) > 0) for o in out)
     assert np.allclose(np.linalg.norm([o.q for o in out], axis=1), 1.0)
+
+
+@pytest.mark.parametrize("rate_hz", [50.0, 200.0])
+def test_a_tick_at_a_samples_time_is_emitted_by_that_sample_after_its_update(rate_hz: float) -> None:
+    """A RAW_IMU-like stream (integer microseconds / 1e6) at the output rate or a multiple: every tick falls on
+    a sample and is emitted by it, with its attitude after its update, never carried back from the next one."""
+    period_us, start_us = round(1e6 / rate_hz), 123_456_789  # an arbitrary boot time, as a vehicle sends it
+    gyr, acc, mag = (0.1, -0.2, 0.3), (0.0, 0.0, -9.81), (21.9, 0.0, 44.9)
+    f = FusedFilter(FusedSettings(), MAG_NED_UT)
+    ticks = 0
+    for k in range(int(10 * rate_hz)):
+        t_s = (start_us + k * period_us) / 1e6
+        updates = f.counters["updates"]
+        out = f.push(t_s, gyr, acc, mag)
+        # Within the timestamps' resolution (1 µs): the ticks' times are the start plus k × 20 ms in float.
+        assert all(abs(e.time_s - t_s) <= 1e-6 for e in out)
+        assert all(np.array_equal(e.q, f.q) for e in out)  # the sample's attitude, not carried back
+        assert k == 0 or not out or f.counters["updates"] == updates + 1  # updates fall on the ticks too
+        ticks += len(out)
+    assert ticks == 10 * 50
 
 
 def test_time_must_advance_and_the_gyro_must_be_finite() -> None:

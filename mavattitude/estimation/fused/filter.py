@@ -35,8 +35,11 @@ nothing else, so a wrong or disturbed field can never move roll and pitch. ``σ_
 Start-up and gaps: the first sample with both vectors initialises ``q`` from IGN and ``P_θθ`` from its
 covariance, ``P_bb = σ_b0² I``; a gap longer than ``max_gap_s`` restarts from IGN, keeping the bias.
 
-Output: :meth:`FusedFilter.push` returns a :class:`FusedEstimate` for every ``output_rate_hz`` tick passed,
-the attitude carried to the tick with the current rate.
+Schedule and output: update ``k`` is due at the start time plus ``k`` update periods and output tick ``k`` at
+the start time plus ``k`` output periods (a count, not a running sum of periods, whose rounding would put
+about half the ticks a hair after the sample at their time, and so one sample late). :meth:`FusedFilter.push`
+returns a :class:`FusedEstimate` for every tick up to the sample, after the sample's update, the attitude
+carried back to the tick with the current rate; a tick at the sample's time (within 1 µs) is the sample's.
 """
 
 from __future__ import annotations
@@ -86,7 +89,9 @@ _MAX_UNIT_STD = 0.5  # rad: the largest direction noise handed to a measurement 
 PACE_WINDOW = 32
 PACE_MIN_INTERVALS = 4
 PACE_TOLERANCE = 0.1
-_SAME_TIME_S = 1e-6  # an output tick this close before a sample takes the sample's attitude
+# The timestamps' resolution (MAVLink's and the logs' microseconds): a scheduled time within it of a sample's is
+# the sample's time (the schedule's float rounding is ~1e-11 s; no two samples are closer than this).
+_SAME_TIME_S = 1e-6
 _MIN_HORIZONTAL = math.sin(math.radians(5.0))  # |m_h| / |m| below this: no heading from the field
 
 
@@ -146,8 +151,10 @@ class FusedFilter:
         self._noise = NoiseModel(accel_std=(s.accel_std_mps2,) * 3, mag_std=(s.mag_std_uT,) * 3)
         self._t_last = 0.0
         self._gyr_last: Vec3 = (0.0, 0.0, 0.0)
+        self._start_s = 0.0  # the schedule's origin: the last (re)start
         self._next_update_s = 0.0
         self._next_output_s = 0.0
+        self._ticks = 0  # output ticks since the start: the next is at _start_s + _ticks periods
         self.set_mag_ref(mag_ref)
 
     # --- public state -------------------------------------------------------------------------------
@@ -219,12 +226,13 @@ class FusedFilter:
         self._t_last = time_s
         self._gyr_last = gyr
         # A due update waits up to half a period for a sample that carries a magnetometer reading.
-        due = self._next_update_s
+        due = self._next_update_s - _SAME_TIME_S
         if time_s >= due and (mag_uT is not None or time_s >= due + 0.5 * self._update_period_s):
-            due += self._update_period_s
-            self._next_update_s = time_s if time_s > due else due  # max(): the builtin parses its arguments
+            # The next due time after this sample: dues it has passed (an input slower than the updates) lapse.
+            start, period = self._start_s, self._update_period_s
+            self._next_update_s = start + (math.floor((time_s + _SAME_TIME_S - start) / period) + 1) * period
             self._update(acc_mps2, mag_uT, time_s, mag_age_s)
-        if time_s < self._next_output_s:
+        if time_s + _SAME_TIME_S < self._next_output_s:
             return []
         return self._outputs(time_s)
 
@@ -394,27 +402,31 @@ class FusedFilter:
         self._update_times.clear()
         self._t_last = time_s
         self._gyr_last = gyr
+        self._start_s = self._next_output_s = time_s
         self._next_update_s = time_s + self._update_period_s
-        self._next_output_s = time_s
+        self._ticks = 0
         return self._outputs(time_s)
 
     def _outputs(self, time_s: float) -> list[FusedEstimate]:
-        """Estimates for every output tick up to ``time_s``, the attitude carried back to the tick time."""
+        """Estimates for every output tick up to ``time_s`` (within 1 µs), the attitude carried back to the tick."""
         wx, wy, wz = self._body_rate()
         rates = np.array((wx, wy, wz))  # numpy 2: np.array of a float tuple costs 5 % less than np.fromiter
         p_tt = self._ekf.p_tt
         q_now = self._ekf.current_q()
         out = []
-        while self._next_output_s <= time_s:
-            back = self._next_output_s - time_s
+        tick_s = self._next_output_s
+        while tick_s <= time_s + _SAME_TIME_S:
+            back = tick_s - time_s
             q_tick = q_now
             # A tick within a microsecond of the sample (the timestamps' resolution) is the sample's: the
             # carry would turn it by less than |ω| × 1 µs, and costs a third of the tick.
             if back < -_SAME_TIME_S:
                 q_tick = rotated(q_now, wx * back, wy * back, wz * back)
             q_array = np.array(q_tick)
-            out.append(FusedEstimate(self._next_output_s, q_array, rates, self._mag.disturbed, p_tt, self._ekf.bias))
-            self._next_output_s += self._output_period_s
+            out.append(FusedEstimate(tick_s, q_array, rates, self._mag.disturbed, p_tt, self._ekf.bias))
+            self._ticks += 1
+            tick_s = self._start_s + self._ticks * self._output_period_s
+        self._next_output_s = tick_s
         return out
 
 
