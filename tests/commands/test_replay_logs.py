@@ -48,10 +48,9 @@ def test_one_dataflash_log_of_either_generation(tmp_path, capsys, new):
     assert "autopilot attitudes compared with ours" in capsys.readouterr().out
 
 
-def test_workers_start_as_fresh_processes_not_copies_of_the_caller(tmp_path, monkeypatch, capfd):
+def test_workers_start_as_fresh_processes_not_copies_of_the_caller(tmp_path, monkeypatch):
     # -j's workers start the same way on every Python (forkserver): forked from the caller, as Python up to
-    # 3.13 does on Linux, they carried its state, here a replay that refuses every log. They log as the
-    # command line does, which a fork inherited.
+    # 3.13 does on Linux, they carried its state, here a replay that refuses every log.
     def refuse(*_: object, **__: object) -> None:
         raise DataFileError("the caller's replay, not a fresh process's")
 
@@ -60,9 +59,26 @@ def test_workers_start_as_fresh_processes_not_copies_of_the_caller(tmp_path, mon
     out = tmp_path / "out"
     assert main(["replay", *map(str, logs), "-o", str(out), "-j", "2", "--no-plot", *REF]) == 0
     assert [row["status"] for row in summary(out / "summary.csv").values()] == ["ok", "ok"]
-    err = capfd.readouterr().err
+
+
+def test_workers_log_as_the_command_line_does(tmp_path):
+    # A fork inherited the command line's logging; a fresh worker is given it. Run as a user runs it: in a
+    # process of its own, whose forkserver (one per process, started with the first pool) writes to this
+    # stderr. Within pytest, a server started by an earlier test keeps that test's captured stderr.
+    logs = [write_dataflash(tmp_path / f"{name}.bin", static_log(1.0)) for name in "ab"]
+    args = ["replay", *map(str, logs), "-o", str(tmp_path / "out"), "-j", "2", "--no-plot", *REF]
+    done = subprocess.run(
+        [sys.executable, "-m", "mavattitude", *args],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=ENV_WITHOUT_OVERLAY,
+    )
+    assert done.returncode == 0, done.stderr
     for log in logs:
-        assert re.search(rf" INFO mavattitude\.commands\.replay: {re.escape(str(log))}: wrote \d+ attitudes", err)
+        assert re.search(
+            rf" INFO mavattitude\.commands\.replay: {re.escape(str(log))}: wrote \d+ attitudes", done.stderr
+        )
 
 
 def test_a_directory_of_logs_with_bad_ones_among_them(tmp_path, capsys):
