@@ -273,17 +273,27 @@ class NspawnMachine:
     def _wait_for_boot(self) -> None:
         assert self.proc is not None
         deadline = time.monotonic() + self.BOOT_TIMEOUT_S
+        state = "no PID 1 found"
         while True:  # polling: systemd in the machine has no way to tell the host it is up
             if self.proc.poll() is not None or time.monotonic() > deadline:
-                raise AssertionError(f"the machine did not boot:\n{self.log.read_text()[-3000:]}")
+                raise AssertionError(f"the machine did not boot ({state}):\n{self._boot_report()}")
             if self.leader is None:
                 children = run(["pgrep", "-P", str(self.proc.pid)], check=False).stdout.split()
                 self.leader = int(children[0]) if children else None
             if self.leader is not None:
-                state = self.sh("systemctl is-system-running", check=False).stdout.strip()
+                done = self.sh("systemctl is-system-running", check=False)
+                state = (done.stdout.strip() or done.stderr.strip())[-300:]
                 if state in ("running", "degraded"):
                     return
             time.sleep(0.2)
+
+    def _boot_report(self) -> str:
+        """What the machine was still doing (its jobs), or why it could not be asked, and nspawn's log."""
+        jobs = "no PID 1 to ask"
+        if self.leader is not None and self.proc is not None and self.proc.poll() is None:
+            done = self.sh("systemctl list-jobs --no-pager", timeout_s=10.0, check=False)
+            jobs = (done.stdout + done.stderr)[-2000:]
+        return f"jobs: {jobs}\nnspawn (exit {self.proc.poll() if self.proc else None}):\n{self.log.read_text()[-2000:]}"
 
     def __exit__(self, *exc: object) -> None:
         self._stop()
