@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -12,8 +9,8 @@ import yaml
 
 from mavattitude.cli import main
 from mavattitude.config import ENV_VAR, from_dict, load_config
+from tests.commands.process import run_cli
 
-ENV_WITHOUT_OVERLAY = {k: v for k, v in os.environ.items() if k != ENV_VAR}
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
 
@@ -75,13 +72,7 @@ def test_an_invalid_file_is_one_line_on_stderr_and_exit_2(tmp_path, capsys, monk
 def test_as_a_subprocess(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("filter: {cutoff_hz: 30}\n")
-    done = subprocess.run(
-        [sys.executable, "-m", "mavattitude", "check-config", str(bad)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        env=ENV_WITHOUT_OVERLAY,
-    )
+    done = run_cli(["check-config", str(bad)])
     assert done.returncode == 2
     assert "filter.cutoff_hz: must be below half of filter.output_rate_hz (25 Hz)" in done.stderr
     assert "Traceback" not in done.stderr

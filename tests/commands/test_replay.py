@@ -3,10 +3,7 @@
 from __future__ import annotations
 
 import datetime as dt
-import os
 import struct
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,12 +12,11 @@ import yaml
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from mavattitude.cli import main
-from mavattitude.config import ENV_VAR
 from mavattitude.estimation.conventions import angle_between, quat_from_euler, rotate_ned_to_body
 from mavattitude.sensors.magref import field_from_angles, wmm_field_ned_uT
 from mavattitude.sensors.units import PROFILES, ImuSample, encode
+from tests.commands.process import run_cli
 
-ENV_WITHOUT_OVERLAY = {k: v for k, v in os.environ.items() if k != ENV_VAR}
 G = 9.80665
 T0_UNIX = dt.datetime(2026, 3, 1, 12, 0, tzinfo=dt.timezone.utc).timestamp()
 DECL, INCL, F_UT = -1.5, 62.0, 49.0
@@ -188,13 +184,7 @@ def test_what_the_log_lacks_is_named(tmp_path, capsys, kwargs, args, message):
 def test_replay_as_a_subprocess(tmp_path):
     log = write_tlog(tmp_path / "sub.tlog", seconds=1.0, second_vehicle=False)
     out = tmp_path / "sub.csv.gz"
-    done = subprocess.run(
-        [sys.executable, "-m", "mavattitude", "replay", str(log), "-o", str(out), *REF, "--no-plot"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        env=ENV_WITHOUT_OVERLAY,
-    )
+    done = run_cli(["replay", str(log), "-o", str(out), *REF, "--no-plot"])
     assert done.returncode == 0, done.stderr
     assert "total angle" in done.stdout
     assert out.stat().st_size > 0 and not (tmp_path / "sub.png").exists()

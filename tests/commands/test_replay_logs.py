@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import csv
 import re
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -14,7 +12,8 @@ from mavattitude.cli import main
 from mavattitude.errors import DataFileError
 from mavattitude.estimation.conventions import angle_between, quat_from_euler
 from mavattitude.sim.logwriter import static_log, write_dataflash
-from tests.commands.test_replay import ENV_WITHOUT_OVERLAY, read_rows
+from tests.commands.process import run_cli
+from tests.commands.test_replay import read_rows
 from tests.shared import shared_path
 
 YAW_RATE_DPS = 10.0
@@ -67,13 +66,7 @@ def test_workers_log_as_the_command_line_does(tmp_path):
     # stderr. Within pytest, a server started by an earlier test keeps that test's captured stderr.
     logs = [write_dataflash(tmp_path / f"{name}.bin", static_log(1.0)) for name in "ab"]
     args = ["replay", *map(str, logs), "-o", str(tmp_path / "out"), "-j", "2", "--no-plot", *REF]
-    done = subprocess.run(
-        [sys.executable, "-m", "mavattitude", *args],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env=ENV_WITHOUT_OVERLAY,
-    )
+    done = run_cli(args, timeout_s=120.0)
     assert done.returncode == 0, done.stderr
     for log in logs:
         assert re.search(
@@ -115,13 +108,7 @@ def test_a_truncated_log_alone_is_replayed_then_one_line_and_exit_2(tmp_path):
     cut = tmp_path / "cut.bin"
     cut.write_bytes(data[: len(data) // 3])
     out = tmp_path / "cut.csv"
-    done = subprocess.run(
-        [sys.executable, "-m", "mavattitude", "--log-level", "WARNING", "replay", str(cut), "-o", str(out), *REF],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        env=ENV_WITHOUT_OVERLAY,
-    )
+    done = run_cli(["--log-level", "WARNING", "replay", str(cut), "-o", str(out), *REF])
     assert done.returncode == 2
     (line,) = done.stderr.strip().splitlines()
     assert (

@@ -4,10 +4,7 @@ from __future__ import annotations
 
 import csv
 import gzip
-import os
 import re
-import subprocess
-import sys
 import warnings
 from pathlib import Path
 
@@ -20,9 +17,9 @@ from mavattitude.commands._offline import OUTPUT_COLUMNS
 from mavattitude.config import ENV_VAR, load_config
 from mavattitude.estimation.conventions import angle_between, euler_from_quat, quat_from_euler, rotate_ned_to_body
 from mavattitude.sensors.magref import field_from_angles
+from tests.commands.process import run_cli
 from tests.shared import shared_path
 
-ENV_WITHOUT_OVERLAY = {k: v for k, v in os.environ.items() if k != ENV_VAR}
 G = 9.80665
 Q_TRUE = quat_from_euler(np.radians(-5.0), np.radians(30.0), np.radians(-100.0))
 DECL, INCL, F_UT = 3.0, 55.0, 48.0
@@ -239,13 +236,7 @@ def test_real_px4_log_as_a_subprocess_agrees_with_the_autopilot(tmp_path):
     # The onboard estimator ran with declination 0: its yaw is magnetic, so is ours.
     args = ["solve", str(px4_csv), "-o", str(out), "--declination", "0", "--inclination"]
     args.append(f"{_measured_inclination_deg(acc, mag):.3f}")
-    done = subprocess.run(
-        [sys.executable, "-m", "mavattitude", *args],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        env=ENV_WITHOUT_OVERLAY,
-    )
+    done = run_cli(args)
     assert done.returncode == 0, done.stderr
     _, rows = read_output(out)
     assert len(rows) == pytest.approx(69 * 50, rel=0.01)  # 69 s at 50 Hz
