@@ -74,6 +74,7 @@ from .conventions import (
     STANDARD_GRAVITY_MPS2,
     Array,
     Vec3,
+    clip_unit,
     quat_from_rotvec_parts,
     quat_multiply_parts,
     quat_normalize_parts,
@@ -103,7 +104,7 @@ def measured_dip_deg(acc_mps2: Vec3, mag_uT: Vec3) -> float:
     if norms == 0.0:
         return math.nan
     dot = -(acc_mps2[0] * mag_uT[0] + acc_mps2[1] * mag_uT[1] + acc_mps2[2] * mag_uT[2])
-    return math.degrees(math.asin(max(-1.0, min(1.0, dot / norms))))
+    return math.degrees(math.asin(clip_unit(dot / norms)))
 
 
 def measured_dip_deg_rows(acc_mps2: Array, mag_uT: Array) -> Array:
@@ -113,7 +114,7 @@ def measured_dip_deg_rows(acc_mps2: Array, mag_uT: Array) -> Array:
     norms = _norm_rows(acc_mps2) * _norm_rows(mag_uT)
     with np.errstate(divide="ignore", invalid="ignore"):  # a zero vector's row: NaN below
         ratio = dot / norms
-    ratio = np.where(ratio < 1.0, ratio, 1.0)  # min(1.0, ratio) and max(-1.0, ...): NaN becomes 1, as there
+    ratio = np.where(ratio < 1.0, ratio, 1.0)  # clip_unit's comparisons: NaN becomes 1, as there
     ratio = np.where(ratio > -1.0, ratio, -1.0)
     ratio = np.where(norms == 0.0, np.nan, ratio)  # no direction, no dip, as there
     return np.degrees(np.fromiter(map(math.asin, ratio.tolist()), float, len(ratio)))
@@ -126,7 +127,7 @@ def _norm_rows(v: Array) -> Array:
 
 def reference_dip_deg(field_ned_uT: Vec3) -> float:
     """The inclination of a NED reference field, degrees (positive down)."""
-    return math.degrees(math.asin(max(-1.0, min(1.0, field_ned_uT[2] / _norm(field_ned_uT)))))
+    return math.degrees(math.asin(clip_unit(field_ned_uT[2] / _norm(field_ned_uT))))
 
 
 def rms_sigma(std: Vec3) -> float:

@@ -59,6 +59,7 @@ from mavattitude.estimation.conventions import (
     Array,
     Quat,
     Vec3,
+    clip_unit,
     rotate_ned_to_body_parts,
     rotation_matrix_parts,
 )
@@ -66,7 +67,7 @@ from mavattitude.sensors.lowpass import Biquad, butter2
 
 from .ekf import ErrorStateFilter, rotated
 from .magnetic import MagneticChecks
-from .mat3 import Block, clip_unit, cross, dot, symmetric
+from .mat3 import Block, cross, dot, symmetric
 from .mat3 import matvec as _matvec
 from .rest import RestDetector
 from .settings import FusedSettings

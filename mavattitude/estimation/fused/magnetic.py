@@ -32,8 +32,8 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from ..conventions import Vec3
-from .mat3 import clip_unit, dot
+from ..conventions import Vec3, clip_unit
+from .mat3 import dot
 from .settings import FusedSettings
 
 

@@ -64,13 +64,6 @@ def symmetric(a: Block, diag: float = 0.0) -> Block:
     return (a[0] + diag, xy, xz, xy, a[4] + diag, yz, xz, yz, a[8] + diag)
 
 
-def clip_unit(x: float) -> float:
-    """``x`` clamped to [−1, 1] for ``asin`` / ``acos`` (NaN gives 1.0, as ``max(-1.0, min(1.0, x))`` does),
-    without the builtins, which parse their arguments: ten times the cost of the comparisons, on every update."""
-    x = x if x < 1.0 else 1.0
-    return x if x > -1.0 else -1.0
-
-
 def dot(a: Sequence[float], b: Sequence[float]) -> float:
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
