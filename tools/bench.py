@@ -33,6 +33,7 @@ import ahrs.filters
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from mavattitude.config import ENV_VAR
 from mavattitude.estimation import NoiseModel, fused, solve, solve_batch
 from mavattitude.estimation import conventions as cv
 from mavattitude.estimation.noise import paper_weight
@@ -622,7 +623,7 @@ def _replay_command_s(logs: list[Path], out: Path, workers: int, flags: list[str
     heap they wrote to; a user's ``-j 1`` and ``-j 2`` both start from a fresh process, and both are timed so."""
     command = [sys.executable, "-m", "mavattitude", "replay", *map(str, logs), "-o", str(out), "-j", str(workers)]
     command += ["--no-plot", *flags]
-    env = {k: v for k, v in os.environ.items() if k != "MAVATTITUDE_CONFIG"}  # the defaults, as load_config(env={})
+    env = {k: v for k, v in os.environ.items() if k != ENV_VAR}  # the defaults, as load_config(env={})
     start = time.monotonic()
     subprocess.run(command, check=True, capture_output=True, env=env, stdin=subprocess.DEVNULL)
     return time.monotonic() - start
