@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from mavattitude.errors import MavAttitudeError
 from mavattitude.link.source import AutopilotAttitude, Heartbeat, PositionFix, Received, Sender, Undecodable, locks_on
-from mavattitude.pipeline import AttitudeOutput
+from mavattitude.pipeline import Pushed
 from mavattitude.sensors.units import ImuSample
 
 log = logging.getLogger(__name__)
@@ -51,7 +51,7 @@ class SampleSink(Protocol):
 
     mag_ref_ned_uT: Any
 
-    def push(self, sample: ImuSample) -> list[AttitudeOutput]: ...
+    def push(self, sample: ImuSample) -> Pushed: ...
 
     def set_position(self, lat_deg: float, lon_deg: float, alt_m: float, when: Any = None) -> bool: ...
 
@@ -65,7 +65,7 @@ class Listener(Protocol):
     def on_input(self, sample: ImuSample, t_rx: float) -> None:
         """An input sample from the vehicle, about to enter the pipeline."""
 
-    def on_outputs(self, outputs: list[AttitudeOutput], t_rx: float) -> None:
+    def on_outputs(self, pushed: Pushed, t_rx: float) -> None:
         """What the pipeline made of the last input sample (often nothing)."""
 
     def on_autopilot_attitude(self, attitude: AutopilotAttitude, t_rx: float) -> None:
@@ -157,14 +157,14 @@ class Dispatcher:
         self.counters.received += 1
         self.listener.on_input(sample, t_rx)
         try:
-            outputs = self.pipeline.push(sample)
+            pushed = self.pipeline.push(sample)
         except MavAttitudeError as exc:  # the pipeline counts what it refuses; anything it raises is kept alive
             self._reject("pipeline_error", exc)
             return
         except Exception as exc:  # a bug below us: the sample is dropped, the listener decides what to say
             self._reject("internal_error", exc)
             return
-        self.listener.on_outputs(outputs, t_rx)
+        self.listener.on_outputs(pushed, t_rx)
 
     def _on_position(self, fix: PositionFix) -> None:
         p = fix.position

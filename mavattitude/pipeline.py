@@ -1,7 +1,8 @@
 """The streaming attitude pipeline that the service, ``solve``, ``replay`` and the validation share.
 
 ``AttitudePipeline(config).push(sample)`` takes one decoded :class:`~mavattitude.sensors.units.ImuSample`
-and returns the attitude outputs it completes (zero or more: the 50 Hz ticks)::
+and returns everything it produced as one :class:`Pushed`: the attitude outputs it completes (zero or more:
+the 50 Hz ticks), the ticks it refused by reason, and the compass verdict's changes::
 
     ImuSample ─► FrontEnd (clock, screen, calibrate + mount, low-pass, resample) ─► estimator ─► AttitudeOutput
 
@@ -23,15 +24,16 @@ turn about more than one axis) while this tick's own dip is off by more than the
 for a tick whose |B| the front end flagged (``MAG_NORM``): the accelerometer's direction is kept exactly
 (TRIAD, accelerometer primary), the output flagged ``MAG_HEADING_ONLY`` and its covariance given the
 heading σ of a heading uniform over ±180°. A compass vouched for and undisturbed leaves IGN the paper's IGN.
-The verdict's changes are kept in :attr:`AttitudePipeline.compass_events` for the service and replay.
+The verdict's changes are returned in :attr:`Pushed.compass` for the service and replay.
 
-A sample the solver cannot use (degenerate geometry, bad numbers) is counted by exception type, logged at
-debug level and not emitted; so is a tick without a magnetometer reading, or before the magnetic reference
-is known (``reference.magnetic: auto`` waits for :meth:`AttitudePipeline.set_position`, which looks the
-field up in the World Magnetic Model through :mod:`mavattitude.sensors.magref`). The pipeline is the one
-gate of every output, live or offline: a quaternion that is not finite and unit
-(:func:`~mavattitude.estimation.conventions.is_unit_quaternion_parts`) or rates that are not finite are
-never output: counted as ``invalid_quaternion`` / ``invalid_rates``, and the estimator's state dropped.
+A sample the solver cannot use (degenerate geometry, bad numbers) is counted by exception type (in the
+pipeline's counters and the :attr:`Pushed.rejected` of the push), logged at debug level and not emitted; so is
+a tick without a magnetometer reading, or before the magnetic reference is known (``reference.magnetic: auto``
+waits for :meth:`AttitudePipeline.set_position`, which looks the field up in the World Magnetic Model through
+:mod:`mavattitude.sensors.magref`). The pipeline is the one gate of every output, live or offline: a
+quaternion that is not finite and unit (:func:`~mavattitude.estimation.conventions.is_unit_quaternion_parts`)
+or rates that are not finite are never output: counted as ``invalid_quaternion`` / ``invalid_rates``, and the
+estimator's state dropped.
 """
 
 from __future__ import annotations
@@ -55,7 +57,7 @@ from mavattitude.config import Config
 from mavattitude.errors import ConfigError, InputError, MavAttitudeError
 from mavattitude.estimation import SNAPSHOT_METHODS, NoiseModel, solve
 from mavattitude.estimation.compass import CompassEvent, CompassMonitor, heading_uncertain
-from mavattitude.estimation.conventions import Array, is_unit_quaternion_parts
+from mavattitude.estimation.conventions import Array, Vec3, is_unit_quaternion_parts
 from mavattitude.sensors.frontend import (
     BatchOutput,
     FrontEnd,
@@ -63,6 +65,7 @@ from mavattitude.sensors.frontend import (
     FrontEndSettings,
     ProcessedSample,
     SampleFlag,
+    flag_set,
     process_batch,
 )
 from mavattitude.sensors.magref import ReferenceTracker
@@ -87,7 +90,8 @@ class AttitudeOutput:
     bias the fused filter estimated removed). ``covariance``: the
     predicted 3×3 body-frame error-angle covariance (rad²), computed on first access. ``flags``: names of
     what the front end or the estimator noticed (``RESET``, ``ACC_NORM``, ``MAG_NORM``, ``MAG_HELD``,
-    ``NOT_CONVERGED``, ``MAG_DISTURBED``, ``MAG_INCONSISTENT``, ``MAG_HEADING_ONLY``).
+    ``NOT_CONVERGED``, ``MAG_DISTURBED``, ``MAG_INCONSISTENT``, ``MAG_HEADING_ONLY``), the front end's
+    :class:`~mavattitude.sensors.frontend.SampleFlag` set with the estimator's added.
     """
 
     time_s: float
@@ -95,7 +99,7 @@ class AttitudeOutput:
     rates_radps: Array
     iterations: int
     converged: bool
-    flags: frozenset[str] = frozenset()
+    flags: SampleFlag = SampleFlag.NONE
     covariance_source: Callable[[], Array] | None = field(default=None, repr=False, compare=False)
 
     @property
@@ -111,6 +115,18 @@ class AttitudeOutput:
             return self.covariance
         except MavAttitudeError:
             return np.full((3, 3), np.nan)
+
+
+@dataclass(slots=True)
+class Pushed:
+    """Everything one :meth:`AttitudePipeline.push` (or ``push_batch``) produced."""
+
+    outputs: list[AttitudeOutput] = field(default_factory=list)
+    rejected: dict[str, int] = field(default_factory=dict)  # ticks not emitted, by reason (as the counters')
+    compass: list[CompassEvent] = field(default_factory=list)  # the compass verdict's changes, in order
+
+    def reject(self, reason: str) -> None:
+        self.rejected[reason] = self.rejected.get(reason, 0) + 1
 
 
 @dataclass
@@ -197,27 +213,38 @@ class SnapshotEstimator:
         return self._scaled[key]
 
     def estimate(self, sample: ProcessedSample, mag_ref_ned_uT: Array) -> list[AttitudeOutput]:
-        names = _flag_names(sample.flags)
-        if "RESET" in names:
+        flags = int(sample.flags)  # plain int bits: IntFlag arithmetic costs a microsecond per operation
+        if flags & _RESET:
             self._q0 = None  # after a gap the previous answer is no better a start than TRIAD
         noise = self._noise_for(sample.acc_std_scale, sample.mag_std_scale)
-        heading_only = not names.isdisjoint(_MAG_OFF)
-        method = "triad" if heading_only else self.method
+        heading_only = flags & _MAG_OFF
+        method = HEADING_ONLY_METHOD if heading_only else self.method
         r = solve(sample.acc_mps2, sample.mag_uT, mag_ref_ned_uT, noise, method, q0=self._q0, **self.options)
         self._q0 = r.q
-        flags = names if r.converged else names | {"NOT_CONVERGED"}
+        if not r.converged:
+            flags |= _NOT_CONVERGED
         rates = np.array(sample.gyr_radps, dtype=float)
         if heading_only:
             flags |= _HEADING_ONLY
             covariance = _heading_uncertain(r, sample.acc_mps2)
         else:
             covariance = _SolutionCovariance(r)
-        return [AttitudeOutput(sample.time_s, r.q, rates, r.iterations, r.converged, flags, covariance)]
+        return [AttitudeOutput(sample.time_s, r.q, rates, r.iterations, r.converged, flag_set(flags), covariance)]
 
 
 #: Tick flags under which the magnetometer sets heading only: its |B| is off, or the compass is judged off.
-_MAG_OFF = frozenset({"MAG_NORM", "MAG_INCONSISTENT"})
-_HEADING_ONLY = frozenset({"MAG_HEADING_ONLY"})
+_MAG_OFF = int(SampleFlag.MAG_NORM | SampleFlag.MAG_INCONSISTENT)
+HEADING_ONLY_METHOD = "triad"  # the accelerometer's direction kept exactly, the magnetometer's heading only
+_RESET, _NOT_CONVERGED, _HEADING_ONLY, _DISTURBED, _INCONSISTENT = (
+    int(f)
+    for f in (
+        SampleFlag.RESET,
+        SampleFlag.NOT_CONVERGED,
+        SampleFlag.MAG_HEADING_ONLY,
+        SampleFlag.MAG_DISTURBED,
+        SampleFlag.MAG_INCONSISTENT,
+    )
+)
 
 
 class _SolutionCovariance:
@@ -294,7 +321,7 @@ class FusedEstimator:
             self._filter.set_mag_ref(mag_ref_ned_uT)  # a new WMM field: the state kept (a restart re-inits from IGN)
         self._mag_ref = mag_ref_ned_uT
         estimates = self._filter.push(sample.time_s, sample.gyr_radps, sample.acc_mps2, sample.mag_uT, sample.mag_age_s)
-        front = _flag_names(sample.flags) - _RESET  # the filter acts on a reset itself; no output says it
+        front = int(sample.flags) & ~_RESET  # the filter acts on a reset itself; no output says it
         return [
             AttitudeOutput(
                 e.time_s,
@@ -302,7 +329,7 @@ class FusedEstimator:
                 e.rates_radps,
                 0,
                 True,
-                front | {"MAG_DISTURBED"} if e.mag_disturbed else front,
+                flag_set(front | _DISTURBED if e.mag_disturbed else front),
                 functools.partial(_covariance, e),
             )
             for e in estimates
@@ -312,15 +339,6 @@ class FusedEstimator:
 def _covariance(estimate: Any) -> Array:
     """A fused estimate's covariance, made an array when an output is asked for it."""
     return estimate.covariance
-
-
-@functools.cache
-def _flag_names(flags: SampleFlag) -> frozenset[str]:
-    """The names of a front-end flag set; cached, since IntFlag arithmetic costs ~1 µs a call."""
-    return frozenset(f.name for f in SampleFlag if f & flags and f.name)
-
-
-_RESET = frozenset({"RESET"})
 
 
 #: ``estimator.method`` → the estimator that runs it.
@@ -388,7 +406,6 @@ class AttitudePipeline:
         # the sensors' per-sample σ (the defaults with fused, which refuses noise:), never the fused filter's
         # effective ones (docs/vehicle.md)
         self.compass = CompassMonitor(config.compass, config.noise.accel_std_mps2, config.noise.mag_std_uT)
-        self.compass_events: list[CompassEvent] = []  # verdict changes not yet taken by the service or replay
         self._compass_at_s = -math.inf  # vehicle time of the last tick the monitor took
         self.mag_ref_ned_uT: Array | None = None
         self.last_error: MavAttitudeError | None = None
@@ -427,12 +444,13 @@ class AttitudePipeline:
         self.frontend.set_expected_field_uT(intensity_uT)
         self.compass.set_reference(tuple(ref.tolist()), intensity_uT)
 
-    def push(self, sample: ImuSample) -> list[AttitudeOutput]:
-        out: list[AttitudeOutput] = []
+    def push(self, sample: ImuSample) -> Pushed:
+        """What one input sample completes (see :class:`Pushed`)."""
+        pushed = Pushed()
         for tick in self.frontend.push(sample):
             self.counters.ticks += 1
-            out += self._estimate(tick)
-        return out
+            self._estimate(tick, pushed)
+        return pushed
 
     def push_batch(
         self,
@@ -444,8 +462,8 @@ class AttitudePipeline:
         time_wrap_s: float | None = None,
         reference_after_s: float = -math.inf,
         mag_repeats: bool = False,
-    ) -> list[AttitudeOutput]:
-        """:meth:`push` for a whole run of samples at once: the outputs ``push`` gives fed them one by one.
+    ) -> Pushed:
+        """:meth:`push` for a whole run of samples at once: what ``push`` gives fed them one by one, as one value.
 
         The front end runs vectorised (:func:`~mavattitude.sensors.frontend.process_batch`, ~20× faster per
         sample, ticks equal to rounding), then every tick takes the same estimator step as in :meth:`push`.
@@ -467,21 +485,22 @@ class AttitudePipeline:
             expected_field_uT=fe.expected_field_uT,
         )
         fe.counters.add(batch.counters)
-        out: list[AttitudeOutput] = []
+        pushed = Pushed()
         reference = self.mag_ref_ned_uT
         if reference is not None and self.compass.settings.enabled:
-            self._judge_compass_rows(batch, batch.time_s > reference_after_s)
+            pushed.compass = self._judge_compass_rows(batch, batch.time_s > reference_after_s)
         with _collector_paused():
             for tick in batch.samples():
                 self.counters.ticks += 1
                 self.mag_ref_ned_uT = reference if tick.time_s > reference_after_s else None
-                out += self._estimate(tick, judge=False)
+                self._estimate(tick, pushed, judge=False)
         self.mag_ref_ned_uT = reference
-        return out
+        return pushed
 
-    def _judge_compass_rows(self, batch: BatchOutput, referenced: NDArray[np.bool_]) -> None:
+    def _judge_compass_rows(self, batch: BatchOutput, referenced: NDArray[np.bool_]) -> list[CompassEvent]:
         """:meth:`_judge_compass` of every tick of ``batch`` with a reference and a magnetometer reading, in order,
-        the monitor taking all its ticks at once (:meth:`CompassMonitor.update_rows`): the flags set in ``batch``."""
+        the monitor taking all its ticks at once (:meth:`CompassMonitor.update_rows`): the flags set in ``batch``,
+        the verdict's changes returned."""
         rows = np.flatnonzero(referenced & (batch.mag_uT[:, 0] == batch.mag_uT[:, 0])).tolist()  # NaN: no reading
         taken = []
         at_s = self._compass_at_s
@@ -494,35 +513,40 @@ class AttitudePipeline:
         events, suspect, inconsistent = self.compass.update_rows(
             batch.time_s[taken], batch.acc_mps2[taken], batch.mag_uT[taken], batch.gyr_radps[taken]
         )
-        self.compass_events += [e for e in events if e is not None]
         # a tick the monitor took is flagged when suspect, one it skipped when the verdict is inconsistent
         count = np.searchsorted(taken, rows, side="right")  # the ticks taken up to each row
         verdict = np.array([before, *inconsistent], dtype=bool)[count]
         flagged = np.where(np.isin(rows, taken), np.array([False, *suspect], dtype=bool)[count], verdict)
-        batch.flags[np.asarray(rows, dtype=np.int64)[flagged]] |= int(SampleFlag.MAG_INCONSISTENT)
+        batch.flags[np.asarray(rows, dtype=np.int64)[flagged]] |= _INCONSISTENT
+        return [e for e in events if e is not None]
 
-    def _estimate(self, tick: ProcessedSample, judge: bool = True) -> list[AttitudeOutput]:
-        """The tick's outputs; ``judge=False``: the compass monitor has taken it already (:meth:`push_batch`)."""
+    def _estimate(self, tick: ProcessedSample, pushed: Pushed, judge: bool = True) -> None:
+        """The tick's outputs into ``pushed``; ``judge=False``: the compass monitor has taken it already
+        (:meth:`push_batch`)."""
         c = self.counters
         if self.mag_ref_ned_uT is None:
             c.waiting += 1
-            return []
+            return
         if tick.mag_uT is None:
             if self.estimator.wants_filtered:
-                c.rejected["no_mag"] += 1
-                return []
+                self._reject("no_mag", pushed)
+                return
         elif judge and self.compass.settings.enabled:
-            tick = self._judge_compass(tick, tick.mag_uT)
+            tick = self._judge_compass(tick, tick.mag_uT, pushed)
         try:
             outputs = self.estimator.estimate(tick, self.mag_ref_ned_uT)
         except MavAttitudeError as exc:
-            c.rejected[type(exc).__name__] += 1
+            self._reject(type(exc).__name__, pushed)
             self.last_error = exc
             log.debug("t=%.3f s: not solved: %s", tick.time_s, exc)
-            return []
-        return [o for o in outputs if self._valid(o)]
+            return
+        pushed.outputs += [o for o in outputs if self._valid(o, pushed)]
 
-    def _judge_compass(self, tick: ProcessedSample, mag_uT: tuple[float, float, float]) -> ProcessedSample:
+    def _reject(self, reason: str, pushed: Pushed) -> None:
+        self.counters.rejected[reason] += 1
+        pushed.reject(reason)
+
+    def _judge_compass(self, tick: ProcessedSample, mag_uT: Vec3, pushed: Pushed) -> ProcessedSample:
         """Feed the compass monitor (at most one tick per ``COMPASS_PERIOD_S``: the fused filter's ticks are its input
         samples, and the figures need no more); flag the tick ``MAG_INCONSISTENT`` when it judges the field off."""
         compass = self.compass
@@ -531,25 +555,20 @@ class AttitudePipeline:
         self._compass_at_s = tick.time_s
         event = compass.update(tick.time_s, tick.acc_mps2, mag_uT, tick.gyr_radps)
         if event is not None:
-            self.compass_events.append(event)
+            pushed.compass.append(event)
         if compass.suspect(tick.acc_mps2, mag_uT, tick.gyr_radps):
             return self._flagged(tick)
         return tick
 
     @staticmethod
     def _flagged(tick: ProcessedSample) -> ProcessedSample:
-        return dataclasses.replace(tick, flags=tick.flags | SampleFlag.MAG_INCONSISTENT)
+        return dataclasses.replace(tick, flags=flag_set(int(tick.flags) | _INCONSISTENT))
 
-    def take_compass_events(self) -> list[CompassEvent]:
-        """The compass verdict's changes since the last call."""
-        events, self.compass_events = self.compass_events, []
-        return events
-
-    def _valid(self, output: AttitudeOutput) -> bool:
+    def _valid(self, output: AttitudeOutput, pushed: Pushed) -> bool:
         c = self.counters
         reason = _invalid(output)
         if reason:
-            c.rejected[reason] += 1
+            self._reject(reason, pushed)
             self.estimator.reset()
             log.warning(
                 "t=%.3f s: estimator returned %s: q=%s, rates=%s", output.time_s, reason, output.q, output.rates_radps

@@ -25,9 +25,10 @@ import numpy as np
 
 from mavattitude.config import Config
 from mavattitude.dispatch import DispatchCounters, Dispatcher
+from mavattitude.estimation.compass import CompassEvent
 from mavattitude.link.logs import LogSource, LogStreams
 from mavattitude.link.source import AutopilotAttitude, MessageSource, Sender
-from mavattitude.pipeline import AttitudeOutput, AttitudePipeline
+from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, Pushed
 from mavattitude.sensors.magref import distance_km
 from mavattitude.sensors.units import ImuSample
 
@@ -36,7 +37,8 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class Replayed:
-    """What a replay produced: every output, the autopilot's attitudes, and the counters."""
+    """What a replay produced: every output, the autopilot's attitudes, the compass verdict's changes, and the
+    counters."""
 
     outputs: list[AttitudeOutput]
     autopilot: list[AutopilotAttitude]
@@ -46,6 +48,7 @@ class Replayed:
     first_sample_s: float = float("nan")
     last_sample_s: float = float("nan")
     internal_errors: list[BaseException] = field(default_factory=list)
+    compass: list[CompassEvent] = field(default_factory=list)
 
     def output_array(self) -> np.ndarray:
         """Rows ``t_s, qw, qx, qy, qz`` of every output."""
@@ -76,8 +79,9 @@ class _Collector:
             r.first_sample_s = sample.time_s
         r.last_sample_s = sample.time_s
 
-    def on_outputs(self, outputs: list[AttitudeOutput], t_rx: float) -> None:
-        self.result.outputs += outputs
+    def on_outputs(self, pushed: Pushed, t_rx: float) -> None:
+        self.result.outputs += pushed.outputs
+        self.result.compass += pushed.compass
 
     def on_autopilot_attitude(self, attitude: AutopilotAttitude, t_rx: float) -> None:
         self.result.autopilot.append(attitude)
@@ -172,9 +176,10 @@ def _replay_arrays(s: LogStreams, result: Replayed, vehicle: Sender) -> Replayed
     carried = s.carried_mag()
     mag = np.full((len(carried), 3), np.nan)
     mag[carried >= 0] = s.mag_uT[carried[carried >= 0]]
-    result.outputs = pipeline.push_batch(
+    pushed = pipeline.push_batch(
         s.imu_t_s, s.acc_mps2, s.gyr_radps, mag, carried >= 0, s.time_wrap_s, reference_after_s, s.mag_repeats
     )
+    result.outputs, result.compass = pushed.outputs, pushed.compass
     counters.received += len(s.imu_t_s)
     if len(s.imu_t_s):
         result.first_sample_s, result.last_sample_s = float(s.imu_t_s[0]), float(s.imu_t_s[-1])

@@ -64,7 +64,7 @@ from mavattitude.estimation.crosscheck import CrossCheck
 from mavattitude.link import MavlinkLink, load_signing_key, message_id
 from mavattitude.link.requests import LOW_FRACTION, PendingRequests, RateMonitor, RequestSchedule, StreamRequest
 from mavattitude.link.source import AutopilotAttitude, MavlinkDecoder, MavlinkSource, MessageSource, Sender
-from mavattitude.pipeline import AttitudeOutput, AttitudePipeline
+from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, Pushed
 from mavattitude.sensors import units
 from mavattitude.sensors.units import ImuSample
 from mavattitude.systemd_notify import SystemdNotifier, default_notifier
@@ -246,7 +246,6 @@ class AttitudeService:
         self._wait_reports = WaitReports(Waiting.AUTOPILOT, now)
         self._last_counters: dict[str, str] = {}  # the last periodic line's key=value, to log what changed
         self._next_alive = now
-        self._degenerate_before = 0
         self.dispatcher = Dispatcher(
             pipeline,
             self,
@@ -496,15 +495,13 @@ class AttitudeService:
         if self._input_lost:
             self._input_lost = False
             log.info("input %s is back", self._input_name)
-        # .get: a Counter's missing key goes through its Python-level __missing__, and this runs per sample
-        self._degenerate_before = self.pipeline.counters.rejected.get(DEGENERATE, 0)
 
-    def on_outputs(self, outputs: list[AttitudeOutput], t_rx: float) -> None:
-        if self.pipeline.counters.rejected.get(DEGENERATE, 0) != self._degenerate_before:
+    def on_outputs(self, pushed: Pushed, t_rx: float) -> None:
+        if pushed.rejected and DEGENERATE in pushed.rejected:
             self._statustext("degenerate", "mavattitude: acc and mag near collinear, no attitude", "warning")
-        if self.pipeline.compass_events:
-            for event in self.pipeline.take_compass_events():
-                self._on_compass(event)
+        for event in pushed.compass:
+            self._on_compass(event)
+        outputs = pushed.outputs
         for out in outputs:
             self._emit(out, t_rx)
         if self._xcheck is not None and outputs:

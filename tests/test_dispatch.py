@@ -150,8 +150,8 @@ class _Recorder:
     def on_input(self, sample, t_rx):
         pass
 
-    def on_outputs(self, outputs, t_rx):
-        self.outputs += outputs
+    def on_outputs(self, pushed, t_rx):
+        self.outputs += pushed.outputs
 
     def on_autopilot_attitude(self, attitude, t_rx):
         self.attitudes.append(attitude)

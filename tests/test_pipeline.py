@@ -15,6 +15,7 @@ from mavattitude.estimation import solve as real_solve
 from mavattitude.estimation.compass import measured_dip_deg
 from mavattitude.estimation.conventions import angle_between, quat_from_euler, rotate_ned_to_body
 from mavattitude.pipeline import AttitudeOutput, AttitudePipeline
+from mavattitude.sensors.frontend import SampleFlag
 from mavattitude.sensors.magref import field_from_angles, wmm_field_ned_uT
 from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2, ImuSample
 
@@ -45,8 +46,12 @@ def static_samples(
     return [ImuSample(t0_s + i / rate_hz, tuple(acc[i]), tuple(gyr[i]), tuple(mag[i])) for i in range(n)]
 
 
+def pushes(p: AttitudePipeline, samples: list[ImuSample]) -> list:
+    return [p.push(s) for s in samples]
+
+
 def run(p: AttitudePipeline, samples: list[ImuSample]) -> list:
-    return [o for s in samples for o in p.push(s)]
+    return [o for pushed in pushes(p, samples) for o in pushed.outputs]
 
 
 def test_static_attitude_at_the_output_rate():
@@ -65,7 +70,7 @@ def test_static_attitude_at_the_output_rate():
     assert all(o.converged for o in out)
     assert all(np.allclose(o.rates_radps, 0.0, atol=3e-3) for o in out)  # gyro noise σ 1e-3 rad/s
     assert p.counters.emitted == 100 and not p.counters.rejected
-    assert "RESET" in out[0].flags and "RESET" not in out[1].flags
+    assert SampleFlag.RESET in out[0].flags and SampleFlag.RESET not in out[1].flags
 
 
 def test_covariance_is_the_solvers_3x3_prediction():
@@ -104,7 +109,7 @@ def test_a_gap_resets_the_warm_start(monkeypatch):
     p = AttitudePipeline(from_dict(ANGLES))
     first = run(p, static_samples(n=40, t0_s=10.0))
     second = run(p, static_samples(n=40, t0_s=11.0))  # 0.8 s gap > input_timeout_s 0.5 s
-    assert "RESET" in second[0].flags
+    assert SampleFlag.RESET in second[0].flags
     assert starts[len(first)] is None
     assert p.frontend.counters.gap_resets == 1
 
@@ -217,7 +222,7 @@ def test_the_fused_filter_plugs_in():
     out = run(p, static_samples(n=400))
     assert len(out) > 50
     assert np.allclose(np.diff([o.time_s for o in out]), 0.02)  # the filter's own 50 Hz ticks
-    assert out[0].time_s == 10.0 and not any("RESET" in o.flags for o in out)  # the filter's own business
+    assert out[0].time_s == 10.0 and not any(SampleFlag.RESET in o.flags for o in out)  # the filter's own business
     q = np.array([o.q for o in out])
     assert np.allclose(np.linalg.norm(q, axis=1), 1.0)
     # At rest the filter is no worse than the snapshot bound.
@@ -246,15 +251,17 @@ def test_the_fused_filter_takes_a_changed_reference_without_a_restart(monkeypatc
 def test_a_compass_upside_down_sets_heading_only_and_the_tilt_is_the_accelerometers():
     flipped = [dataclasses.replace(s, mag_uT=(s.mag_uT[0], s.mag_uT[1], -s.mag_uT[2])) for s in static_samples(n=400)]
     p = AttitudePipeline(from_dict(ANGLES))
-    out = run(p, flipped)
-    assert out and all("MAG_HEADING_ONLY" in o.flags for o in out)  # from the first tick: its own dip is off
+    results = pushes(p, flipped)
+    out = [o for r in results for o in r.outputs]
+    assert out and all(SampleFlag.MAG_HEADING_ONLY in o.flags for o in out)  # from the first tick: its own dip is off
     for o, tick_acc in zip(out, _filtered_acc(flipped), strict=False):
         down = -tick_acc / np.linalg.norm(tick_acc)
         # sin of the angle between the output's vertical and the accelerometer's: zero to rounding
         assert np.linalg.norm(np.cross(rotate_ned_to_body(o.q, [0.0, 0.0, 1.0]), down)) < 1e-12
         assert down @ o.covariance @ down > 1.0  # rad²: the heading is unknown
-    events = p.take_compass_events()
-    assert [e.inconsistent for e in events] == [True] and p.take_compass_events() == []
+    said = [i for i, r in enumerate(results) if r.compass]  # the push that changed the verdict returns it, once
+    assert len(said) == 1 and [e.inconsistent for e in results[said[0]].compass] == [True]
+    assert results[said[0]].outputs  # with the tick it judged
     mag_flipped = rotate_ned_to_body(Q_TRUE, FIELD_NED_UT) * [1.0, 1.0, -1.0]
     expected_dip_deg = measured_dip_deg(tuple(rotate_ned_to_body(Q_TRUE, [0.0, 0.0, -G])), tuple(mag_flipped))
     assert p.compass.figures().dip_deg == pytest.approx(expected_dip_deg, abs=0.5)  # noise: σ_dip 0.65°/√n
@@ -274,9 +281,10 @@ def _filtered_acc(samples: list[ImuSample]) -> list[np.ndarray]:
 def test_a_good_compass_leaves_ign_the_papers_ign():
     p = AttitudePipeline(from_dict(ANGLES))
     ticks = _ticks(static_samples(n=400))
-    out = run(p, static_samples(n=400))
-    assert not any("MAG_HEADING_ONLY" in o.flags or "MAG_INCONSISTENT" in o.flags for o in out)
-    assert p.compass.figures().warnings == 0 and p.take_compass_events() == []
+    results = pushes(p, static_samples(n=400))
+    out = [o for r in results for o in r.outputs]
+    assert not any(o.flags & (SampleFlag.MAG_HEADING_ONLY | SampleFlag.MAG_INCONSISTENT) for o in out)
+    assert p.compass.figures().warnings == 0 and not any(r.compass for r in results)
     noise = pipeline_module._noise_model(p.config)
     plain = [real_solve(t.acc_mps2, t.mag_uT, FIELD_NED_UT, noise, "ign").q for t in ticks]
     assert np.degrees(angle_between(np.array([o.q for o in out]), np.array(plain))).max() < 1e-6
@@ -291,6 +299,6 @@ def test_output_covariances_at_once_are_each_outputs_bit_for_bit(method):
     flipped = [dataclasses.replace(s, mag_uT=(s.mag_uT[0], s.mag_uT[1], -s.mag_uT[2])) for s in static_samples(n=200)]
     p = AttitudePipeline(from_dict({**ANGLES, "estimator": {"method": method}}))
     out = run(p, samples) + run(AttitudePipeline(from_dict({**ANGLES, "estimator": {"method": method}})), flipped)
-    assert method == "fused" or any("MAG_HEADING_ONLY" in o.flags for o in out)
+    assert method == "fused" or any(SampleFlag.MAG_HEADING_ONLY in o.flags for o in out)
     one_by_one = np.array([o.covariance_or_nan() for o in out])
     assert np.array_equal(pipeline_module.output_covariances(out), one_by_one)

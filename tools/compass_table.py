@@ -70,8 +70,8 @@ class Run:
         return self.warnings_s[0] - self.time_s[0] if self.warnings_s else math.nan
 
 
-def _run(pipeline: AttitudePipeline, outputs: list) -> Run:
-    warnings = [e.time_s for e in pipeline.take_compass_events() if e.inconsistent]
+def _run(pipeline: AttitudePipeline, outputs: list, events: list) -> Run:
+    warnings = [e.time_s for e in events if e.inconsistent]
     t = np.array([o.time_s for o in outputs], dtype=float)
     q = np.array([o.q for o in outputs], dtype=float).reshape(-1, 4)
     return Run(t, q, warnings, pipeline.compass.confirmed_at_s)
@@ -80,15 +80,15 @@ def _run(pipeline: AttitudePipeline, outputs: list) -> Run:
 def run_broad(rec: Recording, method: str, mag_uT: np.ndarray) -> Run:
     """A BROAD trial through the pipeline (its samples at once, as replay feeds a log)."""
     pipeline = AttitudePipeline(validation_config(rec, method))
-    outputs = pipeline.push_batch(rec.time_s, rec.acc_mps2, rec.gyr_radps, mag_uT, rec.mag_new)
-    return _run(pipeline, outputs)
+    pushed = pipeline.push_batch(rec.time_s, rec.acc_mps2, rec.gyr_radps, mag_uT, rec.mag_new)
+    return _run(pipeline, pushed.outputs, pushed.compass)
 
 
 def run_sitl(streams: LogStreams, method: str, mag_uT: np.ndarray) -> Run:
     """The SITL DataFlash log through replay, its magnetometer replaced by ``mag_uT``."""
     source = StreamSource("flightA.BIN", dataclasses.replace(streams, mag_uT=mag_uT))
     result = replay(source, load_config(None, {"estimator.method": method}, env={}))
-    return _run(result.pipeline, result.outputs)
+    return _run(result.pipeline, result.outputs, result.compass)
 
 
 def tilt_rms_deg(run: Run, reference: Run) -> float:

@@ -322,7 +322,7 @@ def run_sim(overrides: dict[str, float], seed: int = 0) -> None:
         else:
             config["noise"] = {"accel_std_mps2": [0.03, 0.03, 0.04], "mag_std_uT": [0.4, 0.4, 0.5]}  # the preset's σ
         p = pipeline.AttitudePipeline(from_dict(config))
-        out = [o for s in samples for o in p.push(s)]
+        out = [o for s in samples for o in p.push(s).outputs]
         q, q_true = np.array([o.q for o in out]), script.attitude(np.array([o.time_s for o in out]))
         errs = [np.degrees(e(q, q_true)) for e in (angle_between, tilt_error, heading_error)]
         rms[method] = [float(np.sqrt(np.mean(e**2))) for e in errs]

@@ -18,7 +18,7 @@ from mavattitude.estimation import METHODS
 from mavattitude.files import open_text
 
 if TYPE_CHECKING:
-    from mavattitude.estimation.compass import CompassFigures
+    from mavattitude.estimation.compass import CompassEvent, CompassFigures
     from mavattitude.pipeline import AttitudeOutput, AttitudePipeline
 
 COVARIANCE_COLUMNS = ("cov_xx_rad2", "cov_xy_rad2", "cov_xz_rad2", "cov_yy_rad2", "cov_yz_rad2", "cov_zz_rad2")
@@ -139,11 +139,13 @@ def write_outputs(path: str | Path, outputs: Sequence[AttitudeOutput]) -> int:
     return n
 
 
-def summarise_compass(pipeline: AttitudePipeline, source: str, logger: logging.Logger) -> None:
+def summarise_compass(
+    pipeline: AttitudePipeline, events: list[CompassEvent], source: str, logger: logging.Logger
+) -> None:
     """The compass verdict's changes (vehicle time) and its figures, as the service reports them live."""
     from mavattitude.service import compass_warning
 
-    for event in pipeline.take_compass_events():
+    for event in events:
         if event.inconsistent:
             logger.warning("%s: t=%.1f s: %s", source, event.time_s, compass_warning(event.figures))
         else:
@@ -195,13 +197,14 @@ class Progress:
         self.stream.flush()
 
 
-def summarise(pipeline: AttitudePipeline, n_in: int, source: str) -> None:
-    """Log the counters and the compass's figures; nothing solved at all is a failure, not an empty success."""
+def summarise(pipeline: AttitudePipeline, n_in: int, source: str, compass: list[CompassEvent]) -> None:
+    """Log the counters, the compass verdict's changes (``compass``) and its figures; nothing solved at all is a
+    failure, not an empty success."""
     counters = pipeline.counters
     logger = logging.getLogger("mavattitude")
     logger.info("%s: %d samples in; %s", source, n_in, counters.summary())
     if pipeline.config.compass.enabled:
-        summarise_compass(pipeline, source, logger)
+        summarise_compass(pipeline, compass, source, logger)
     if counters.emitted == 0:
         reasons = dict(counters.rejected) or dict(counters.frontend.rejected) or "no output tick"
         raise MavAttitudeError(f"{source}: no attitude could be computed ({reasons})")

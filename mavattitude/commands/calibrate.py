@@ -169,7 +169,7 @@ class _Skipped:
     def on_input(self, sample: units.ImuSample, t_rx: float) -> None:
         """Kept by the sink."""
 
-    def on_outputs(self, outputs: list[Any], t_rx: float) -> None:
+    def on_outputs(self, pushed: Any, t_rx: float) -> None:
         """Nothing is estimated here."""
 
     def on_autopilot_attitude(self, attitude: Any, t_rx: float) -> None:

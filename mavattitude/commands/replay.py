@@ -335,7 +335,7 @@ def _check_found(path: str, message: str, result: Any) -> None:
             f"{path}: reference.magnetic is auto but the log holds no position with a fix: give --declination "
             "DEG --inclination DEG or --mag-ref-ned N E D"
         )
-    summarise(result.pipeline, result.counters.received, path)
+    summarise(result.pipeline, result.counters.received, path, result.compass)
 
 
 def summary_table(results: list[LogResult], method: str) -> str:

@@ -78,14 +78,18 @@ log = logging.getLogger(__name__)
 
 
 class SampleFlag(IntFlag):
-    """What the front end noticed about an output sample."""
+    """What the front end noticed about an output sample (and the pipeline and estimator about its attitude)."""
 
+    NONE = 0
     RESET = 1  # first output after the start, a gap longer than input_timeout_s, or a reboot
     ACC_NORM = 2  # |a| far from g: down-weighted
     MAG_NORM = 4  # |B| far from the expected magnitude: down-weighted
     MAG_HELD = 8  # magnetometer held from its last sample, not interpolated
     NO_MAG = 16  # no magnetometer within input_timeout_s: mag_uT is None
     MAG_INCONSISTENT = 32  # set by the pipeline: the compass monitor judges this field not the Earth's
+    NOT_CONVERGED = 64  # set by the estimator: the solve stopped at its iteration bound
+    MAG_DISTURBED = 128  # set by the fused filter: it rejected or down-weighted this magnetometer update
+    MAG_HEADING_ONLY = 256  # set by the estimator: the magnetometer set heading only (TRIAD, accelerometer first)
 
 
 @dataclass(frozen=True)
@@ -488,7 +492,9 @@ class FrontEnd:
 _RESET, _ACC_NORM, _MAG_NORM, _MAG_HELD, _NO_MAG = (
     int(f) for f in (SampleFlag.RESET, SampleFlag.ACC_NORM, SampleFlag.MAG_NORM, SampleFlag.MAG_HELD, SampleFlag.NO_MAG)
 )
-_FLAGS = [SampleFlag(v) for v in range(64)]  # every combination, built once
+_FLAGS = [SampleFlag(v) for v in range(2 * max(SampleFlag))]  # every combination, built once
+#: The flag set of plain int bits (a table look-up: IntFlag arithmetic costs a microsecond per operation).
+flag_set = _FLAGS.__getitem__
 _COUNTED_FLAGS = (SampleFlag.RESET, SampleFlag.ACC_NORM, SampleFlag.MAG_NORM, SampleFlag.NO_MAG)
 _COUNTED = int(SampleFlag.RESET | SampleFlag.ACC_NORM | SampleFlag.MAG_NORM | SampleFlag.NO_MAG)
 

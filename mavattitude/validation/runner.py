@@ -117,7 +117,7 @@ def estimate_stream(recording: Recording, config: Config, progress: Progress | N
     times, quats = [], []
     start = time.monotonic()
     for i, sample in enumerate(feed):
-        for out in pipeline.push(sample):
+        for out in pipeline.push(sample).outputs:
             times.append(out.time_s)
             quats.append(out.q)
         if progress is not None and i % 5000 == 0:

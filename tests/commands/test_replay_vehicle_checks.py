@@ -69,7 +69,7 @@ def test_a_misoriented_compass_is_reported_and_leaves_the_tilt_to_the_accelerome
     result = _replay("ign", MISORIENTATIONS[name])
     compass = result.pipeline.compass
     first_output_s = result.outputs[0].time_s
-    events = result.pipeline.take_compass_events()
+    events = result.compass
     # the target: within 10 s (of the first output; of the first turn for those only a turn shows)
     assert events and events[0].inconsistent
     assert events[0].time_s < (first_output_s + 10.0 if said_by_s is None else said_by_s)
@@ -85,7 +85,7 @@ def test_a_misoriented_compass_is_reported_and_leaves_the_tilt_to_the_accelerome
 def test_the_good_compass_of_the_sitl_flight_is_not_reported():
     result = _replay("ign")
     figures = result.pipeline.compass.figures()
-    assert figures.warnings == 0 and result.pipeline.take_compass_events() == []
+    assert figures.warnings == 0 and result.compass == []
     # WMM at CMAC: inclination −65.8°; the first minute (on the ground) measures it to 0.5°
     assert figures.first_dip_deg == pytest.approx(figures.expected_dip_deg, abs=0.5)
     assert figures.first_field_ratio == pytest.approx(1.0, abs=0.02)

@@ -20,6 +20,7 @@ from mavattitude.estimation.conventions import angle_between
 from mavattitude.link.source import MavlinkDecoder
 from mavattitude.link.tlog import TlogSource
 from mavattitude.replay import replay
+from mavattitude.sensors.frontend import SampleFlag
 from mavattitude.sim.daemon import START_TIMEOUT_S, ServiceProcess
 from tests.commands.test_replay import DECL, INCL, write_tlog
 from tests.link.peer import UdpPeer
@@ -55,7 +56,7 @@ def test_replayed_and_live_attitudes_are_the_same(tmp_path, method):
     offline = replay(TlogSource(path, MavlinkDecoder.from_config(config)), config)
     expected = {round(o.time_s * 1e3): o.q for o in offline.outputs}
     assert len(expected) > 150
-    held = sum("MAG_HELD" in o.flags for o in offline.outputs)
+    held = sum(SampleFlag.MAG_HELD in o.flags for o in offline.outputs)
     assert held > 0.7 * len(offline.outputs)  # 4 ticks in 5 between the compass's readings: the repeats held
 
     peer = UdpPeer()

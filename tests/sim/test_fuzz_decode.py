@@ -40,7 +40,7 @@ def _check(pipeline: AttitudePipeline, msg: object, profile: str) -> None:
     except SensorError:
         return
     try:
-        outputs = pipeline.push(sample)
+        outputs = pipeline.push(sample).outputs
     except MavAttitudeError:
         return
     for out in outputs:

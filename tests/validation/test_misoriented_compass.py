@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mavattitude.pipeline import AttitudePipeline
+from mavattitude.pipeline import AttitudePipeline, Pushed
+from mavattitude.sensors.frontend import SampleFlag
 from mavattitude.sim.scoring import tilt_error
 from mavattitude.validation.frames import MISORIENTATIONS
 from mavattitude.validation.loaders import Recording
@@ -21,10 +22,11 @@ from mavattitude.validation.runner import validation_config
 FIRST_MINUTE_S = 60.0
 
 
-def _run(rec: Recording, method: str, mag_uT: np.ndarray) -> tuple[np.ndarray, np.ndarray, AttitudePipeline]:
+def _run(rec: Recording, method: str, mag_uT: np.ndarray) -> tuple[np.ndarray, np.ndarray, Pushed]:
     pipeline = AttitudePipeline(validation_config(rec, method))
-    out = pipeline.push_batch(rec.time_s, rec.acc_mps2, rec.gyr_radps, mag_uT, rec.mag_new)
-    return np.array([o.time_s for o in out]), np.array([o.q for o in out]), pipeline
+    pushed = pipeline.push_batch(rec.time_s, rec.acc_mps2, rec.gyr_radps, mag_uT, rec.mag_new)
+    out = pushed.outputs
+    return np.array([o.time_s for o in out]), np.array([o.q for o in out]), pushed
 
 
 @pytest.fixture(scope="module")
@@ -41,14 +43,14 @@ def accelerometer_tilt(recordings) -> dict[str, tuple[np.ndarray, np.ndarray]]:
 @pytest.mark.parametrize("name", list(MISORIENTATIONS))
 def test_a_misoriented_compass_leaves_the_ign_tilt_to_the_accelerometer(recordings, accelerometer_tilt, trial, name):
     rec = recordings[trial].slice(0.0, FIRST_MINUTE_S)
-    t, q, pipeline = _run(rec, "ign", rec.mag_uT @ MISORIENTATIONS[name].T)
+    t, q, pushed = _run(rec, "ign", rec.mag_uT @ MISORIENTATIONS[name].T)
     t_acc, q_acc = accelerometer_tilt[trial]
     # a tick whose field lies along gravity is not solved (the geometry is degenerate): a few more of them
     common, i, j = np.intersect1d(t, t_acc, return_indices=True)
     assert len(common) > 0.95 * len(t_acc)
     rms_deg = np.sqrt(np.mean(np.degrees(tilt_error(q[i], q_acc[j])) ** 2))
     assert rms_deg < 1.0  # the target; measured ≤ 0.2° (tools/compass_table.py, first minute and whole file)
-    warnings = [e.time_s for e in pipeline.take_compass_events() if e.inconsistent]
+    warnings = [e.time_s for e in pushed.compass if e.inconsistent]
     first_movement_s = rec.time_s[np.argmax(rec.movement)]
     # the target: within 10 s; a compass turned about the vertical or mirrored shows only once it turns
     assert warnings and warnings[0] - max(first_movement_s if _turn_only(name) else t[0], t[0]) < 10.0
@@ -67,10 +69,10 @@ def test_a_slow_turn_mostly_about_the_misorientations_axis_is_warned_about_withi
     rec = recordings[trial].slice(0.0, FIRST_MINUTE_S)
     first_movement_s = rec.time_s[np.argmax(rec.movement)]
     *_, bad = _run(rec, "ign", rec.mag_uT @ MISORIENTATIONS[name].T)
-    warnings = [e.time_s for e in bad.take_compass_events() if e.inconsistent]
+    warnings = [e.time_s for e in bad.compass if e.inconsistent]
     assert warnings and 0.0 < warnings[0] - first_movement_s < 10.0  # the target
     *_, good = _run(rec, "ign", rec.mag_uT)
-    assert good.take_compass_events() == []
+    assert good.compass == []
 
 
 def test_a_good_compass_is_vouched_for_at_the_first_turns_and_trusted_from_then(recordings):
@@ -78,10 +80,12 @@ def test_a_good_compass_is_vouched_for_at_the_first_turns_and_trusted_from_then(
     pipeline = AttitudePipeline(validation_config(rec, "ign"))
     first_movement_s = rec.time_s[np.argmax(rec.movement)]
     before = rec.time_s < first_movement_s + 5.0
-    pipeline.push_batch(*(a[before] for a in (rec.time_s, rec.acc_mps2, rec.gyr_radps, rec.mag_uT, rec.mag_new)))
+    first = pipeline.push_batch(
+        *(a[before] for a in (rec.time_s, rec.acc_mps2, rec.gyr_radps, rec.mag_uT, rec.mag_new))
+    )
     assert pipeline.compass.confirmed  # measured: 1.5 s after the first movement
     after = pipeline.push_batch(
         *(a[~before] for a in (rec.time_s, rec.acc_mps2, rec.gyr_radps, rec.mag_uT, rec.mag_new))
     )
-    assert pipeline.take_compass_events() == []
-    assert not any("MAG_HEADING_ONLY" in o.flags for o in after if "MAG_NORM" not in o.flags)
+    assert first.compass == [] and after.compass == []
+    assert not any(SampleFlag.MAG_HEADING_ONLY in o.flags for o in after.outputs if SampleFlag.MAG_NORM not in o.flags)

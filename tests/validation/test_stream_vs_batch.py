@@ -15,17 +15,17 @@ import numpy as np
 from mavattitude.estimation import NoiseModel, solve_batch
 from mavattitude.estimation.conventions import angle_between
 from mavattitude.pipeline import AttitudePipeline, frontend_settings
-from mavattitude.sensors.frontend import batch_inputs, process_batch
+from mavattitude.sensors.frontend import SampleFlag, batch_inputs, process_batch
 from mavattitude.validation.runner import estimate_batch, samples, validation_config
 
 AGREEMENT_RAD = 1e-6
-SCREEN_FLAGS = {"ACC_NORM", "MAG_NORM", "MAG_HELD", "MAG_INCONSISTENT"}
+SCREEN_FLAGS = SampleFlag.ACC_NORM | SampleFlag.MAG_NORM | SampleFlag.MAG_HELD | SampleFlag.MAG_INCONSISTENT
 
 
 def _stream(recording, config):
     """Stream outputs not flagged by the screening, as (times, quaternions)."""
     pipeline = AttitudePipeline(config)
-    outs = [o for s in samples(recording) for o in pipeline.push(s) if not (o.flags & SCREEN_FLAGS)]
+    outs = [o for s in samples(recording) for o in pipeline.push(s).outputs if not (o.flags & SCREEN_FLAGS)]
     return np.array([o.time_s for o in outs]), np.array([o.q for o in outs])
 
 
