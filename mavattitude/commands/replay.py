@@ -364,13 +364,26 @@ def _write_summary(path: Path, results: list[LogResult]) -> None:
         writer.writerows(rows)
 
 
-def comparison_table(diff_deg: np.ndarray) -> str:
+def comparison_table(diff_deg: np.ndarray, check: Any) -> str:
     lines = [f"{'ours − autopilot (deg)':<24}{'mean':>9}{'rms':>9}{'p95 |.|':>9}{'max |.|':>9}"]
     for name, d in zip(("roll", "pitch", "yaw", "total angle"), diff_deg.T, strict=True):
         a = np.abs(d)
         lines.append(f"{name:<24}{d.mean():9.3f}{np.sqrt(np.mean(d**2)):9.3f}{np.percentile(a, 95):9.3f}{a.max():9.3f}")
-    lines.append(f"{len(diff_deg)} autopilot attitudes compared with ours (interpolated to their times)")
+    compared = f"{len(diff_deg)} autopilot attitudes compared with ours (interpolated to their times)"
+    lines.append(f"{compared}: {_pairing(check)}")
     return "\n".join(lines)
+
+
+def _pairing(check: Any) -> str:
+    """How many of the autopilot's attitudes inside our output span were compared, and why the others were not."""
+    inside = check.pairs + check.missed
+    text = f"{check.pairs} of the {inside} inside our output span ({100.0 * check.share:.1f} %)"
+    return text + (f"; not compared: {_reasons(check.unpaired)}" if check.missed else "")
+
+
+def _reasons(unpaired: Any) -> str:
+    """The cross-check's misses by reason, ``gap 3, reset 1`` (``outside`` our span is no miss)."""
+    return ", ".join(f"{k} {v}" for k, v in sorted(unpaired.items()) if k != "outside" and v)
 
 
 def _compare(ours: np.ndarray, autopilot: np.ndarray, job: Job, result: LogResult) -> None:
@@ -385,6 +398,13 @@ def _compare(ours: np.ndarray, autopilot: np.ndarray, job: Job, result: LogResul
     )
     if job.config.crosscheck.enabled:
         _report_cross_check(check, events, job, result)
+    result.columns |= {
+        "compared": check.pairs,
+        "compared_pct": round(100.0 * check.share, 1),
+        "not_compared": _reasons(check.unpaired),
+    }
+    if check.missed:
+        log.info("%s: %s", job.log, _pairing(check))
     if not pairs:
         log.warning("%s: no autopilot attitude falls within our output times: no comparison", job.log)
         return
@@ -396,7 +416,7 @@ def _compare(ours: np.ndarray, autopilot: np.ndarray, job: Job, result: LogResul
     if job.table:
         method = job.config.estimator.method
         note = "" if method == "fused" else SNAPSHOT_NOTE.format(method=method) + "\n"
-        sys.stdout.write(comparison_table(diff) + "\n" + note)
+        sys.stdout.write(comparison_table(diff, check) + "\n" + note)
     if job.plot is None:
         return
     try:

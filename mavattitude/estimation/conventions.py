@@ -100,6 +100,25 @@ def clip_unit(x: float) -> float:
     return x if x > -1.0 else -1.0
 
 
+def wrap_deg(angle_deg: float) -> float:
+    """An angle, or a difference of two, in degrees wrapped to [−180, 180): ours at −179° and another at +179°
+    differ by 2°, not 358°."""
+    return (angle_deg + 180.0) % 360.0 - 180.0
+
+
+#: An interval longer than this many times the usual one (the median of the recent ones) is a gap in a stream,
+#: never a gap when shorter than the configured floor (``input.input_timeout_s``): a 2 Hz stream's 0.5 s steps
+#: are its rhythm, not gaps; one dropped message (twice the interval) is bridged, two are not.
+GAP_INTERVALS = 2.5
+
+
+def gap_limit_s(floor_s: float, usual_interval_s: float) -> float:
+    """The longest interval of a stream that is not a gap: ``floor_s``, or :data:`GAP_INTERVALS` × the usual
+    interval when that is longer (NaN when the usual interval is not known yet: the floor)."""
+    scaled = GAP_INTERVALS * usual_interval_s
+    return scaled if scaled > floor_s else floor_s
+
+
 def quat_normalize_parts(q: tuple) -> tuple[float, float, float, float]:
     """Scalar (plain-float) twin of :func:`quat_normalize`: unit, ``w ≥ 0``."""
     w, x, y, z = q

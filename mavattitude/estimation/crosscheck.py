@@ -2,10 +2,18 @@
 
 The autopilot's attitude (ATTITUDE, ~10 Hz) is sparser than ours (50 Hz), so each of its attitudes is
 paired with ours *interpolated to its time* (normalised linear interpolation between the two outputs
-around it, at most ``max_gap_s`` apart): no extrapolation, and an autopilot attitude that arrives before
-our output for its time waits until that output is there. The difference is ours minus the autopilot's:
-roll, pitch and yaw (ZYX Euler angles, yaw wrapped to ±180°) and the total rotation angle between the
-two, degrees. The live service runs it on every output and autopilot attitude, so it works on plain floats
+around it, no further apart than a gap of our stream: ``max_gap_s``, or more when our outputs are slower,
+:func:`~.conventions.gap_limit_s` of their usual interval): no extrapolation, and an autopilot attitude that
+arrives before our output for its time waits until that output is there. The difference is ours minus the
+autopilot's: roll, pitch and yaw (ZYX Euler angles, each difference wrapped to ±180°: ours at −179° and the
+autopilot's at +179° differ by 2°) and the total rotation angle between the two, degrees.
+
+Every autopilot attitude is either paired or counted in :attr:`CrossCheck.unpaired` by why it was not:
+``outside`` our output span (before our first output, or still waiting after our last), ``gap`` (our outputs
+around it are further apart than a gap), ``reset`` (before our first output since our clock went back: a
+reboot), ``late`` (ours around it already forgotten, ``KEEP_S`` behind the newest) or ``overflow`` (more than
+``MAX_WAITING`` waiting for our outputs). All but ``outside`` are misses inside our span
+(:attr:`CrossCheck.share`). The live service runs it on every output and autopilot attitude, so it works on plain floats
 (numpy's per-call overhead on four-element arrays was most of its cost).
 
 The verdict: *disagreeing* once the total stays above ``threshold_deg`` for ``hold_s`` of vehicle time,
@@ -17,7 +25,7 @@ from __future__ import annotations
 
 import bisect
 import math
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import ClassVar
@@ -26,7 +34,7 @@ import numpy as np
 
 from mavattitude.fields import described, ranged
 
-from .conventions import Quat, angle_between_parts, euler_from_quat_parts
+from .conventions import Quat, angle_between_parts, euler_from_quat_parts, gap_limit_s, wrap_deg
 
 CLEAR_FRACTION = 0.8
 KEEP_S = 5.0  # our outputs kept for pairing, s of vehicle time
@@ -42,7 +50,7 @@ class CrossCheckSettings:
     publish_rate_hz: float = ranged(2.0, "NAMED_VALUE_FLOAT rate of the difference, Hz", 0.0, 50.0, lo_open=True)
     threshold_deg: float = ranged(5.0, "warn when the total difference stays above", 0.0, 180.0, lo_open=True)
     hold_s: float = ranged(3.0, "... for this long (and clear after as long below), s", 0.0, 600.0)
-    max_gap_s: ClassVar[float] = 0.5  # our outputs further apart are not interpolated between
+    max_gap_s: ClassVar[float] = 0.5  # our outputs further apart (and slower than 2.5 × their rhythm): not bridged
 
 
 @dataclass(frozen=True)
@@ -68,9 +76,9 @@ class CrossCheckEvent:
 def difference(time_s: float, ours: Quat, theirs: Quat) -> Difference:
     """Ours minus theirs (quaternions ``[w, x, y, z]`` body → NED) in degrees."""
     (r1, p1, y1), (r2, p2, y2) = euler_from_quat_parts(ours), euler_from_quat_parts(theirs)
-    yaw = (math.degrees(y1 - y2) + 180.0) % 360.0 - 180.0
     total = math.degrees(angle_between_parts(ours, theirs))
-    return Difference(time_s, math.degrees(r1 - r2), math.degrees(p1 - p2), yaw, total)
+    roll, pitch, yaw = (wrap_deg(math.degrees(a - b)) for a, b in ((r1, r2), (p1, p2), (y1, y2)))
+    return Difference(time_s, roll, pitch, yaw, total)
 
 
 def interpolate(t0: float, q0: Quat, t1: float, q1: Quat, t: float) -> Quat:
@@ -97,9 +105,12 @@ class CrossCheck:
         self._times: deque[float] = deque()
         self._quats: deque[Quat] = deque()
         # autopilot attitudes ahead of our outputs (bounded: while we output nothing, the oldest go)
-        self._waiting: deque[tuple[float, Quat]] = deque(maxlen=MAX_WAITING)
+        self._waiting: deque[tuple[float, Quat]] = deque()
+        self._first_s = math.inf  # our first output since the start or our last reset
+        self._resets = 0
         self.last: Difference | None = None
         self.pairs = 0
+        self.unpaired: Counter[str] = Counter()  # autopilot attitudes not paired, by why (module docstring)
         self.disagree = False
         self.warnings = 0
         self._sum_total2 = 0.0
@@ -109,10 +120,25 @@ class CrossCheck:
     def rms_total_deg(self) -> float:
         return math.sqrt(self._sum_total2 / self.pairs) if self.pairs else math.nan
 
+    @property
+    def missed(self) -> int:
+        """Autopilot attitudes inside our output span that were not paired."""
+        return sum(n for reason, n in self.unpaired.items() if reason != "outside")
+
+    @property
+    def share(self) -> float:
+        """The fraction of the autopilot's attitudes inside our output span that were paired (NaN: none)."""
+        inside = self.pairs + self.missed
+        return self.pairs / inside if inside else math.nan
+
     def add_ours(self, time_s: float, q: Iterable[float]) -> None:
-        if self._times and time_s <= self._times[-1]:  # a reboot or a gap reset: start over
+        if self._times and time_s <= self._times[-1]:  # our clock went back (a reboot): start over
             self._times.clear()
             self._quats.clear()
+            self._resets += 1
+            self._first_s = time_s
+        if not self._times:
+            self._first_s = min(self._first_s, time_s)
         self._times.append(time_s)
         self._quats.append(_quat(q))
         while self._times[0] < time_s - KEEP_S:
@@ -120,7 +146,16 @@ class CrossCheck:
             self._quats.popleft()
 
     def add_autopilot(self, time_s: float, q: Iterable[float]) -> None:
+        if len(self._waiting) == MAX_WAITING:  # the oldest goes
+            dropped_s = self._waiting.popleft()[0]
+            self.unpaired["outside" if dropped_s < self._first_s else "overflow"] += 1
         self._waiting.append((time_s, _quat(q)))
+
+    def finish(self) -> None:
+        """The end of the stream (a log's): what still waits for our outputs lies after our last one."""
+        if self._waiting:
+            self.unpaired["outside"] += len(self._waiting)
+            self._waiting.clear()
 
     def update(self) -> tuple[list[Difference], list[CrossCheckEvent]]:
         """Pair every waiting autopilot attitude that our outputs now reach; the differences and verdicts."""
@@ -129,7 +164,8 @@ class CrossCheck:
         while self._waiting and self._times and self._waiting[0][0] <= self._times[-1]:
             t, theirs = self._waiting.popleft()
             ours = self._ours_at(t)
-            if ours is None:
+            if isinstance(ours, str):
+                self.unpaired[ours] += 1
                 continue
             d = difference(t, ours, theirs)
             diffs.append(d)
@@ -141,14 +177,25 @@ class CrossCheck:
                 events.append(event)
         return diffs, events
 
-    def _ours_at(self, t: float) -> Quat | None:
+    def _ours_at(self, t: float) -> Quat | str:
+        """Ours at ``t`` (within our newest output's time), or why there is none."""
         times = self._times
         i = bisect.bisect_left(times, t)
-        if i < len(times) and times[i] == t:
+        if times[i] == t:
             return self._quats[i]
-        if i == 0 or i == len(times) or times[i] - times[i - 1] > self.settings.max_gap_s:
-            return None
+        if i == 0:
+            if t >= self._first_s:
+                return "late"
+            return "reset" if self._resets else "outside"
+        if times[i] - times[i - 1] > self.settings.max_gap_s and times[i] - times[i - 1] > self._gap_limit_s():
+            return "gap"
         return interpolate(times[i - 1], self._quats[i - 1], times[i], self._quats[i], t)
+
+    def _gap_limit_s(self) -> float:
+        """The longest interval between our outputs that is bridged: their usual interval decides (a 2 Hz stream)."""
+        times = self._times
+        intervals = sorted(b - a for a, b in zip(times, list(times)[1:], strict=False))
+        return gap_limit_s(self.settings.max_gap_s, intervals[len(intervals) // 2])
 
     def _judge(self, d: Difference) -> CrossCheckEvent | None:
         s = self.settings
@@ -174,15 +221,15 @@ def cross_check_log(
     diffs: list[Difference] = []
     events: list[CrossCheckEvent] = []
     j = 0
+    ours = ours_t_s.tolist()
     for t, q in zip(theirs_t_s.tolist(), theirs_q, strict=True):
-        while j < len(ours_t_s) and ours_t_s[j] <= t:
-            check.add_ours(float(ours_t_s[j]), ours_q[j])
-            j += 1
-        if j < len(ours_t_s):  # the output just after it, as live: ours reach past its time
-            check.add_ours(float(ours_t_s[j]), ours_q[j])
+        # ours up to the first at or past its time, as live: an attitude is paired once ours reach past it
+        while j < len(ours) and (j == 0 or ours[j - 1] < t):
+            check.add_ours(ours[j], ours_q[j])
             j += 1
         check.add_autopilot(t, q)
         d, e = check.update()
         diffs += d
         events += e
+    check.finish()
     return check, diffs, events

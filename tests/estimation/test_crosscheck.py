@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 
 from mavattitude.estimation.conventions import quat_from_euler
-from mavattitude.estimation.crosscheck import CLEAR_FRACTION, CrossCheck, CrossCheckSettings, cross_check_log
+from mavattitude.estimation.crosscheck import (
+    CLEAR_FRACTION,
+    CrossCheck,
+    CrossCheckSettings,
+    cross_check_log,
+    difference,
+)
 
 YAW_RATE_RADPS = np.radians(30.0)
 
@@ -38,14 +44,57 @@ def test_an_autopilot_attitude_ahead_of_our_outputs_waits_for_them():
     assert d.time_s == 0.03
 
 
-def test_ours_too_far_apart_are_not_interpolated():
-    assert CrossCheckSettings.max_gap_s < 1.0  # the two outputs below are 1 s apart
+def test_ours_too_far_apart_are_not_interpolated_and_the_miss_is_counted_as_a_gap():
+    assert CrossCheckSettings.max_gap_s < 1.0  # the hole below is 1 s
+    ours_t = np.concatenate([np.arange(0.0, 2.0, 0.02), np.arange(3.0, 5.0, 0.02)])  # 50 Hz, a 1 s hole
+    theirs_t = np.arange(0.05, 5.0, 0.1)
+    check, diffs, _ = cross_check_log(ours_t, truth(ours_t), theirs_t, truth(theirs_t), CrossCheckSettings())
+    in_hole = int(np.count_nonzero((theirs_t > 1.98) & (theirs_t < 3.0)))
+    assert check.unpaired == {"gap": in_hole} and check.pairs == len(diffs) == len(theirs_t) - in_hole  # 4.95 < 4.98
+    assert check.missed == in_hole and check.share == pytest.approx(check.pairs / len(theirs_t))
+
+
+def test_slow_outputs_are_bridged_at_their_own_rhythm():
+    """One output per sample of a 2 Hz stream (0.5 s apart, jittered): each autopilot attitude between two
+    of them is compared, none taken for a gap."""
+    rng = np.random.default_rng(3)
+    ours_t = np.arange(0.0, 20.0, 0.5) + rng.uniform(0.0, 0.05, 40)
+    theirs_t = np.arange(0.1, 19.5, 0.25)  # 4 Hz
+    check, _, _ = cross_check_log(ours_t, truth(ours_t), theirs_t, truth(theirs_t), CrossCheckSettings())
+    assert check.pairs == len(theirs_t) and not check.unpaired
+
+
+def test_ours_starting_late_pair_every_autopilot_attitude_after_our_first():
+    """The autopilot's attitudes from long before our first output (waiting for a GPS position) are outside our
+    span; every one after it is paired, however many came before."""
+    ours_t = np.arange(30.0, 60.0, 0.02)
+    theirs_t = np.arange(0.0, 60.0, 0.02) + 0.007  # 50 Hz from 0 s
+    check, diffs, _ = cross_check_log(ours_t, truth(ours_t), theirs_t, truth(theirs_t), CrossCheckSettings())
+    inside = int(np.count_nonzero((theirs_t >= 30.0) & (theirs_t <= ours_t[-1])))
+    assert check.pairs == len(diffs) == inside and check.missed == 0
+    assert check.unpaired["outside"] == len(theirs_t) - inside
+
+
+def test_an_attitude_before_our_restart_is_counted_as_a_reset():
     check = CrossCheck(CrossCheckSettings())
-    q = truth(np.array([0.0, 1.0]))
-    check.add_ours(0.0, q[0])
-    check.add_ours(1.0, q[1])
-    check.add_autopilot(0.5, q[0])
-    assert check.update() == ([], []) and check.pairs == 0
+    q = truth(np.array([0.0]))[0]
+    for t in (10.0, 10.02, 10.04):
+        check.add_ours(t, q)
+    for t in (1.0, 1.02):  # the vehicle rebooted: our clock went back
+        check.add_ours(t, q)
+    check.add_autopilot(0.5, q)
+    check.add_autopilot(1.01, q)
+    check.update()
+    assert check.unpaired == {"reset": 1} and check.pairs == 1
+
+
+def test_differences_are_wrapped_to_180_degrees():
+    """Upside down: ours at roll −179°, the autopilot's at +179°: 2° apart, in roll as in total."""
+    ours = tuple(quat_from_euler(np.radians(-179.0), np.radians(10.0), np.radians(-178.0)).tolist())
+    theirs = tuple(quat_from_euler(np.radians(179.0), np.radians(10.0), np.radians(178.0)).tolist())
+    d = difference(0.0, ours, theirs)
+    assert d.roll_deg == pytest.approx(2.0, abs=1e-9) and d.yaw_deg == pytest.approx(4.0, abs=1e-9)
+    assert -180.0 <= d.roll_deg < 180.0 and d.total_deg < 5.0
 
 
 def _run(offsets_deg: list[tuple[float, float]], settings: CrossCheckSettings) -> list:
