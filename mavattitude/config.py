@@ -404,7 +404,8 @@ def _cross_check(c: Config) -> None:
                 _fail(f"input.custom.{key}", "required with profile: custom")
     elif any(v is not None for v in scales.values()):
         _fail("input.custom", f"scales are only used with profile: custom (profile is {c.input.profile})")
-    if c.estimator.method == "fused" and c.noise != DEFAULTS.noise:
+    method = METHODS[c.estimator.method]
+    if not method.sensor_noise and c.noise != DEFAULTS.noise:
         key = next(
             f.name
             for f in dataclasses.fields(NoiseConfig)
@@ -412,7 +413,8 @@ def _cross_check(c: Config) -> None:
         )
         _fail(
             f"noise.{key}",
-            f"not used by estimator.method fused (its σ are effective, tuned values): set estimator.fused.{key} "
+            f"not used by estimator.method {method.name} (its σ are effective, tuned values): set "
+            f"{method.settings_section}.{key} "
             "instead, and leave noise (and --accel-std / --mag-std) at the default",
         )
     if c.filter.enabled and c.filter.cutoff_hz >= c.filter.output_rate_hz / 2:

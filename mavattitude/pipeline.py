@@ -55,7 +55,7 @@ from numpy.typing import NDArray
 
 from mavattitude.config import Config
 from mavattitude.errors import ConfigError, InputError, MavAttitudeError
-from mavattitude.estimation import SNAPSHOT_METHODS, NoiseModel, solve
+from mavattitude.estimation import METHODS, NoiseModel, solve
 from mavattitude.estimation.compass import CompassEvent, CompassMonitor, heading_uncertain
 from mavattitude.estimation.conventions import Array, Vec3, is_unit_quaternion_parts
 from mavattitude.sensors.frontend import (
@@ -141,6 +141,7 @@ class PipelineCounters:
     iterations: int = 0  # summed over emitted outputs
     not_converged: int = 0
     estimator: Callable[[], dict[str, float]] = dict  # the estimator's own counters (the fused filter's)
+    estimator_prefix: str = ""  # their names' prefix in the counters line (the method's ``counters_prefix``)
 
     @property
     def mean_iterations(self) -> float:
@@ -341,10 +342,9 @@ def _covariance(estimate: Any) -> Array:
     return estimate.covariance
 
 
-#: ``estimator.method`` → the estimator that runs it.
+#: ``estimator.method`` → the estimator that runs it: a snapshot method's solve per tick, or the filter.
 ESTIMATORS: dict[str, Callable[[Config], Estimator]] = {
-    **dict.fromkeys(SNAPSHOT_METHODS, SnapshotEstimator),
-    "fused": FusedEstimator,
+    name: SnapshotEstimator if method.snapshot else FusedEstimator for name, method in METHODS.items()
 }
 
 
@@ -402,7 +402,12 @@ class AttitudePipeline:
             self.frontend = FrontEnd(frontend_settings(config, filter_enabled=filtered))
         except MavAttitudeError as exc:
             raise ConfigError(f"front end: {exc}") from exc
-        self.counters = PipelineCounters(self.frontend.counters, estimator=self.estimator.counters)
+        method = METHODS[config.estimator.method]
+        self.counters = PipelineCounters(
+            self.frontend.counters,
+            estimator=self.estimator.counters,
+            estimator_prefix=method.counters_prefix or method.name,
+        )
         # the sensors' per-sample σ (the defaults with fused, which refuses noise:), never the fused filter's
         # effective ones (docs/vehicle.md)
         self.compass = CompassMonitor(config.compass, config.noise.accel_std_mps2, config.noise.mag_std_uT)

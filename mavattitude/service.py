@@ -669,6 +669,6 @@ def counters_line(
         ("reconnects", link_counters.reconnects),
         *(compass_pairs(compass) if compass is not None else ()),
         *(crosscheck_pairs(xcheck) if xcheck is not None else ()),
-        *((f"fused.{k}", v) for k, v in pipeline_counters.estimator().items()),
+        *((f"{pipeline_counters.estimator_prefix}.{k}", v) for k, v in pipeline_counters.estimator().items()),
     ]
     return " ".join(f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}" for k, v in pairs)

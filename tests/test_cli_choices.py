@@ -65,4 +65,4 @@ def _fields(section: dataclasses.Field) -> tuple[dataclasses.Field, ...]:
 
 
 def test_every_method_has_an_estimator():
-    assert tuple(ESTIMATORS) == METHODS
+    assert tuple(ESTIMATORS) == tuple(METHODS)

@@ -50,6 +50,7 @@ from mavattitude.commands._offline import (
 )
 from mavattitude.config import DEFAULTS, Config
 from mavattitude.errors import DataFileError, MavAttitudeError
+from mavattitude.estimation import METHODS
 from mavattitude.files import LOG_SUFFIXES
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
 
@@ -345,7 +346,7 @@ def summary_table(results: list[LogResult], method: str) -> str:
     widths = [max(len(n), *(len(t[i]) for t in text)) for i, n in enumerate(names)]
     lines = ["  ".join(n.ljust(w) for n, w in zip(names, widths, strict=True)).rstrip()]
     lines += ["  ".join(v.ljust(w) for v, w in zip(t, widths, strict=True)).rstrip() for t in text]
-    if method != "fused":
+    if METHODS[method].snapshot:
         lines.append(SNAPSHOT_NOTE.format(method=method))
     return "\n".join(lines)
 
@@ -415,7 +416,7 @@ def _compare(ours: np.ndarray, autopilot: np.ndarray, job: Job, result: LogResul
     result.p99_deg = tuple(float(v) for v in np.percentile(np.abs(diff[:, :3]), 99.0, axis=0))  # type: ignore[assignment]
     if job.table:
         method = job.config.estimator.method
-        note = "" if method == "fused" else SNAPSHOT_NOTE.format(method=method) + "\n"
+        note = SNAPSHOT_NOTE.format(method=method) + "\n" if METHODS[method].snapshot else ""
         sys.stdout.write(comparison_table(diff, check) + "\n" + note)
     if job.plot is None:
         return

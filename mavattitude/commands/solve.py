@@ -32,6 +32,7 @@ from mavattitude.commands._offline import (
 )
 from mavattitude.config import Config
 from mavattitude.errors import ConfigError, DataFileError
+from mavattitude.estimation import METHODS
 from mavattitude.files import ACC_COLUMNS, GYR_COLUMNS, LOG_SUFFIXES, MAG_COLUMNS, TIME_COLUMN, read_columns
 
 NAME = "solve"
@@ -80,8 +81,10 @@ def check_offline_config(config: Config, has_gyro: bool, source: str) -> None:
             f"reference.magnetic is auto (WMM at the vehicle's position), but {source} holds no position: give "
             "--declination DEG --inclination DEG, or --mag-ref-ned N E D, or reference.magnetic in --config"
         )
-    if config.estimator.method == "fused" and not has_gyro:
-        raise ConfigError(f"estimator.method fused needs a gyroscope, and {source} has no gyr_*_radps columns")
+    if METHODS[config.estimator.method].needs_gyro and not has_gyro:
+        raise ConfigError(
+            f"estimator.method {config.estimator.method} needs a gyroscope, and {source} has no gyr_*_radps columns"
+        )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -91,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     data = read_samples(args.input)
     check_offline_config(config, "gyr" in data, args.input)
-    if args.save_mag_offset and config.estimator.method != "fused":
+    if args.save_mag_offset and not METHODS[config.estimator.method].learns_mag_offset:
         raise ConfigError("--save-mag-offset needs --method fused: only the fused filter learns a hard-iron offset")
     pipeline = AttitudePipeline(config)
     n = len(data["t_s"])

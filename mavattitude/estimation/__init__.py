@@ -7,16 +7,15 @@ variant (matrix weights, reaches the Cramér–Rao bound) and TRIAD; see :mod:`.
 
 from .batch import BatchResult, solve_batch
 from .covariance import cramer_rao_bound, predicted_covariance
+from .methods import METHODS, SNAPSHOT_METHODS, Method
 from .noise import NoiseModel
-from .solve import SNAPSHOT_METHODS, SolveResult, solve
-
-#: Every ``estimator.method``: the per-sample solvers and ``fused``, the gyro-aided filter (:mod:`.fused`).
-METHODS = (*SNAPSHOT_METHODS, "fused")
+from .solve import SolveResult, solve
 
 __all__ = [
     "METHODS",
     "SNAPSHOT_METHODS",
     "BatchResult",
+    "Method",
     "NoiseModel",
     "SolveResult",
     "cramer_rao_bound",

@@ -199,11 +199,11 @@ def _solve_chunk(chunk: list, noise: NoiseModel, method: str, max_iterations: in
     )
     r = np.stack(np.broadcast_arrays(*kernel.triad(w_acc, w_mag, v_acc, v_mag, s_body, s_ref)), -1)
     q = tuple(quat_from_rotation_matrix(r.reshape(-1, 3, 3)).T)
-    ml = method == "ml"
+    rule = kernel.RULES[method]
+    step, ml = rule.step, rule.matrix_weights
     size = q[0].shape[0]
     iterations = np.zeros(size, dtype=np.int64)
-    done = np.full(size, method == "triad")
-    step = kernel.matrix_weight_step if ml else kernel.scalar_weight_step
+    done = np.full(size, step is None)
     previous = np.full(size, np.nan)
     newton = np.zeros(size, dtype=bool)
     singular = np.zeros(size, dtype=bool)

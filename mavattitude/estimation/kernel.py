@@ -16,6 +16,8 @@ Index ``i`` = 1 magnetometer, 2 accelerometer, as in the paper.
 - :func:`matrix_weight_step` — the tangent-space Newton correction for matrix weights (ML).
 - :func:`covariance` — the predicted body error-angle covariance of each method (see
   :mod:`.covariance` for the formulas and why not the paper's Eq. 23 / 39).
+- :data:`RULES` — the method table: each snapshot method's observation weights, its step (none for TRIAD)
+  and its covariance, the one place the kernel tells the methods apart.
 
 Eq. 34 in three dimensions: ``A(q)v`` is quadratic in ``q``, so with ``u = A(q)v`` and any correction
 written in the orthogonal basis ``Δq = q ⊗ [c, δ/2]`` the Jacobian ``H`` of Eq. 32 gives exactly
@@ -32,7 +34,9 @@ returns NaN, which the drivers (:mod:`.solve`, :mod:`.batch`) turn into a typed 
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Callable
+from functools import partial
+from typing import Any, NamedTuple
 
 from .conventions import quat_multiply_parts, rotate_ned_to_body_parts, rotation_matrix_parts
 
@@ -315,21 +319,24 @@ def weights_usable(a1: Scalar, a2: Scalar) -> Scalar:
 
 def observations(method: str, mag: tuple, acc: tuple) -> tuple:
     """The solver's ``((ŵ₁, v₁, weight₁), (ŵ₂, v₂, weight₂))`` from ``(ŵ, |Ŵ|, v̂, var, a)`` per sensor,
-    ``a`` the paper's weight (:func:`paper_weight`).
+    ``a`` the paper's weight (:func:`paper_weight`), weighted by the method's rule (:data:`RULES`)."""
+    weight = RULES[method].weight
+    return tuple((w, v, weight(w, n, var, a)) for w, n, v, var, a in (mag, acc))
 
-    ``ign`` and ``triad``: the paper's scalar weights (Eq. 21); ``cgn``: equal weights; ``ml``: the
-    matrix weights of :func:`ml_weight`.
-    """
-    out = []
-    for w, n, v, var, a in (mag, acc):
-        if method == "cgn":
-            weight = 1.0
-        elif method == "ml":
-            weight = ml_weight(w, unit_covariance(w, n, var), a)
-        else:
-            weight = a
-        out.append((w, v, weight))
-    return tuple(out)
+
+def _paper_weights(w: Vec, n: Scalar, var: Vec, a: Scalar) -> Scalar:
+    """The paper's scalar weight (Eq. 21): IGN, and TRIAD's loss."""
+    return a
+
+
+def _equal_weights(w: Vec, n: Scalar, var: Vec, a: Scalar) -> Scalar:
+    """CGN: equal weights."""
+    return 1.0
+
+
+def _matrix_weights(w: Vec, n: Scalar, var: Vec, a: Scalar) -> Sym:
+    """ML: the weight matrix of :func:`ml_weight`."""
+    return ml_weight(w, unit_covariance(w, n, var), a)
 
 
 def sym_congruence(a: Sym, s: Sym) -> Sym:
@@ -346,22 +353,33 @@ def _outer_sym(x: Vec, y: Vec) -> Sym:
 
 
 def covariance(method: str, mag: tuple, acc: tuple) -> Sym:
-    """Predicted covariance of the body error angles for ``(ŵ, |Ŵ|, var)`` of each sensor (rad², 6-tuple).
-
-    Scalar weights (ign, cgn): ``M⁻¹ (Σ aᵢ² [ŵᵢ×] R_unit,i [ŵᵢ×]ᵀ) M⁻¹``, ``M = Σ aᵢ (I − ŵᵢŵᵢᵀ)``.
-    ml: the Cramér–Rao bound ``(Σ [ŵᵢ×]ᵀ Wᵢ [ŵᵢ×])⁻¹`` (the radial part of ``Wᵢ`` drops out there).
-    triad: see :func:`triad_covariance`.
-    """
+    """Predicted covariance of the body error angles for ``(ŵ, |Ŵ|, var)`` of each sensor (rad², 6-tuple), by
+    the method's rule (:data:`RULES`)."""
     (w1, n1, var1), (w2, n2, var2) = mag, acc
-    r1, r2 = unit_covariance(w1, n1, var1), unit_covariance(w2, n2, var2)
-    if method == "triad":
-        return triad_covariance(w2, r2, w1, r1)
-    if method == "ml":
-        a1, a2 = paper_weight(w1, n1, var1), paper_weight(w2, n2, var2)
-        info1 = cross_sandwich(w1, ml_weight(w1, r1, a1))
-        info2 = cross_sandwich(w2, ml_weight(w2, r2, a2))
-        return sym_inverse(tuple(x + y for x, y in zip(info1, info2, strict=True)))  # type: ignore[arg-type]
-    a1, a2 = (1.0, 1.0) if method == "cgn" else (paper_weight(w1, n1, var1), paper_weight(w2, n2, var2))
+    return RULES[method].covariance(
+        w1, n1, var1, unit_covariance(w1, n1, var1), w2, n2, var2, unit_covariance(w2, n2, var2)
+    )
+
+
+def _cramer_rao(w1: Vec, n1: Scalar, var1: Vec, r1: Sym, w2: Vec, n2: Scalar, var2: Vec, r2: Sym) -> Sym:
+    """ml: the Cramér–Rao bound ``(Σ [ŵᵢ×]ᵀ Wᵢ [ŵᵢ×])⁻¹`` (the radial part of ``Wᵢ`` drops out there)."""
+    a1, a2 = paper_weight(w1, n1, var1), paper_weight(w2, n2, var2)
+    info1 = cross_sandwich(w1, ml_weight(w1, r1, a1))
+    info2 = cross_sandwich(w2, ml_weight(w2, r2, a2))
+    return sym_inverse(tuple(x + y for x, y in zip(info1, info2, strict=True)))  # type: ignore[arg-type]
+
+
+def _triad_rule_covariance(w1: Vec, n1: Scalar, var1: Vec, r1: Sym, w2: Vec, n2: Scalar, var2: Vec, r2: Sym) -> Sym:
+    """triad: :func:`triad_covariance`, the accelerometer primary."""
+    return triad_covariance(w2, r2, w1, r1)
+
+
+def _sandwich(
+    weight: Callable, w1: Vec, n1: Scalar, var1: Vec, r1: Sym, w2: Vec, n2: Scalar, var2: Vec, r2: Sym
+) -> Sym:
+    """Scalar weights ``aᵢ`` (ign: the paper's, cgn: equal): ``M⁻¹ (Σ aᵢ² [ŵᵢ×] R_unit,i [ŵᵢ×]ᵀ) M⁻¹``,
+    ``M = Σ aᵢ (I − ŵᵢŵᵢᵀ)``."""
+    a1, a2 = weight(w1, n1, var1), weight(w2, n2, var2)
     asum = a1 + a2
     m = (
         asum - a1 * w1[0] * w1[0] - a2 * w2[0] * w2[0],
@@ -374,6 +392,10 @@ def covariance(method: str, mag: tuple, acc: tuple) -> Sym:
     b1, b2 = cross_sandwich(w1, r1), cross_sandwich(w2, r2)
     middle = tuple(a1 * a1 * x + a2 * a2 * y for x, y in zip(b1, b2, strict=True))
     return sym_congruence(sym_inverse(m), middle)  # type: ignore[arg-type]
+
+
+def _equal(w: Vec, n: Scalar, var: Vec) -> Scalar:
+    return 1.0
 
 
 def triad_covariance(e: Vec, r_p: Sym, u: Vec, r_s: Sym) -> Sym:
@@ -431,3 +453,21 @@ def converged(step: Scalar, previous: Scalar, tolerance: float) -> Scalar:
 def _normalised(q: QuatParts) -> QuatParts:
     k = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]) ** -0.5
     return (q[0] * k, q[1] * k, q[2] * k, q[3] * k)
+
+
+class Rule(NamedTuple):
+    """How a snapshot method weighs, iterates and predicts its error (a row of :data:`RULES`)."""
+
+    weight: Callable[[Vec, Scalar, Vec, Scalar], Any]  # (ŵ, |Ŵ|, var, paper's a) → the observation's weight
+    step: Callable[..., tuple[QuatParts, Scalar]] | None  # one correction from TRIAD on; None: TRIAD itself
+    matrix_weights: bool  # the weights are matrices (the loss and the step take them so)
+    covariance: Callable[..., Sym]  # (ŵ₁, |Ŵ₁|, var₁, R₁, ŵ₂, |Ŵ₂|, var₂, R₂) → the error covariance
+
+
+#: The kernel's method table: every snapshot method, by ``estimator.method`` name.
+RULES: dict[str, Rule] = {
+    "ign": Rule(_paper_weights, scalar_weight_step, False, partial(_sandwich, paper_weight)),
+    "cgn": Rule(_equal_weights, scalar_weight_step, False, partial(_sandwich, _equal)),
+    "ml": Rule(_matrix_weights, matrix_weight_step, True, _cramer_rao),
+    "triad": Rule(_paper_weights, None, False, _triad_rule_covariance),
+}

@@ -35,7 +35,6 @@ from . import kernel
 from .conventions import ACC_REF_NED, quat_from_rotation_parts
 from .noise import NoiseModel
 
-SNAPSHOT_METHODS = ("ign", "cgn", "ml", "triad")  # what solve and solve_batch compute
 DEFAULT_METHOD = "ign"  # the paper's improved Gauss–Newton
 MAX_ITERATIONS = 10
 TOLERANCE_RAD = 1e-12
@@ -61,7 +60,7 @@ class SolveResult:
     def loss(self) -> float:
         """Wahba loss (Eq. 11) at ``q`` with the method's weights (the paper's for "triad")."""
         if self._loss is None:
-            self._loss = float(kernel.wahba_loss(tuple(self.q), self._obs, self.method == "ml"))
+            self._loss = float(kernel.wahba_loss(tuple(self.q), self._obs, kernel.RULES[self.method].matrix_weights))
         return self._loss
 
     @property
@@ -104,8 +103,8 @@ def covariances(results: list[SolveResult]) -> NDArray[np.float64]:
 
 
 def check_method(method: str) -> None:
-    if method not in SNAPSHOT_METHODS:
-        raise InputError(f"unknown method {method!r}; choose one of {', '.join(SNAPSHOT_METHODS)}")
+    if method not in kernel.RULES:
+        raise InputError(f"unknown method {method!r}; choose one of {', '.join(kernel.RULES)}")
 
 
 @functools.lru_cache(maxsize=16)
@@ -207,10 +206,10 @@ def solve(
         method, (w_mag, n_mag, v_mag, noise.mag_var, a_mag), (w_acc, n_acc, v_acc, noise.accel_var, a_acc)
     )
     triad = quat_from_rotation_parts(kernel.triad(w_acc, w_mag, v_acc, v_mag, s_body, s_ref))
-    q, iterations, done = triad, 0, method == "triad"
-    if not done:
-        ml = method == "ml"
-        step = kernel.matrix_weight_step if ml else kernel.scalar_weight_step
+    rule = kernel.RULES[method]
+    step, ml = rule.step, rule.matrix_weights
+    q, iterations, done = triad, 0, step is None
+    if step is not None:
         if q0 is not None:
             warm = _warm_start(q0)
             if kernel.wahba_loss(warm, obs, ml) <= kernel.wahba_loss(triad, obs, ml):

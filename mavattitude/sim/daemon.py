@@ -24,6 +24,8 @@ import yaml
 
 from mavattitude.config import merge
 from mavattitude.errors import MavAttitudeError
+from mavattitude.estimation import METHODS
+from mavattitude.estimation.solve import DEFAULT_METHOD
 from mavattitude.sim.vehicle import FakeVehicle
 
 log = logging.getLogger(__name__)
@@ -191,7 +193,7 @@ def config_for(vehicle: FakeVehicle, **sections: Mapping[str, Any]) -> dict[str,
         "input": {"message": cfg.message, "profile": cfg.profile},
         "reference": {"magnetic": {"field_ned_uT": [float(v) for v in vehicle.script.mag_ned_uT]}},
     }
-    if sections.get("estimator", {}).get("method") != "fused":
+    if METHODS[sections.get("estimator", {}).get("method", DEFAULT_METHOD)].sensor_noise:
         matched["noise"] = {
             "accel_std_mps2": [max(float(s), 0.003) for s in sensors.accel.noise_std],
             "mag_std_uT": [max(float(s), 0.03) for s in sensors.mag.noise_std],

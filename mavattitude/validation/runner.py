@@ -21,7 +21,7 @@ import numpy as np
 
 from mavattitude.config import REPLACE_WHOLE, Config, load_config
 from mavattitude.errors import ConfigError
-from mavattitude.estimation import NoiseModel, solve_batch
+from mavattitude.estimation import METHODS, NoiseModel, solve_batch
 from mavattitude.estimation.conventions import Array
 from mavattitude.pipeline import AttitudePipeline
 from mavattitude.sensors.units import ImuSample
@@ -69,7 +69,7 @@ def validation_config(recording: Recording, method: str, base: Config | None = N
         "estimator.method": method,
         "reference.magnetic": {"field_ned_uT": [float(v) for v in ref.field_ned_uT]},
     }
-    if method != "fused":  # the fused filter's σ are its own (estimator.fused), not the sensor noise
+    if METHODS[method].sensor_noise:  # the fused filter's σ are its own (estimator.fused), not the sensor noise
         layer |= {
             "noise.accel_std_mps2": [float(v) for v in ref.acc_std_mps2],
             "noise.mag_std_uT": [float(v) for v in ref.mag_std_uT],
