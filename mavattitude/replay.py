@@ -26,7 +26,8 @@ import numpy as np
 from mavattitude.config import Config
 from mavattitude.dispatch import DispatchCounters, Dispatcher
 from mavattitude.estimation.compass import CompassEvent
-from mavattitude.link.logs import LogSource, LogStreams
+from mavattitude.link.logs import LogSource
+from mavattitude.link.logstreams import LogStreams
 from mavattitude.link.source import AutopilotAttitude, MessageSource, Sender
 from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, Pushed
 from mavattitude.sensors.magref import distance_km
@@ -109,7 +110,7 @@ def replay(
     streams = source.streams_for(_dispatcher(source, None, result))  # the dispatcher's rules choose the rows
     if result.vehicle is not None and _one_reference(streams, pipeline):
         return _replay_arrays(streams, result, result.vehicle)
-    from mavattitude.link.logs import StreamSource  # the vehicle's streams, one by one
+    from mavattitude.link.logstreams import StreamSource  # the vehicle's streams, one by one
 
     c = result.counters
     counters = DispatchCounters(c.rejected["decode"], c.ignored, dict(c.rejected))  # what reading the log counted

@@ -40,7 +40,7 @@ import numpy as np
 
 from mavattitude.config import load_config
 from mavattitude.link.dataflash import read_dataflash
-from mavattitude.link.logs import LogStreams, StreamSource
+from mavattitude.link.logstreams import LogStreams, StreamSource
 from mavattitude.pipeline import AttitudePipeline
 from mavattitude.replay import replay
 from mavattitude.sim.scoring import tilt_error

@@ -1,4 +1,4 @@
-"""ArduPilot DataFlash logs (.bin) read with pymavlink's DFReader, into :class:`~mavattitude.link.logs.LogStreams`.
+"""ArduPilot DataFlash logs (.bin) read with pymavlink's DFReader, into :class:`~.logstreams.LogStreams`.
 
 DFReader parses the formats (FMT, FMTU) and indexes every record by type; the records replay needs are
 then unpacked all at once with numpy, with DFReader's own struct layout and multipliers, and converted
@@ -24,7 +24,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from pymavlink import DFReader
 
 from mavattitude.errors import DataFileError
-from mavattitude.link.logs import LogStreams, struct_dtype
+from mavattitude.link.logstreams import LogStreams, struct_dtype
 from mavattitude.sensors import dataflash_units as du
 
 GPS_FIX_3D = 3

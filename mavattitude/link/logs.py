@@ -1,227 +1,86 @@
-"""Flight logs as message sources: format detection, and the sensor streams of a log made into live-like items.
+"""Flight logs as message sources: the table of formats a log is recognised by.
 
 :func:`open_log` recognises a log by its first bytes (ULog's magic, DataFlash's FMT header; otherwise a
-telemetry log if its name ends in ``.tlog``) and returns its :class:`~mavattitude.link.source.MessageSource`.
-A DataFlash or ULog reader (:mod:`.dataflash`, :mod:`.ulog`) turns its file into :class:`LogStreams`:
-arrays in SI units on the vehicle clock, converted by the format's units module; :class:`StreamSource`
-hands them out as the items a live link would give, in time order:
-
-- one :class:`~mavattitude.sensors.units.ImuSample` per IMU record, carrying the newest magnetometer
-  reading logged at or before its time if that reading is new since the previous sample, else none (the
-  front end holds the last one, as it does for a live IMU message without a new magnetometer). A slower
-  magnetometer is thus held, never interpolated towards a reading that comes later; an all-zero reading
-  is no reading, as in MAVLink's integer messages;
-- the autopilot's attitude and the positions (with the log's date, for the World Magnetic Model).
+telemetry log if its name ends in ``.tlog``), the rows of :data:`FORMATS`, and returns its reader's
+:class:`~mavattitude.link.source.MessageSource`: a DataFlash or ULog reader's
+:class:`~mavattitude.link.logstreams.LogStreams` as a :class:`~mavattitude.link.logstreams.StreamSource`, a
+telemetry log's :class:`~mavattitude.link.tlog.TlogSource`.
 
 What cannot be used is a :class:`~mavattitude.errors.DataFileError` naming the file and where: unknown
 format, no IMU, no magnetometer, a magnetometer reading only zero. A log cut short (the last record
-incomplete) or with damaged bytes is read as far as it goes, and :attr:`StreamSource.damage` says where.
+incomplete) or with damaged bytes is read as far as it goes, and the source's ``damage`` says where.
 """
 
 from __future__ import annotations
 
-import datetime as dt
-import functools
-import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 
-import numpy as np
-from numpy.typing import NDArray
-
 from mavattitude.config import Config
 from mavattitude.errors import DataFileError
-from mavattitude.estimation.conventions import Array
-from mavattitude.link.source import AutopilotAttitude, MessageSource, PositionFix, Received, Sender
-from mavattitude.sensors.units import ImuSample, Position
+from mavattitude.link.dataflash import read_dataflash
+from mavattitude.link.logstreams import LogStreams, StreamSource
+from mavattitude.link.source import MavlinkDecoder, MessageSource
+from mavattitude.link.tlog import TlogSource
+from mavattitude.link.ulog import read_ulog
 
 if TYPE_CHECKING:
     from mavattitude.dispatch import Dispatcher
-
-#: The sender of every item from a log the autopilot wrote itself (DataFlash, ULog): it holds one vehicle.
-LOG_VEHICLE: Sender = (1, 1)
-CHUNK_ITEMS = 8192  # items per recv(): large enough to amortise the call, small enough for progress
-ULOG_MAGIC = b"ULog\x01\x12\x35"
-DATAFLASH_MAGIC = b"\xa3\x95\x80"  # a message header and the FMT message's type: every DataFlash log starts so
-
-
-_STRUCT_TO_NUMPY = {
-    "b": "i1", "B": "u1", "h": "i2", "H": "u2", "i": "i4", "I": "u4", "q": "i8", "Q": "u8",
-    "f": "f4", "d": "f8", "e": "f2",
-}  # fmt: skip
-
-
-def struct_dtype(names: Sequence[str], struct_format: str) -> np.dtype:
-    """The numpy record type of a little-endian ``struct`` layout (``<QBff4f16s``: arrays and strings as one
-    field each), its fields named ``names``: how DataFlash and MAVLink records are unpacked as columns."""
-    fields: list[tuple] = []
-    codes = re.findall(r"(\d*)([a-zA-Z])", struct_format.lstrip("<"))
-    for name, (count, code) in zip(names, codes, strict=True):
-        if code == "s":
-            fields.append((name, f"S{count}"))
-        elif count and int(count) > 1:
-            fields.append((name, "<" + _STRUCT_TO_NUMPY[code], (int(count),)))
-        else:
-            fields.append((name, "<" + _STRUCT_TO_NUMPY[code]))
-    return np.dtype(fields)
-
-
-@dataclass
-class LogStreams:
-    """A log's sensor streams, SI units, on the vehicle clock (s); rows in time order within each stream."""
-
-    imu_t_s: Array  # (n,)
-    acc_mps2: Array  # (n, 3) board frame
-    gyr_radps: Array  # (n, 3)
-    mag_t_s: Array  # (m,)
-    mag_uT: Array  # (m, 3)
-    attitude_t_s: Array  # (k,) the autopilot's attitude
-    attitude_q: Array  # (k, 4) [w, x, y, z] body → NED
-    position_t_s: Array  # (p,)
-    position: Array  # (p, 3) latitude °, longitude °, altitude m AMSL
-    date: dt.date | None = None  # the day the log was recorded (GPS time), for the World Magnetic Model
-    time_wrap_s: float | None = None  # the IMU time field's wrap period (old DataFlash: uint32 ms)
-    damage: str | None = None  # where the file is truncated or damaged, if it is
-    #: the magnetometer row each IMU sample carries (-1: none), where the source knows it (a telemetry log's
-    #: messages carry their own); otherwise the newest reading at or before the sample, if new (mag_for_imu)
-    imu_mag_index: NDArray[np.int64] | None = None
-    #: the IMU messages repeat the newest magnetometer reading (:attr:`ImuSample.mag_repeats`: a telemetry log's
-    #: integer messages); a DataFlash or ULog magnetometer stream has each reading once
-    mag_repeats: bool = False
-
-    def carried_mag(self) -> NDArray[np.int64]:
-        """Which magnetometer row each IMU sample carries, -1 where none."""
-        if self.imu_mag_index is not None:
-            return self.imu_mag_index
-        return mag_for_imu(self.imu_t_s, self.mag_t_s, self.mag_uT)
-
-    def check(self, path: str, imu: str, mag: str) -> None:
-        """What replay cannot do without, as one :class:`DataFileError` naming the file and the record."""
-        if len(self.imu_t_s) == 0:
-            raise DataFileError(f"{path}: no {imu} records{self._damage_note()}")
-        if len(self.mag_t_s) == 0:
-            raise DataFileError(f"{path}: no {mag} records (no magnetometer){self._damage_note()}")
-        if not np.any(self.mag_uT):
-            raise DataFileError(f"{path}: {mag} reads zero in all {len(self.mag_t_s)} records: no magnetometer")
-
-    def _damage_note(self) -> str:
-        return f" ({self.damage})" if self.damage else ""
-
-
-def mag_for_imu(imu_t_s: Array, mag_t_s: Array, mag_uT: Array) -> NDArray[np.int64]:
-    """For each IMU sample, the index of the magnetometer reading it carries (-1: none new)."""
-    newest = np.searchsorted(mag_t_s, imu_t_s, side="right") - 1  # at or before the sample: never ahead
-    carried = newest.copy()
-    carried[1:][newest[1:] == newest[:-1]] = -1  # not new since the previous sample: held by the front end
-    live = np.zeros(len(carried), dtype=bool)
-    valid = carried >= 0
-    live[valid] = np.any(mag_uT[carried[valid]] != 0.0, axis=1)  # all zero: no reading
-    return np.where(live, carried, -1)
-
-
-class StreamSource:
-    """:class:`LogStreams` as a finite message source (see the module docstring)."""
-
-    vehicle: Sender | None = LOG_VEHICLE
-
-    def __init__(self, name: str, streams: LogStreams) -> None:
-        self.name = name
-        self.streams = streams
-        self.damage = streams.damage
-        self.finished = False
-        self._next = 0
-
-    def streams_for(self, dispatcher: Dispatcher) -> LogStreams:
-        """The log's streams: all of them its vehicle's, which ``dispatcher`` follows from the start."""
-        return self.streams
-
-    @functools.cached_property
-    def _items(self) -> tuple[list[float], list[int], list[int]]:
-        """Every item's time, kind (0 position, 1 IMU sample, 2 attitude) and row, in time order; at equal
-        times a position first, the autopilot's attitude after the sample. Built at the first recv: a
-        reader that takes the arrays (replay) never pays for it."""
-        s = self.streams
-        times = np.concatenate([s.position_t_s, s.imu_t_s, s.attitude_t_s])
-        counts = (len(s.position_t_s), len(s.imu_t_s), len(s.attitude_t_s))
-        kinds = np.repeat(np.arange(3, dtype=np.int8), counts)
-        index = np.concatenate([np.arange(n) for n in counts])
-        order = np.lexsort((kinds, times))
-        return times[order].tolist(), kinds[order].tolist(), index[order].tolist()
-
-    @functools.cached_property
-    def _rows(self) -> tuple[list, list, list, list, list]:
-        s = self.streams
-        return (
-            s.imu_t_s.tolist(),
-            s.acc_mps2.tolist(),
-            s.gyr_radps.tolist(),
-            s.mag_uT.tolist(),
-            s.carried_mag().tolist(),
-        )
-
-    @property
-    def total(self) -> int:
-        """Items the source hands out in all (for progress)."""
-        return len(self._items[0])
-
-    @property
-    def done(self) -> int:
-        return self._next
-
-    def recv(self, timeout_s: float = 0.0) -> list[Received]:
-        times, kinds, index = self._items
-        imu_t, acc, gyr, mag, mag_index = self._rows
-        start, stop = self._next, min(self._next + CHUNK_ITEMS, len(times))
-        self._next = stop
-        self.finished = stop >= len(times)
-        s, vehicle, wrap, repeats = self.streams, self.vehicle, self.streams.time_wrap_s, self.streams.mag_repeats
-        out: list[Received] = []
-        for t, kind, i in zip(times[start:stop], kinds[start:stop], index[start:stop], strict=True):
-            if kind == 1:
-                m = mag_index[i]
-                a, g = acc[i], gyr[i]
-                sample = ImuSample(
-                    imu_t[i],
-                    (a[0], a[1], a[2]),
-                    (g[0], g[1], g[2]),
-                    None if m < 0 else tuple(mag[m]),
-                    wrap,
-                    mag_repeats=repeats,
-                )
-                out.append((t, vehicle, sample))
-            elif kind == 2:
-                out.append((t, vehicle, AutopilotAttitude(t, tuple(s.attitude_q[i].tolist()))))
-            else:
-                lat, lon, alt = s.position[i].tolist()
-                out.append((t, vehicle, PositionFix(Position(lat, lon, alt), s.date)))
-        return out
-
-
-def detect_format(path: Path) -> str:
-    """``"ulog"``, ``"dataflash"`` or ``"tlog"`` from the file's first bytes (a .tlog has no magic: its name)."""
-    try:
-        with path.open("rb") as f:
-            head = f.read(len(ULOG_MAGIC))
-    except OSError as exc:
-        raise DataFileError(f"{path}: cannot open: {exc.strerror or exc}") from exc
-    if head.startswith(ULOG_MAGIC):
-        return "ulog"
-    if head.startswith(DATAFLASH_MAGIC):
-        return "dataflash"
-    if path.suffix.lower() == ".tlog":
-        return "tlog"
-    raise DataFileError(
-        f"{path}: not a flight log this reads (byte 0: {head[:4].hex(' ') or 'empty file'}): expected a DataFlash "
-        ".bin (starts a3 95 80), a ULog .ulg (starts 'ULog') or a telemetry log named .tlog"
-    )
 
 
 class LogSource(MessageSource, Protocol):
     """A log file as a message source: its items one by one, or the followed vehicle's rows at once."""
 
     def streams_for(self, dispatcher: Dispatcher) -> LogStreams: ...
+
+
+@dataclass(frozen=True)
+class LogFormat:
+    """One row of :data:`FORMATS`: how a format is recognised, and its reader."""
+
+    name: str
+    magic: bytes | None  # the file starts so; None: recognised by ``suffix`` (a .tlog has no magic)
+    suffix: str  # the usual name's suffix (lower case)
+    open: Callable[[Path, Config, int, int, Sequence[str], int | None], LogSource]
+
+
+def _stream_reader(read: Callable[[Path, int, int], LogStreams]) -> Callable[..., LogSource]:
+    """A reader of arrays (DataFlash, ULog) as the table's ``open``."""
+    return lambda path, config, imu_instance, mag_instance, first_of, system_id: StreamSource(
+        str(path), read(path, imu_instance, mag_instance)
+    )
+
+
+def _tlog(path: Path, config: Config, imu: int, mag: int, first_of: Sequence[str], system_id: int | None) -> LogSource:
+    return TlogSource(path, MavlinkDecoder.from_config(config), first_of, system_id)
+
+
+#: Every log format read, in the order they are tried.
+FORMATS = (
+    LogFormat("ulog", b"ULog\x01\x12\x35", ".ulg", _stream_reader(read_ulog)),
+    # a message header and the FMT message's type: every DataFlash log starts so
+    LogFormat("dataflash", b"\xa3\x95\x80", ".bin", _stream_reader(read_dataflash)),
+    LogFormat("tlog", None, ".tlog", _tlog),
+)
+
+
+def detect_format(path: Path) -> LogFormat:
+    """The row of :data:`FORMATS` the file's first bytes (a .tlog's name: it has no magic) say it is."""
+    longest = max(len(f.magic or b"") for f in FORMATS)
+    try:
+        with path.open("rb") as f:
+            head = f.read(longest)
+    except OSError as exc:
+        raise DataFileError(f"{path}: cannot open: {exc.strerror or exc}") from exc
+    for fmt in FORMATS:
+        if head.startswith(fmt.magic) if fmt.magic is not None else path.suffix.lower() == fmt.suffix:
+            return fmt
+    raise DataFileError(
+        f"{path}: not a flight log this reads (byte 0: {head[:4].hex(' ') or 'empty file'}): expected a DataFlash "
+        ".bin (starts a3 95 80), a ULog .ulg (starts 'ULog') or a telemetry log named .tlog"
+    )
 
 
 def open_log(
@@ -239,20 +98,5 @@ def open_log(
     autopilot HEARTBEAT's, from ``system_id`` if given) sent, rather than the config's
     (:class:`~mavattitude.link.tlog.TlogSource`); other formats name theirs.
     """
-    from mavattitude.link.source import MavlinkDecoder
-
     path = Path(path)
-    kind = detect_format(path)
-    if kind == "tlog":
-        from mavattitude.link.tlog import TlogSource
-
-        return TlogSource(path, MavlinkDecoder.from_config(config), first_of, system_id)
-    if kind == "dataflash":
-        from mavattitude.link.dataflash import read_dataflash
-
-        streams = read_dataflash(path, imu_instance, mag_instance)
-    else:
-        from mavattitude.link.ulog import read_ulog
-
-        streams = read_ulog(path, imu_instance, mag_instance)
-    return StreamSource(str(path), streams)
+    return detect_format(path).open(path, config, imu_instance, mag_instance, first_of, system_id)

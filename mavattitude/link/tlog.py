@@ -12,7 +12,7 @@ The source hands its records out two ways, both through the one :class:`~mavatti
 - :meth:`TlogSource.recv`: every record as the live link's item, with its sender and the log's receive
   time, for the dispatcher to lock onto the autopilot and route one by one;
 - :meth:`TlogSource.streams_for`: the autopilot's IMU, attitude and position rows as
-  :class:`~mavattitude.link.logs.LogStreams`, the records chosen by :meth:`Dispatcher.follow` (the same
+  :class:`~mavattitude.link.logstreams.LogStreams`, the records chosen by :meth:`Dispatcher.follow` (the same
   lock-on and sender rule); what replay feeds :meth:`AttitudePipeline.push_batch`.
 
 A record whose CRC fails is skipped and counted (:attr:`TlogSource.bad_records`); bytes where no record
@@ -35,7 +35,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
 from mavattitude.errors import DataFileError, SensorError
-from mavattitude.link.logs import LogStreams, struct_dtype
+from mavattitude.link.logstreams import LogStreams, struct_dtype
 from mavattitude.link.mavlink2 import mavlink2
 from mavattitude.link.source import (
     ATTITUDE_MESSAGES,

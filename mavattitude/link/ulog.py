@@ -1,4 +1,4 @@
-"""PX4 ULog files (.ulg) read with pyulog, into :class:`~mavattitude.link.logs.LogStreams`.
+"""PX4 ULog files (.ulg) read with pyulog, into :class:`~mavattitude.link.logstreams.LogStreams`.
 
 Both topic layouts are read: the current one (``sensor_combined`` for the IMU, ``vehicle_magnetometer``
 for the magnetometer) and the old one (the magnetometer inside ``sensor_combined``, ``magnetometer_ga``).
@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from mavattitude.errors import DataFileError
-from mavattitude.link.logs import LogStreams
+from mavattitude.link.logstreams import LogStreams
 from mavattitude.sensors import ulog_units as uu
 
 TOPICS = [

@@ -18,7 +18,7 @@ from mavattitude.estimation.conventions import (
     rotvec_from_quat,
 )
 from mavattitude.estimation.crosscheck import CrossCheckSettings, cross_check_log
-from mavattitude.link.logs import LogStreams
+from mavattitude.link.logstreams import LogStreams
 from mavattitude.link.source import MavlinkDecoder
 from mavattitude.link.tlog import TlogSource
 from mavattitude.replay import replay

@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 
 from mavattitude.errors import DataFileError
+from mavattitude.files import LOG_SUFFIXES
 from mavattitude.link.dataflash import read_dataflash
-from mavattitude.link.logs import LOG_VEHICLE, StreamSource, detect_format, open_log
+from mavattitude.link.logs import FORMATS, detect_format, open_log
+from mavattitude.link.logstreams import LOG_VEHICLE, StreamSource
 from mavattitude.link.source import AutopilotAttitude, PositionFix
 from mavattitude.link.ulog import read_ulog
 from mavattitude.sensors.units import ImuSample
@@ -151,3 +153,8 @@ def test_a_telemetry_log_record_that_fails_its_crc_is_skipped_and_said(tmp_path)
     assert source.bad_records == 1 and source.damage.startswith("damaged: the record at byte ")
     assert at - 60 < int(source.damage.split("byte ")[1].split()[0]) <= at
     assert len(samples) == 399  # the others are read
+
+
+def test_the_format_table_has_a_row_for_each_log_suffix_the_commands_look_for():
+    assert sorted(f.suffix for f in FORMATS) == sorted(LOG_SUFFIXES)  # replay DIR lists files by these
+    assert [f.name for f in FORMATS if f.magic is None] == ["tlog"]  # the one format told by its name
