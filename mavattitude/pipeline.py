@@ -516,7 +516,11 @@ class AttitudePipeline:
         self._compass_at_s = at_s
         before = self.compass.inconsistent
         events, suspect, inconsistent = self.compass.update_rows(
-            batch.time_s[taken], batch.acc_mps2[taken], batch.mag_uT[taken], batch.gyr_radps[taken]
+            batch.time_s[taken],
+            batch.acc_mps2[taken],
+            batch.mag_uT[taken],
+            batch.gyr_radps[taken],
+            batch.mag_age_s[taken],
         )
         # a tick the monitor took is flagged when suspect, one it skipped when the verdict is inconsistent
         count = np.searchsorted(taken, rows, side="right")  # the ticks taken up to each row
@@ -558,7 +562,7 @@ class AttitudePipeline:
         if _compass_skips(tick.time_s - self._compass_at_s):
             return self._flagged(tick) if compass.inconsistent else tick
         self._compass_at_s = tick.time_s
-        event = compass.update(tick.time_s, tick.acc_mps2, mag_uT, tick.gyr_radps)
+        event = compass.update(tick.time_s, tick.acc_mps2, mag_uT, tick.gyr_radps, tick.mag_age_s)
         if event is not None:
             pushed.compass.append(event)
         if compass.suspect(tick.acc_mps2, mag_uT, tick.gyr_radps):

@@ -89,6 +89,9 @@ HEADING_UNKNOWN_STD_RAD = math.pi / math.sqrt(3.0)  # σ of a heading uniform ov
 TURN_SPAN_S = 0.2  # the field's turn is compared over steps this long ...
 MIN_TURN_DEG = 5.0  # ... that turned the body by at least this much (else noise dominates)
 MAX_TURN_GAP_S = 0.1  # a longer gap between ticks restarts the gyroscope's integration
+HISTORY_S = 0.5  # attitudes kept to carry a held reading to its own time (the default input_timeout_s)
+MAX_LAG_S = 0.1  # the fitted lag of the readings behind their times is at most this (module docstring)
+PERSIST_S = 1.0  # the turn judged off for this long before it counts: several steps' spans of new evidence
 MIN_SECOND_AXIS_SHARE = 0.1  # a turn vouches for a compass when this share of it was about a second axis
 MIN_EXPLAINED_SHARE = 0.5  # another mounting must explain at least this share of the configured one's turn residual
 
@@ -264,11 +267,14 @@ class TurnCheck:
         self.window_s = window_s
         self._q = (1.0, 0.0, 0.0, 0.0)  # body → a frame the integrated gyroscope keeps fixed
         self._t: float | None = None
-        # [t, q, B, F or None] within TURN_SPAN_S: F, the field in the fixed frame, is made when a step needs it
+        self._history: deque[tuple[float, tuple, Vec3]] = deque()  # (t, q, ω) within HISTORY_S: readings' times
+        # [t, q at the reading's time, B, ω then, (F, G) or None] within TURN_SPAN_S: F, the field in the fixed
+        # frame, and G, its rate of change per second of lag, are made when a step needs them
         self._recent: deque[list] = deque()
-        # (t, |ΔF|², |ΔB|², the step's turn v v^T: 6 terms, |B_j|² + |B_k|², Q ⊗ B_j B_kᵀ) within window_s
-        self._steps: deque[tuple[float, float, float, tuple[float, ...], float, NDArray[np.float64]]] = deque()
-        self.moved2 = self.changed2 = 0.0
+        # (t, |ΔF|², |ΔB|², ΔF·ΔG, |ΔG|², the step's timing variance, its turn v vᵀ: 6 terms, |B_j|² + |B_k|²,
+        # Q ⊗ B_j B_kᵀ) within window_s
+        self._steps: deque[tuple] = deque()
+        self.moved2 = self.changed2 = self.lagged = self.lag2 = self.timing2 = 0.0
         self._axes = [0.0] * 6  # Σ v vᵀ of the steps' turns (body frame): xx yy zz xy xz yz
         self._norms2 = 0.0  # Σ |B_j|² + |B_k|²
         self._products = np.zeros(81)  # Σ Q_jk ⊗ B_j B_kᵀ: every mounting's residual is linear in it
@@ -278,43 +284,73 @@ class TurnCheck:
     def steps(self) -> int:
         return len(self._steps)
 
+    def lag_s(self) -> float:
+        """The magnetometer's lag behind its readings' times that best explains the window's turns, within
+        ``[0, MAX_LAG_S]`` (module docstring)."""
+        if self.lag2 <= 0.0:
+            return 0.0
+        return min(max(self.lagged / self.lag2, 0.0), MAX_LAG_S)
+
+    def residual2(self) -> float:
+        """``Σ |ΔF − d ΔG|²`` at the fitted lag ``d``: what the turns leave unexplained, µT²."""
+        d = self.lag_s()
+        return max(self.moved2 - 2.0 * d * self.lagged + d * d * self.lag2, 0.0)
+
     def mismatch(self) -> float:
         if not self._steps:
             return math.nan
         if self.changed2 <= 0.0:  # the body turned and the field did not move in it at all
             return math.inf if self.moved2 > 0.0 else math.nan
-        return self.moved2 / self.changed2
+        return self.residual2() / self.changed2
 
-    def update(self, time_s: float, mag_uT: Vec3, gyr_radps: Vec3) -> None:
+    def timing_share(self) -> float:
+        """The share of the field's change that the readings' timing leaves unresolved (module docstring)."""
+        return self.timing2 / self.changed2 if self.changed2 > 0.0 else math.nan
+
+    def update(self, time_s: float, mag_uT: Vec3, gyr_radps: Vec3, mag_age_s: float = 0.0) -> None:
+        history = self._history
         if self._t is None or not 0.0 < time_s - self._t <= MAX_TURN_GAP_S:
             self._recent.clear()  # a gap or a reset: the integration starts over
+            history.clear()
+            dt = 0.0
         else:
             dt = time_s - self._t
             step = quat_from_rotvec_parts(gyr_radps[0] * dt, gyr_radps[1] * dt, gyr_radps[2] * dt)
             self._q = quat_normalize_parts(quat_multiply_parts(self._q, step))
         self._t = time_s
+        history.append((time_s, self._q, gyr_radps))
+        while history[0][0] < time_s - HISTORY_S:
+            history.popleft()
+        q_read, w_read = _attitude_at(history, time_s - mag_age_s)
         recent = self._recent
-        now = [time_s, self._q, mag_uT, None]
+        now = [time_s, q_read, mag_uT, w_read, None, dt]
         recent.append(now)
         while len(recent) > 1 and recent[1][0] <= time_s - TURN_SPAN_S:
             recent.popleft()
         then = recent[0]
-        t0, q0, b0, _ = then
-        if time_s - t0 >= TURN_SPAN_S and self._turned(q0):
+        t0, q0, b0 = then[0], then[1], then[2]
+        if time_s - t0 >= TURN_SPAN_S and self._turned(q0, q_read):
+            f1, g1 = _fixed(now)
+            f0, g0 = _fixed(then)
+            a = (f1[0] - f0[0], f1[1] - f0[1], f1[2] - f0[2])
+            g = (g1[0] - g0[0], g1[1] - g0[1], g1[2] - g0[2])
             self._add(
                 time_s,
-                _distance2(_fixed(now), _fixed(then)),
+                _dot(a, a),
                 _distance2(mag_uT, b0),
-                _turn_outer(q0, self._q),
+                _dot(a, g),
+                _dot(g, g),
+                _timing_variance(now, then),
+                _turn_outer(q0, q_read),
                 _dot(b0, b0) + _dot(mag_uT, mag_uT),
-                _step_products(q0, self._q, b0, mag_uT),
+                _step_products(q0, q_read, b0, mag_uT),
                 1,
             )
         steps = self._steps
         while steps and steps[0][0] <= time_s - self.window_s:
             self._add(*steps.popleft(), -1)
             if not steps:  # nothing in the window: the running sums start again from exact zeros
-                self.moved2 = self.changed2 = self._norms2 = 0.0
+                self.moved2 = self.changed2 = self.lagged = self.lag2 = self.timing2 = self._norms2 = 0.0
                 self._axes = [0.0] * 6
                 self._products[:] = 0.0
 
@@ -323,15 +359,21 @@ class TurnCheck:
         time_s: float,
         moved2: float,
         changed2: float,
+        lagged: float,
+        lag2: float,
+        timing2: float,
         outer: tuple[float, ...],
         norms2: float,
         products: NDArray[np.float64],
         sign: int,
     ) -> None:
         if sign > 0:
-            self._steps.append((time_s, moved2, changed2, outer, norms2, products))
+            self._steps.append((time_s, moved2, changed2, lagged, lag2, timing2, outer, norms2, products))
         self.moved2 += sign * moved2
         self.changed2 += sign * changed2
+        self.lagged += sign * lagged
+        self.lag2 += sign * lag2
+        self.timing2 += sign * timing2
         self._axes = [a + sign * o for a, o in zip(self._axes, outer, strict=True)]
         self._norms2 += sign * norms2
         if sign > 0:
@@ -375,16 +417,51 @@ class TurnCheck:
         eigen = np.linalg.eigvalsh(np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]]))
         return float(eigen[1] / total)
 
-    def _turned(self, q0: tuple) -> bool:
-        q = self._q
+    @staticmethod
+    def _turned(q0: tuple, q: tuple) -> bool:
         return abs(q0[0] * q[0] + q0[1] * q[1] + q0[2] * q[2] + q0[3] * q[3]) <= _COS_HALF_MIN_TURN
 
 
-def _fixed(entry: list) -> Vec3:
-    """A recent tick's field carried into the gyroscope's fixed frame, made once (most ticks end no step)."""
-    if entry[3] is None:
-        entry[3] = rotate_body_to_ned_parts(rotation_matrix_parts(entry[1]), entry[2])
-    return entry[3]
+def _attitude_at(history: deque[tuple[float, tuple, Vec3]], time_s: float) -> tuple[tuple, Vec3]:
+    """The integrated attitude and the rate at ``time_s`` (a reading's time, at or before the newest tick): the
+    tick before it turned on by the next tick's rate, as the integration steps (the oldest kept, if older)."""
+    newer = history[-1]
+    for entry in reversed(history):
+        if entry[0] <= time_s:
+            dt = time_s - entry[0]
+            w = newer[2]
+            if dt <= 0.0:
+                return entry[1], w
+            return quat_normalize_parts(
+                quat_multiply_parts(entry[1], quat_from_rotvec_parts(w[0] * dt, w[1] * dt, w[2] * dt))
+            ), w
+        newer = entry
+    return newer[1], newer[2]
+
+
+def _fixed(entry: list) -> tuple[Vec3, Vec3]:
+    """A recent tick's field carried into the gyroscope's fixed frame ``F = R B``, and ``G = R (ω × B)``, by how
+    much ``F`` moves per second the reading lags its time; made once (most ticks end no step)."""
+    if entry[4] is None:
+        r = rotation_matrix_parts(entry[1])
+        b, w = entry[2], entry[3]
+        cross = (w[1] * b[2] - w[2] * b[1], w[2] * b[0] - w[0] * b[2], w[0] * b[1] - w[1] * b[0])
+        entry[4] = (rotate_body_to_ned_parts(r, b), rotate_body_to_ned_parts(r, cross))
+    return entry[4]
+
+
+def _timing_variance(now: list, then: list) -> float:
+    """``E |δF|²`` of one step from what the samples cannot resolve in time (module docstring): each end's reading
+    time uncertain by its tick interval, ``|ω × B|² Δt² / 12``, and the gyroscope's rectangle rule over the
+    step, ``|B|² (Δt/2)² |ω_k − ω_j|²`` (µT²)."""
+    total = 0.0
+    for entry in (now, then):
+        _, g = _fixed(entry)
+        total += _dot(g, g) * entry[5] * entry[5] / 12.0
+    w1, w0, dt = now[3], then[3], max(now[5], then[5])
+    dw = (w1[0] - w0[0], w1[1] - w0[1], w1[2] - w0[2])
+    b = now[2]
+    return total + _dot(b, b) * 0.25 * dt * dt * _dot(dw, dw)
 
 
 def _turn_outer(q0: tuple, q1: tuple) -> tuple[float, ...]:
@@ -463,6 +540,7 @@ class CompassMonitor:
         self._field_excess = 0.0  # |B|'s, as last judged
         self._judged_dip = math.nan  # the window's mean dip when last judged (NaN: never judged)
         self._turn_excess = 0.0  # the turn mismatch over its threshold, as last judged
+        self._turn_off_since_s = math.nan  # vehicle time the turn excess last went over 1 (NaN: it is not)
         self._mounting_excess = 0.0  # another mounting's explanation of the turn over its thresholds, as last judged
         self._mounting_share = math.nan
         self.confirmed_at_s = math.nan  # vehicle time it was vouched for (NaN: not yet)
@@ -491,7 +569,7 @@ class CompassMonitor:
         if not self._turn.changed2:
             return math.nan
         sigma = rms_sigma(self._sigmas[1])
-        noise_share = self._turn.steps * 6.0 * sigma * sigma / self._turn.changed2
+        noise_share = self._turn.steps * 6.0 * sigma * sigma / self._turn.changed2 + self._turn.timing_share()
         return self.settings.turn_allowance + NOISE_SIGMAS * noise_share
 
     def _mounting_threshold_uT2(self) -> float:
@@ -543,7 +621,10 @@ class CompassMonitor:
             return abs(dip - self._expected_dip) > self._thresholds.dip_deg and quiet
         return abs(dip - self._judged_dip) > self._thresholds.dip_noise_deg
 
-    def update(self, time_s: float, acc_mps2: Vec3, mag_uT: Vec3, gyr_radps: Vec3) -> CompassEvent | None:
+    def update(
+        self, time_s: float, acc_mps2: Vec3, mag_uT: Vec3, gyr_radps: Vec3, mag_age_s: float = 0.0
+    ) -> CompassEvent | None:
+        """One tick; ``mag_age_s``: how long before ``time_s`` the magnetometer reading was taken (held)."""
         if self._expected_dip != self._expected_dip:
             return None
         # plain floats: numpy scalars (the batch front end's ticks) make this arithmetic ten times slower
@@ -551,12 +632,12 @@ class CompassMonitor:
         quiet = self.quiet(acc_mps2, gyr_radps)
         dip = measured_dip_deg(acc_mps2, mag_uT) if quiet else math.nan
         field = _norm(mag_uT) if quiet and self._field_uT is not None else None
-        return self._take(float(time_s), mag_uT, gyr_radps, quiet, dip, field)
+        return self._take(float(time_s), mag_uT, gyr_radps, float(mag_age_s), quiet, dip, field)
 
     def update_rows(
-        self, time_s: Array, acc_mps2: Array, mag_uT: Array, gyr_radps: Array
+        self, time_s: Array, acc_mps2: Array, mag_uT: Array, gyr_radps: Array, mag_age_s: Array | None = None
     ) -> tuple[list[CompassEvent | None], list[bool], list[bool]]:
-        """:meth:`update` then :meth:`suspect` for each row of ``(n,)`` times and ``(n, 3)`` vectors, in order:
+        """:meth:`update` then :meth:`suspect` for each row of ``(n,)`` times and ages and ``(n, 3)`` vectors, in order:
         each row's event, whether it is suspect, and whether the compass is judged inconsistent after it.
 
         What needs no state (quietness, dip, |B|) is computed for all rows at once, with the same operations as
@@ -569,10 +650,11 @@ class CompassMonitor:
         quiet = self._quiet_rows(acc_mps2, gyr_radps).tolist()
         dips = measured_dip_deg_rows(acc_mps2, mag_uT).tolist()
         fields = _norm_rows(mag_uT).tolist() if self._field_uT is not None else [None] * len(time_s)
-        for t, m, g, q, dip, field in zip(
-            time_s.tolist(), mag_uT.tolist(), gyr_radps.tolist(), quiet, dips, fields, strict=True
+        ages = [0.0] * len(time_s) if mag_age_s is None else mag_age_s.tolist()
+        for t, m, g, age, q, dip, field in zip(
+            time_s.tolist(), mag_uT.tolist(), gyr_radps.tolist(), ages, quiet, dips, fields, strict=True
         ):
-            events.append(self._take(t, tuple(m), tuple(g), q, dip, field) if known else None)
+            events.append(self._take(t, tuple(m), tuple(g), age, q, dip, field) if known else None)
             suspect.append(self.inconsistent or (not self.confirmed and self._dip_suspect(dip, q)))
             inconsistent.append(self.inconsistent)
         return events, suspect, inconsistent
@@ -585,10 +667,17 @@ class CompassMonitor:
         )
 
     def _take(
-        self, time_s: float, mag_uT: Vec3, gyr_radps: Vec3, quiet: bool, dip: float, field: float | None
+        self,
+        time_s: float,
+        mag_uT: Vec3,
+        gyr_radps: Vec3,
+        mag_age_s: float,
+        quiet: bool,
+        dip: float,
+        field: float | None,
     ) -> CompassEvent | None:
         """One tick into the turn check, the quiet window (when ``quiet``: its ``dip``, ``field``), the verdict."""
-        self._turn.update(time_s, mag_uT, gyr_radps)
+        self._turn.update(time_s, mag_uT, gyr_radps, mag_age_s)
         if quiet:
             self._add_quiet(time_s, dip, field)
         return self._judge(time_s) if self.judged or self.turn_judged else None
@@ -605,7 +694,7 @@ class CompassMonitor:
             _, old_dip, old_field = self._window.popleft()
             self._win.add(old_dip, old_field, -1)
 
-    def _excess(self) -> float:
+    def _excess(self, time_s: float) -> float:
         """The largest of the window's distances from the reference (dip, |B|) and of the turn mismatch, each
         as a fraction of its threshold (those never judged count 0)."""
         # Each figure's last judgement holds while it has too few samples to judge: a vehicle that stopped
@@ -622,10 +711,19 @@ class CompassMonitor:
                 gain / self._mounting_threshold_uT2(), self._mounting_share / MIN_EXPLAINED_SHARE
             )
             self._turn_excess = max(self._turn.mismatch() / self._turn_threshold(), self._mounting_excess)
-        return max(self._dip_excess, self._field_excess, self._turn_excess)
+        return max(self._dip_excess, self._field_excess, self._persistent_turn_excess(time_s))
+
+    def _persistent_turn_excess(self, time_s: float) -> float:
+        """The turn's excess, held at 1 until it has been over 1 for ``PERSIST_S`` (module docstring)."""
+        if self._turn_excess <= 1.0:
+            self._turn_off_since_s = math.nan
+            return self._turn_excess
+        if self._turn_off_since_s != self._turn_off_since_s:
+            self._turn_off_since_s = time_s
+        return self._turn_excess if time_s - self._turn_off_since_s >= PERSIST_S else 1.0
 
     def _judge(self, time_s: float) -> CompassEvent | None:
-        excess = self._excess()
+        excess = self._excess(time_s)
         if not self.confirmed and self._vouched():
             self.confirmed_at_s = time_s
         if not self.inconsistent and excess > 1.0:

@@ -17,7 +17,14 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from mavattitude.estimation.conventions import Array
+from mavattitude.estimation.conventions import (
+    Array,
+    quat_conjugate,
+    quat_from_euler,
+    quat_multiply,
+    rotate_ned_to_body,
+    rotvec_from_quat,
+)
 from mavattitude.sensors import dataflash_units as du
 from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2
 
@@ -171,6 +178,43 @@ def static_log(
     pos_t = np.arange(round(seconds * 5)) / 5.0 + 1.0
     pos = np.tile([47.4, 8.5, 450.0], (len(pos_t), 1))
     return SensorLog(t, acc, gyr, mag_t, mag, att_t, att_rpy, pos_t, pos)
+
+
+def manoeuvring_log(
+    seconds: float,
+    imu_rate_hz: float = 25.0,
+    mag_rate_hz: float = 10.0,
+    peak_rate_dps: float = 200.0,
+    mag_turn: Array | None = None,
+    seed: int = 0,
+) -> SensorLog:
+    """A hovering copter swinging hard in roll, pitch and yaw (tilts to 30°, body rates to ``peak_rate_dps``),
+    logged as ArduPilot logs by default: IMU snapshots at 25 Hz, a 10 Hz compass whose reading is the mean of
+    the field over its interval (its driver accumulates samples), stamped at the interval's end; at CMAC
+    (WMM there: 58.0 µT, inclination −65.8°, declination +12.8°), ATT 10 Hz, POS 5 Hz. The field is the Earth's
+    only and the specific force gravity's only; ``mag_turn`` (3×3) turns the compass's axes against the body's.
+    The frequencies are drawn from ``seed`` (0.2–0.8 Hz per axis); the yaw swing sets the peak rate."""
+    rng = np.random.default_rng(seed)
+    fine_hz = 1000.0  # the truth's grid: rates and the compass's mean from it
+    t = np.arange(round(seconds * fine_hz) + 1) / fine_hz + 1.0
+    freq, phase = rng.uniform(0.2, 0.8, 3), rng.uniform(0.0, 2.0 * np.pi, 3)
+    amplitude = np.radians([30.0, 30.0, 0.0])
+    amplitude[2] = np.radians(peak_rate_dps) / (2.0 * np.pi * freq[2])
+    angles = amplitude[:, None] * np.sin(2.0 * np.pi * freq[:, None] * (t - 1.0) + phase[:, None])
+    q = quat_from_euler(*angles)
+    rates = rotvec_from_quat(quat_multiply(quat_conjugate(q[:-1]), q[1:])) * fine_hz  # over each fine step
+    inc, dec = math.radians(-65.77), math.radians(12.8)
+    field_ned = 58.0 * np.array([math.cos(inc) * math.cos(dec), math.cos(inc) * math.sin(dec), math.sin(inc)])
+    body_field = rotate_ned_to_body(q, field_ned) @ (np.eye(3) if mag_turn is None else np.asarray(mag_turn)).T
+    imu = np.arange(1, round(seconds * imu_rate_hz)) * round(fine_hz / imu_rate_hz)
+    per_mag = round(fine_hz / mag_rate_hz)
+    mag_end = np.arange(1, round(seconds * mag_rate_hz)) * per_mag
+    mag = np.stack([body_field[e - per_mag + 1 : e + 1].mean(axis=0) for e in mag_end])
+    acc = rotate_ned_to_body(q[imu], [0.0, 0.0, -STANDARD_GRAVITY_MPS2])
+    att = np.arange(round(seconds * 10.0)) * round(fine_hz / 10.0)
+    pos_t = np.arange(round(seconds * 5.0)) / 5.0 + 1.0
+    pos = np.tile([-35.363261, 149.165230, 584.0], (len(pos_t), 1))
+    return SensorLog(t[imu], acc, rates[imu - 1], t[mag_end], mag, t[att], angles[:, att].T, pos_t, pos)
 
 
 def write_tlog(

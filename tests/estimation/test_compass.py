@@ -11,6 +11,7 @@ import pytest
 from mavattitude.estimation.compass import (
     HEADING_UNKNOWN_STD_RAD,
     NOISE_SIGMAS,
+    PERSIST_S,
     CompassMonitor,
     CompassSettings,
     heading_uncertain,
@@ -226,8 +227,8 @@ def test_a_turn_mostly_about_the_misorientations_own_axis_shows_it_by_the_mounti
     events, m = _turning(flip, amplitudes_deg=amplitudes_deg, noise_uT=0.5, seed=11)
     f = m.figures()
     assert f.turn_mismatch < f.threshold_turn  # the mismatch alone cannot tell
-    # warned at the first judgement: 25 turning steps of 20 ms (0.5 s) after the first 0.2 s step
-    assert events and events[0].inconsistent and events[0].time_s < 1.0 and f.mounting_off
+    # warned once judged off for PERSIST_S: 25 turning steps of 20 ms (0.5 s) after the first 0.2 s step, then that
+    assert events and events[0].inconsistent and events[0].time_s < 1.0 + PERSIST_S and f.mounting_off
     assert "explained by a compass mounted otherwise" in f.describe()
 
 
