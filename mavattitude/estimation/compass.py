@@ -19,8 +19,22 @@ field stays put. :class:`TurnCheck` compares, over steps of ``TURN_SPAN_S`` that
 ``mismatch = Σ |F_k − F_j|² / Σ |B_k − B_j|²``. A field that turns with the body as the gyroscope says
 gives ~0 (0.01–0.05 on every shared recording, 0.27 with a magnet attached to the sensor, an uncorrected
 hard iron); a compass mounted in another orientation than the gyroscope turns the other way about some
-axis, ≥ 0.4 (flips and 90° turns about any axis, on the SITL flight and the BROAD trials). The threshold is
-``turn_allowance + k · (noise's share)``, the noise's share being ``n · 6 σ̄_mag² / Σ |B_k − B_j|²``.
+axis, ≥ 0.4 (flips and 90° turns about any axis, on the SITL flight and the BROAD trials).
+
+Each reading is compared at its own time: a reading held on a later tick (``mag_age_s``: a 10 Hz compass on
+25 Hz ticks is up to 0.1 s old, 20° at 200°/s) is turned with the integrated attitude at the tick's time minus
+its age (``HISTORY_S`` of attitudes kept). What is left is a lag ``d`` common to the readings (a reading that
+is the mean over its interval; a slower stream's longer low-pass delay): the field moves by
+``G = R (ω × B)`` per second of lag, so ``F_k − d G_k`` is the reading carried back by ``d``, and the window's
+residual ``Σ |ΔF − d ΔG|²`` is least at ``d = Σ ΔF·ΔG / Σ |ΔG|²``, taken within ``[0, MAX_LAG_S]``. The
+mismatch is that residual over ``Σ |B_k − B_j|²``. A lag turns the field about the rotation axis in
+proportion to the rate; a misorientation by a fixed rotation, which no lag undoes.
+
+The threshold is ``turn_allowance + k · (noise's share)``: ``Σ E|δΔF|² / Σ |B_k − B_j|²`` with, per step,
+the magnetometer's noise ``6 σ̄_mag²``; each end's reading time uncertain over its tick interval ``Δt``
+(uniform), ``|ω × B|² Δt² / 12``; and the gyroscope's rectangle rule over the step (the rate at a sample
+stands for the interval before it), ``|B|² (Δt/2)² |ω_k − ω_j|²``. The turn judged off counts once it has
+stayed off for ``PERSIST_S`` (several steps' spans of new evidence).
 
 A turn mostly about a misorientation's own axis shows it only in the small rest of the turn (a mirror or a
 rotation commutes with rotations about its axis), too small a share of the field's change for that ratio.
