@@ -273,6 +273,14 @@ class ReferenceConfig:
         default_factory=MagneticReference,
         metadata=_meta(_magnetic, "auto | {declination_deg, inclination_deg[, intensity_uT]} | {field_ned_uT}"),
     )
+    position_wait_s: float = field(
+        default=5.0,
+        metadata=_meta(
+            _number(0.0, 600.0),
+            "auto: without a GPS position this long after the IMU stream starts (vehicle time), the field is "
+            "measured from the compass (heading: magnetic north) until one arrives, s",
+        ),
+    )
 
 
 @dataclass(frozen=True)

@@ -414,13 +414,38 @@ class AttitudePipeline:
         self._compass_at_s = -math.inf  # vehicle time of the last tick the monitor took
         self.mag_ref_ned_uT: Array | None = None
         self.last_error: MavAttitudeError | None = None
-        self.magref = ReferenceTracker(config.reference.magnetic)
+        reference = config.reference
+        self.magref = ReferenceTracker(reference.magnetic, position_wait_s=reference.position_wait_s)
         self._apply_reference()
 
     @property
     def waiting_for_reference(self) -> bool:
-        """True while ``reference.magnetic: auto`` has no position yet: nothing is emitted."""
+        """True while ``reference.magnetic: auto`` has neither a position nor a field measured from the compass
+        (:class:`~mavattitude.sensors.magref.ReferenceTracker`): nothing is emitted."""
         return self.mag_ref_ned_uT is None
+
+    def _measure_reference(self, tick: ProcessedSample) -> bool:
+        """A tick while waiting for the reference, into the tracker's measured field (its quiet dip and |B|, as
+        the compass monitor takes them); True when that became the reference."""
+        if tick.mag_uT is None:
+            return False
+        dip, field = self.compass.quiet_dip_field(tick.acc_mps2, tick.mag_uT, tick.gyr_radps)
+        if not self.magref.observe(tick.time_s, dip, field):
+            return False
+        self._apply_reference()
+        return True
+
+    def _measure_reference_rows(self, batch: BatchOutput) -> float:
+        """:meth:`_measure_reference` of a batch's ticks in order, up to the one that made the measured field the
+        reference: the time of the tick before it (the ticks after it take the reference); ``inf`` if none did."""
+        rows = np.flatnonzero(batch.mag_uT[:, 0] == batch.mag_uT[:, 0])  # NaN: no reading
+        dips, norms = self.compass.quiet_dip_field_rows(batch.acc_mps2[rows], batch.mag_uT[rows], batch.gyr_radps[rows])
+        times = batch.time_s[rows].tolist()
+        for i, t, dip, norm in zip(rows.tolist(), times, dips.tolist(), norms.tolist(), strict=True):
+            if self.magref.observe(t, dip, norm):
+                self._apply_reference()
+                return float(batch.time_s[i - 1]) if i else -math.inf
+        return math.inf
 
     def set_position(self, lat_deg: float, lon_deg: float, alt_m: float, when: dt.date | None = None) -> bool:
         """A vehicle position (``reference.magnetic: auto``): the WMM field there on ``when`` (default today)
@@ -432,11 +457,14 @@ class AttitudePipeline:
 
     def _apply_reference(self) -> None:
         ref = self.magref.reference
-        self.set_magnetic_reference(ref.field_ned_uT, magnitude_known=ref.intensity_uT is not None)
+        self.set_magnetic_reference(ref.field_ned_uT, ref.intensity_uT is not None, self.magref.measured)
 
-    def set_magnetic_reference(self, field_ned_uT: Iterable[float] | None, magnitude_known: bool = True) -> None:
+    def set_magnetic_reference(
+        self, field_ned_uT: Iterable[float] | None, magnitude_known: bool = True, measured: bool = False
+    ) -> None:
         """The NED field (µT) the solver aligns to (``None``: unknown, nothing is emitted). With
-        ``magnitude_known`` its norm also screens |B| in the front end; without, only its direction is used."""
+        ``magnitude_known`` its norm also screens |B| in the front end; without, only its direction is used.
+        ``measured``: the compass's own field (no position), which the compass monitor holds it to since."""
         if field_ned_uT is None:
             self.mag_ref_ned_uT = None
             self.frontend.set_expected_field_uT(None)
@@ -447,7 +475,7 @@ class AttitudePipeline:
         self.mag_ref_ned_uT = ref
         intensity_uT = float(np.linalg.norm(ref)) if magnitude_known else None
         self.frontend.set_expected_field_uT(intensity_uT)
-        self.compass.set_reference(tuple(ref.tolist()), intensity_uT)
+        self.compass.set_reference(tuple(ref.tolist()), intensity_uT, measured)
 
     def push(self, sample: ImuSample) -> Pushed:
         """What one input sample completes (see :class:`Pushed`)."""
@@ -473,22 +501,20 @@ class AttitudePipeline:
         The front end runs vectorised (:func:`~mavattitude.sensors.frontend.process_batch`, ~20× faster per
         sample, ticks equal to rounding), then every tick takes the same estimator step as in :meth:`push`.
         For offline replay, where the per-sample front end is the cost. The magnetic reference is the one
-        set now, for every tick after ``reference_after_s`` (the ticks up to it wait, as before a position);
+        set now, for every tick after ``reference_after_s`` (the ticks up to it wait, as before a position), or,
+        with none set, the field the ticks measure (:meth:`_measure_reference`, the same rule as one by one);
         ``mag_new`` marks rows with a new magnetometer reading, ``mag_repeats`` that the messages repeat the newest
         one (:attr:`~mavattitude.sensors.units.ImuSample.mag_repeats`).
         """
         fe = self.frontend
-        batch = process_batch(
-            fe.settings,
-            time_s,
-            acc_mps2,
-            gyr_radps,
-            mag_uT,
-            mag_new=mag_new,
-            mag_repeats=mag_repeats,
-            wrap_period_s=time_wrap_s,
-            expected_field_uT=fe.expected_field_uT,
-        )
+        inputs = (fe.settings, time_s, acc_mps2, gyr_radps, mag_uT)
+        options = {"mag_new": mag_new, "mag_repeats": mag_repeats, "wrap_period_s": time_wrap_s}
+        batch = process_batch(*inputs, **options, expected_field_uT=fe.expected_field_uT)
+        if self.mag_ref_ned_uT is None:
+            # the field measured from the ticks themselves: the batch again with its |B| screening them
+            reference_after_s = max(reference_after_s, self._measure_reference_rows(batch))
+            if self.mag_ref_ned_uT is not None:
+                batch = process_batch(*inputs, **options, expected_field_uT=fe.expected_field_uT)
         fe.counters.add(batch.counters)
         pushed = Pushed()
         reference = self.mag_ref_ned_uT
@@ -530,10 +556,10 @@ class AttitudePipeline:
         return [e for e in events if e is not None]
 
     def _estimate(self, tick: ProcessedSample, pushed: Pushed, judge: bool = True) -> None:
-        """The tick's outputs into ``pushed``; ``judge=False``: the compass monitor has taken it already
-        (:meth:`push_batch`)."""
+        """The tick's outputs into ``pushed``; ``judge=False``: the compass monitor and the reference's
+        measurement have taken it already (:meth:`push_batch`)."""
         c = self.counters
-        if self.mag_ref_ned_uT is None:
+        if self.mag_ref_ned_uT is None and not (judge and self._measure_reference(tick)):
             c.waiting += 1
             return
         if tick.mag_uT is None:

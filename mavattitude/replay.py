@@ -9,7 +9,9 @@ then the same estimator step per tick), which is what makes replay fast: a DataF
 holds its streams as arrays, from one vehicle; a telemetry log is read as arrays too, its rows those of
 the autopilot the dispatcher's lock-on chooses (:meth:`~mavattitude.dispatch.Dispatcher.follow`). That
 needs one magnetic reference for the whole log (fixed, or the WMM's at the log's first position when the
-vehicle stays within the distance after which the service would look it up again); otherwise, and with
+vehicle stays within the distance after which the service would look it up again, or the field measured
+from the compass of a log without a position: :class:`~mavattitude.sensors.magref.ReferenceTracker`'s rule,
+which the pipeline applies to the batch's ticks as it would one by one); otherwise, and with
 ``at_once=False``, the samples go into the pipeline one by one as they would live.
 """
 
@@ -152,11 +154,15 @@ def _replay_items(
 
 
 def _one_reference(streams: LogStreams, pipeline: AttitudePipeline) -> bool:
-    """Whether one magnetic reference serves the whole log: fixed, or ``auto`` within the re-lookup distance."""
+    """Whether one magnetic reference serves the whole log: fixed; ``auto`` without a position (the field
+    measured from the compass); or ``auto`` with a first position before the field would be measured, and
+    every later one within the re-lookup distance."""
     if not pipeline.waiting_for_reference:
         return True
     if len(streams.position_t_s) == 0:
-        return True  # nothing to wait for: no output either way
+        return True
+    if len(streams.imu_t_s) and streams.position_t_s[0] >= streams.imu_t_s[0] + pipeline.magref.position_wait_s:
+        return False  # measured first, then the WMM's
     lat0, lon0, _ = streams.position[0].tolist()
     limit_km = pipeline.magref.recompute_distance_km
     return all(distance_km(lat0, lon0, lat, lon) <= limit_km for lat, lon, _ in streams.position.tolist())

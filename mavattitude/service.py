@@ -125,7 +125,7 @@ class Waiting(enum.Enum):
 
     AUTOPILOT = "autopilot"  # its HEARTBEAT (the first, or ``link.vehicle_system_id``'s)
     IMU_STREAM = "IMU stream"  # the input message, at start or after input_timeout_s of silence
-    POSITION = "GPS position"  # ``reference.magnetic: auto`` needs the vehicle's position
+    POSITION = "GPS position"  # ``reference.magnetic: auto``: the position, or the field measured without one
     FIRST_ATTITUDE = "first attitude"  # input flows, the filter and solver have not produced one yet
     RUNNING = "running"
 
@@ -349,7 +349,11 @@ class AttitudeService:
                 f"waiting for the IMU stream: {source} (link.request_messages is off: is the autopilot streaming it?)"
             )
         if waiting is Waiting.POSITION:
-            return "waiting for a GPS position (reference: auto): GLOBAL_POSITION_INT, or GPS_RAW_INT with a 3D fix"
+            return (
+                "waiting for a GPS position (reference: auto): GLOBAL_POSITION_INT, or GPS_RAW_INT with a 3D fix; "
+                f"without one, after {self.config.reference.position_wait_s:g} s of the IMU stream, the field is "
+                "measured from the compass while the vehicle is still"
+            )
         if waiting is Waiting.FIRST_ATTITUDE:
             return "waiting for the first attitude"
         return "running"
@@ -594,9 +598,10 @@ def compass_statustext(figures: CompassFigures) -> str:
     """The same in STATUSTEXT's 50 ASCII characters: the figure that is off, and what to check."""
     if figures.turn_off:
         return "compass turns unlike the gyro: check mount, cal"
+    word = "start" if figures.reference_measured else "expected"  # a field measured at the start: a change since
     if abs(figures.dip_deg - figures.expected_dip_deg) > figures.threshold_dip_deg:
-        return f"compass dip {figures.dip_deg:+.0f} (expected {figures.expected_dip_deg:+.0f}): check mount, cal"
-    return f"compass |B| {100.0 * figures.field_ratio:.0f}% of expected: check calibration"
+        return f"compass dip {figures.dip_deg:+.0f} ({word} {figures.expected_dip_deg:+.0f}): check mount, cal"
+    return f"compass |B| {100.0 * figures.field_ratio:.0f}% of {word}: check calibration"
 
 
 def compass_pairs(figures: CompassFigures) -> list[tuple[str, float]]:

@@ -239,7 +239,8 @@ def test_automatic_magnetic_reference_waits_for_the_vehicle_position(caplog):
     assert running.service.waiting is Waiting.POSITION  # a state, not a reject
     assert running.service.counters.emitted == 0 and not running.service.pipeline.counters.rejected
     assert running.service.waiting_text() == (
-        "waiting for a GPS position (reference: auto): GLOBAL_POSITION_INT, or GPS_RAW_INT with a 3D fix"
+        "waiting for a GPS position (reference: auto): GLOBAL_POSITION_INT, or GPS_RAW_INT with a 3D fix; without "
+        "one, after 5 s of the IMU stream, the field is measured from the compass while the vehicle is still"
     )
     # Zurich, 500 m: the WMM field there becomes the reference
     vehicle.send(mavlink2.MAVLink_global_position_int_message(0, 473_769_000, 85_417_000, 500_000, 0, 0, 0, 0, 0))

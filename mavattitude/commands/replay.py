@@ -5,13 +5,16 @@ the file's content) goes through the service's own dispatcher and pipeline (mava
 as the CPU goes. From a .tlog the IMU messages are input.message decoded with input.profile, and replay
 follows one autopilot as the service does (link.vehicle_system_id, or the first autopilot HEARTBEAT); a
 .bin or .ulg is the autopilot's own log (IMU and MAG instances chosen with --imu / --mag). With
-reference.magnetic auto, the World Magnetic Model is evaluated at the log's positions, on the log's date.
+reference.magnetic auto, the World Magnetic Model is evaluated at the log's positions, on the log's date;
+a log without a position is replayed with heading from magnetic north and the dip and |B| its compass
+shows while the vehicle is still (reference.position_wait_s after its start, as the live service does).
 
 One log and OUT ending in .csv (or .csv.gz): the attitude is written there. Several logs, or a
 directory of them: OUT is a directory, with one CSV per log (the columns of `mavattitude solve`), and
 summary.csv, the table also printed: per log its duration, samples, outputs, ours-minus-autopilot
 roll / pitch / yaw RMS and p99 (degrees; at each of the autopilot's attitudes, ours interpolated to its
-time, as the service's cross-check pairs them), rejected inputs and what was wrong with the file, if anything.
+time, as the service's cross-check pairs them), rejected inputs, the magnetic reference used (WMM release,
+place and date; the field measured from the compass; or the one given) and what was wrong with the file.
 -j N replays N logs at a time in worker processes. Where a log holds the autopilot's own attitude, a
 PNG comparison plot is written beside its CSV (needs matplotlib: pip install mavattitude[plot]).
 
@@ -52,6 +55,7 @@ from mavattitude.config import DEFAULTS, Config
 from mavattitude.errors import DataFileError, MavAttitudeError
 from mavattitude.estimation import METHODS
 from mavattitude.files import LOG_SUFFIXES
+from mavattitude.sensors.magref import MIN_MEASURED_TICKS
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
 
 NAME = "replay"
@@ -283,6 +287,7 @@ def _fill(result: LogResult, replayed: Any) -> None:
     result.samples = replayed.counters.received
     result.outputs = len(replayed.outputs)
     result.duration_s = replayed.last_sample_s - replayed.first_sample_s
+    result.columns["reference"] = replayed.pipeline.magref.describe()  # the magnetic reference(s), in order
     result.rejects = (
         sum(replayed.counters.rejected.values())
         + sum(pipeline.frontend.rejected.values())
@@ -332,9 +337,12 @@ def _check_found(path: str, message: str, result: Any) -> None:
     if result.counters.received == 0:
         raise DataFileError(f"{path}: no {message} from the autopilot (set input.message, or --message)")
     if result.pipeline.waiting_for_reference:
+        wait_s = result.pipeline.magref.position_wait_s
         raise DataFileError(
-            f"{path}: reference.magnetic is auto but the log holds no position with a fix: give --declination "
-            "DEG --inclination DEG or --mag-ref-ned N E D"
+            f"{path}: reference.magnetic is auto, the log holds no position with a fix, and no field was measured "
+            f"from its compass ({wait_s:g} s of reference.position_wait_s from its start, then {MIN_MEASURED_TICKS} "
+            "magnetometer ticks with the vehicle still): give --declination DEG --inclination DEG or --mag-ref-ned "
+            "N E D"
         )
     summarise(result.pipeline, result.counters.received, path, result.compass)
 

@@ -210,12 +210,18 @@ class CompassFigures:
     mounting_off: bool  # that mounting explains the turns better beyond the noise (module docstring)
     inconsistent: bool
     warnings: int  # times it turned inconsistent
+    reference_measured: bool = False  # the reference is the compass's own field at the start (no position)
+
+    @property
+    def expected(self) -> str:
+        """What the dip and |B| are held against, in words."""
+        return "measured at the start" if self.reference_measured else "expected"
 
     def describe(self) -> str:
         """One line for a person: what was measured against what was expected."""
-        text = f"compass dip {self.dip_deg:+.0f}° vs expected {self.expected_dip_deg:+.0f}°"
+        text = f"compass dip {self.dip_deg:+.0f}° vs {self.expected} {self.expected_dip_deg:+.0f}°"
         if self.field_ratio == self.field_ratio:
-            text += f", |B| {100.0 * self.field_ratio:.0f} % of the expected"
+            text += f", |B| {100.0 * self.field_ratio:.0f} % of the {self.expected}"
         if self.turn_mismatch == self.turn_mismatch:
             text += f", turns unlike the gyroscope by {100.0 * self.turn_mismatch:.0f} %"
         if self.mounting_off:
@@ -548,6 +554,7 @@ class CompassMonitor:
         self._first_until_s = math.nan
         self._expected_dip = math.nan
         self._field_uT: float | None = None
+        self._reference_measured = False
         self._thresholds = Thresholds(math.nan, math.nan, math.nan)
         self._turn = TurnCheck(settings.window_s)
         self._dip_excess = 0.0  # the dip's distance over its threshold, as last judged
@@ -591,9 +598,12 @@ class CompassMonitor:
         sigma = rms_sigma(self._sigmas[1])
         return 4.0 * NOISE_SIGMAS * NOISE_SIGMAS * sigma * sigma
 
-    def set_reference(self, field_ned_uT: Vec3, intensity_uT: float | None) -> None:
+    def set_reference(self, field_ned_uT: Vec3, intensity_uT: float | None, measured: bool = False) -> None:
+        """The field to hold the dip and |B| against; ``measured``: the compass's own at the start (no position),
+        against which they show a change since, not an error (docs/vehicle.md)."""
         self._expected_dip = reference_dip_deg(field_ned_uT)
         self._field_uT = intensity_uT
+        self._reference_measured = measured
         scale = intensity_uT if intensity_uT is not None else _norm(field_ned_uT)
         self._thresholds = thresholds(self.settings, *self._sigmas, scale)
 
@@ -604,6 +614,20 @@ class CompassMonitor:
             abs(_norm(acc_mps2) - g) <= self.settings.low_accel_fraction * g
             and _norm(gyr_radps) <= self._max_rate_radps
         )
+
+    def quiet_dip_field(self, acc_mps2: Vec3, mag_uT: Vec3, gyr_radps: Vec3) -> tuple[float, float]:
+        """The dip (degrees) and |B| (µT) of one tick when it is quiet, NaN when not: what the monitor takes
+        into its figures, for a reference measured from the compass (:mod:`mavattitude.sensors.magref`)."""
+        acc_mps2, mag_uT, gyr_radps = _floats(acc_mps2), _floats(mag_uT), _floats(gyr_radps)
+        if not self.quiet(acc_mps2, gyr_radps):
+            return math.nan, math.nan
+        return measured_dip_deg(acc_mps2, mag_uT), _norm(mag_uT)
+
+    def quiet_dip_field_rows(self, acc_mps2: Array, mag_uT: Array, gyr_radps: Array) -> tuple[Array, Array]:
+        """:meth:`quiet_dip_field` of each row, the same operations in the same order."""
+        quiet = self._quiet_rows(acc_mps2, gyr_radps)
+        dip = np.where(quiet, measured_dip_deg_rows(acc_mps2, mag_uT), np.nan)
+        return dip, np.where(quiet, _norm_rows(mag_uT), np.nan)
 
     def suspect(self, acc_mps2: Vec3, mag_uT: Vec3, gyr_radps: Vec3) -> bool:
         """Whether this one sample's field should set heading only.
@@ -785,6 +809,7 @@ class CompassMonitor:
             mounting_off=self._mounting_excess > 1.0,
             inconsistent=self.inconsistent,
             warnings=self.warnings,
+            reference_measured=self._reference_measured,
         )
 
 

@@ -1,16 +1,23 @@
 """The Earth's magnetic field in NED (µT): the solver's magnetometer reference.
 
 :class:`MagneticReference` is the config's ``reference.magnetic`` (how the field is known),
-:class:`ReferenceField` the field known at a moment, :class:`ReferenceTracker` the one the service keeps
-current. From the config: two angles (declination ``D``, inclination ``I``, optional intensity ``F``):
-``B = F [cos I cos D, cos I sin D, sin I]`` (without ``F`` a unit vector: the direction only, and no
-|B| screening); or a vector ``field_ned_uT``. ``auto``: the World Magnetic Model at the vehicle's
-position, through ``pygeomag`` (pure Python, WMM2025 coefficients valid 2025–2030, kept current with each
-WMM release by its maintainer; no compiled dependency on a companion computer). It is recomputed when the
-vehicle moves more than ``recompute_distance_km``; until a position arrives the reference is *waiting*
-and nothing is guessed. The model's date is the vehicle's GPS date (or a log's), the companion's clock
-only as a fallback (a board without a real-time clock is wrong until NTP); a date outside the model's
-span is clamped to its edge, with one warning, never an error.
+:class:`ReferenceField` the field known at a moment, :class:`ReferenceTracker` the one the service and
+replay keep current, by one rule. From the config: two angles (declination ``D``, inclination ``I``,
+optional intensity ``F``): ``B = F [cos I cos D, cos I sin D, sin I]`` (without ``F`` a unit vector: the
+direction only, and no |B| screening); or a vector ``field_ned_uT``. ``auto``: the World Magnetic Model at
+the vehicle's position, through ``pygeomag`` (pure Python, no compiled dependency on a companion computer),
+with the model whose five-year span holds the date (WMM2010, WMM2015v2, WMM2020, WMM2025: 2010–2029). It is
+recomputed when the vehicle moves more than ``recompute_distance_km``. The model's date is the vehicle's
+GPS date (or a log's), the companion's clock only as a fallback (a board without a real-time clock is
+wrong until NTP); a date outside every model's span is clamped to the nearest edge, with one warning,
+never an error.
+
+Until a position arrives the reference is *waiting*. A vehicle without a position (no GPS, no fix, indoors,
+under water) is given a *measured* reference after ``position_wait_s`` of vehicle time from its first tick:
+declination 0 (heading is magnetic north) and the inclination and intensity the compass itself shows while
+the vehicle is quiet: the mean of the dip ``asin(d̂ · b̂)`` and of ``|B|`` over the quiet ticks seen so far
+(at least ``MIN_MEASURED_TICKS``; the compass monitor's quiet test and dip,
+:mod:`mavattitude.estimation.compass`). A position that arrives later replaces it with the WMM's field.
 """
 
 from __future__ import annotations
@@ -27,8 +34,30 @@ from mavattitude.estimation.conventions import Vec3
 log = logging.getLogger(__name__)
 
 EARTH_RADIUS_KM = 6371.0088
-WMM_COEFFICIENTS = "wmm/WMM_2025.COF"
-WMM_FIRST_DAY, WMM_LAST_DAY = dt.date(2025, 1, 1), dt.date(2029, 12, 31)  # WMM2025's span
+MIN_MEASURED_TICKS = 25  # the fewest quiet ticks a measured field is the mean of (as the compass monitor judges on)
+
+
+@dataclass(frozen=True)
+class WmmModel:
+    """One World Magnetic Model release: its coefficient file in pygeomag and the days it is valid for."""
+
+    name: str
+    coefficients: str
+    first_day: dt.date
+    last_day: dt.date
+
+
+#: The releases pygeomag ships, oldest first (WMM2015v2: the 2019 out-of-cycle correction of WMM2015).
+WMM_MODELS = tuple(
+    WmmModel(name, f"wmm/{file}.COF", dt.date(year, 1, 1), dt.date(year + 4, 12, 31))
+    for name, file, year in (
+        ("WMM2010", "WMM_2010", 2010),
+        ("WMM2015v2", "WMM_2015v2", 2015),
+        ("WMM2020", "WMM_2020", 2020),
+        ("WMM2025", "WMM_2025", 2025),
+    )
+)
+WMM_FIRST_DAY, WMM_LAST_DAY = WMM_MODELS[0].first_day, WMM_MODELS[-1].last_day
 
 
 @dataclass(frozen=True)
@@ -37,14 +66,15 @@ class ReferenceField:
 
     field_ned_uT: Vec3 | None
     intensity_uT: float | None  # |B₀| for screening; None when only the direction is known
-    source: str  # "config", "wmm" or "waiting"
+    source: str  # "config", "wmm", "measured" or "waiting"
+    label: str = ""  # for a person: which field, from where and when
 
     @property
     def waiting(self) -> bool:
         return self.field_ned_uT is None
 
 
-WAITING = ReferenceField(None, None, "waiting")
+WAITING = ReferenceField(None, None, "waiting", "none")
 MODES = ("auto", "angles", "vector")
 
 
@@ -76,10 +106,12 @@ class MagneticReference:
         """The field the config gives (``WAITING`` for ``auto``, known only once a position arrives)."""
         if self.mode == "angles":
             vec = field_from_angles(self.declination_deg, self.inclination_deg, self.intensity_uT or 1.0)
-            return ReferenceField(vec, self.intensity_uT, "config")
+            label = f"given: declination {self.declination_deg:g}°, inclination {self.inclination_deg:g}°"
+            label += "" if self.intensity_uT is None else f", {self.intensity_uT:g} µT"
+            return ReferenceField(vec, self.intensity_uT, "config", label)
         if self.mode == "vector":
             vec = (float(self.field_ned_uT[0]), float(self.field_ned_uT[1]), float(self.field_ned_uT[2]))
-            return ReferenceField(vec, math.hypot(*vec), "config")
+            return ReferenceField(vec, math.hypot(*vec), "config", "given: N {:g} E {:g} D {:g} µT".format(*vec))
         return WAITING
 
     def to_yaml(self) -> Any:
@@ -104,26 +136,34 @@ def decimal_year(when: dt.date) -> float:
     return when.year + (when - start).days / days
 
 
-def wmm_field_ned_uT(lat_deg: float, lon_deg: float, alt_m: float, when: dt.date) -> Vec3:
-    """The WMM2025 main field at a position and date, NED, µT (pygeomag gives nT, altitude in km)."""
-    from pygeomag import GeoMag  # imported on first use: only `auto` needs it
+def wmm_model(when: dt.date) -> WmmModel:
+    """The release whose span holds ``when`` (outside them all: the nearest)."""
+    return next((m for m in WMM_MODELS if when <= m.last_day), WMM_MODELS[-1])
 
+
+def wmm_field_ned_uT(lat_deg: float, lon_deg: float, alt_m: float, when: dt.date) -> Vec3:
+    """The WMM main field at a position and date (the release of that date), NED, µT (pygeomag gives nT,
+    altitude in km)."""
+    model = wmm_model(when)
     try:
-        result = _geomag(GeoMag).calculate(glat=lat_deg, glon=lon_deg, alt=alt_m / 1000.0, time=decimal_year(when))
+        result = _geomag(model.coefficients).calculate(
+            glat=lat_deg, glon=lon_deg, alt=alt_m / 1000.0, time=decimal_year(when)
+        )
     except Exception as exc:  # pygeomag raises plain exceptions for dates outside the model
         raise SensorError(f"World Magnetic Model failed at {lat_deg:.5f}°, {lon_deg:.5f}° on {when}: {exc}") from exc
     return (result.x / 1000.0, result.y / 1000.0, result.z / 1000.0)
 
 
-_GEOMAG: Any = None
+_GEOMAG: dict[str, Any] = {}
 
 
-def _geomag(cls: Any) -> Any:
-    """One model instance (reading the coefficient file is the slow part)."""
-    global _GEOMAG
-    if _GEOMAG is None:
-        _GEOMAG = cls(coefficients_file=WMM_COEFFICIENTS, high_resolution=False)
-    return _GEOMAG
+def _geomag(coefficients: str) -> Any:
+    """One model instance per release (reading the coefficient file is the slow part)."""
+    from pygeomag import GeoMag  # imported on first use: only `auto` needs it
+
+    if coefficients not in _GEOMAG:
+        _GEOMAG[coefficients] = GeoMag(coefficients_file=coefficients, high_resolution=False)
+    return _GEOMAG[coefficients]
 
 
 def distance_km(lat1_deg: float, lon1_deg: float, lat2_deg: float, lon2_deg: float) -> float:
@@ -135,19 +175,68 @@ def distance_km(lat1_deg: float, lon1_deg: float, lat2_deg: float, lon2_deg: flo
 
 
 class ReferenceTracker:
-    """The reference for the service: fixed from the config, or from WMM as positions arrive."""
+    """The reference for the service and replay: fixed from the config, or (``auto``) from WMM as positions
+    arrive, measured from the compass when none has after ``position_wait_s`` (module docstring)."""
 
-    def __init__(self, setting: MagneticReference, recompute_distance_km: float = 5.0) -> None:
+    def __init__(
+        self, setting: MagneticReference, recompute_distance_km: float = 5.0, position_wait_s: float = 5.0
+    ) -> None:
         self.mode = setting.mode
         self.recompute_distance_km = recompute_distance_km
+        self.position_wait_s = position_wait_s
         self._at: tuple[float, float] | None = None
         self._when: dt.date | None = None  # the vehicle's date the reference was taken on (None: the clock's)
         self._clamp_said = False
+        self._first_s = math.nan  # vehicle time of the first tick while waiting
+        self._quiet = [0, 0.0, 0.0]  # quiet ticks while waiting: count, Σ dip (deg), Σ |B| (µT)
         self.reference = setting.fixed_field()
+        self.used: list[ReferenceField] = [] if self.reference.waiting else [self.reference]  # in order
 
     @property
     def waiting(self) -> bool:
         return self.reference.waiting
+
+    @property
+    def measured(self) -> bool:
+        """The reference is the field measured from the compass (no position yet)."""
+        return self.reference.source == "measured"
+
+    def describe(self) -> str:
+        """Which references were used, in order (``none`` before any): for the replay summary."""
+        labels = list(dict.fromkeys(r.label for r in self.used)) or [WAITING.label]
+        more = f" (+{len(labels) - 2} more WMM look-ups)" if len(labels) > 2 else ""
+        return "; then ".join([labels[0], labels[-1]][: len(labels)]) + more
+
+    def _use(self, reference: ReferenceField) -> None:
+        self.reference = reference
+        self.used.append(reference)
+
+    def observe(self, time_s: float, dip_deg: float, field_uT: float) -> bool:
+        """A tick while waiting for a position (``auto``): its dip and |B| when the vehicle is quiet (NaN
+        when not). True when the measured field became the reference: ``position_wait_s`` after the first
+        tick, once ``MIN_MEASURED_TICKS`` quiet ticks were seen (a time going back, a reboot, starts over)."""
+        if self.mode != "auto" or not self.waiting:
+            return False
+        if not time_s >= self._first_s:  # NaN: the first tick
+            self._first_s, self._quiet = time_s, [0, 0.0, 0.0]
+        if dip_deg == dip_deg and field_uT == field_uT:
+            q = self._quiet
+            q[0], q[1], q[2] = q[0] + 1, q[1] + dip_deg, q[2] + field_uT
+        n, dip_sum, field_sum = self._quiet
+        if time_s - self._first_s < self.position_wait_s or n < MIN_MEASURED_TICKS:
+            return False
+        dip, intensity = dip_sum / n, field_sum / n
+        label = f"measured: dip {dip:.1f}°, {intensity:.1f} µT, magnetic north"
+        self._use(ReferenceField(field_from_angles(0.0, dip, intensity), intensity, "measured", label))
+        log.info(
+            "no GPS position: heading is magnetic north, field measured from the compass: dip %.1f°, %.1f µT "
+            "(%d quiet ticks in %.1f s)",
+            dip,
+            intensity,
+            n,
+            time_s - self._first_s,
+        )
+        return True
 
     def update_position(self, lat_deg: float, lon_deg: float, alt_m: float, when: dt.date | None = None) -> bool:
         """Feed a position (``auto`` only); True when the reference changed: the first position, a move
@@ -162,28 +251,27 @@ class ReferenceTracker:
         day = self._model_day(when)
         vec = wmm_field_ned_uT(lat_deg, lon_deg, alt_m, day)
         self._at, self._when = (lat_deg, lon_deg), when
-        self.reference = ReferenceField(vec, math.hypot(*vec), "wmm")
+        model = wmm_model(day).name
+        label = f"{model} at {lat_deg:.4f}°, {lon_deg:.4f}° on {day}"
+        self._use(ReferenceField(vec, math.hypot(*vec), "wmm", label))
         log.info(
-            "magnetic reference from WMM2025 at %.4f°, %.4f°, %.0f m on %s (%s): N %.2f E %.2f D %.2f µT",
-            lat_deg,
-            lon_deg,
-            alt_m,
-            day,
+            "magnetic reference from %s (%s): N %.2f E %.2f D %.2f µT",
+            label.replace(" on", f", {alt_m:.0f} m on"),
             "the vehicle's GPS date" if when is not None else "the companion's clock",
             *vec,
         )
         return True
 
     def _model_day(self, when: dt.date | None) -> dt.date:
-        """``when`` (default: the companion's clock, the last resort) within the model's span, said once if not."""
+        """``when`` (default: the companion's clock, the last resort) within the models' span, said once if not."""
         day = when or dt.datetime.now(dt.timezone.utc).date()
         clamped = clamp_to_model(day)
         if clamped != day and not self._clamp_said:
             self._clamp_said = True
             log.warning(
-                "the date %s is outside WMM2025's span (%s to %s): the field is taken on %s. If the clock is "
-                "right and that is too far off, give the field instead: --declination DEG --inclination DEG "
-                "(reference.magnetic: {declination_deg, inclination_deg} in the config)",
+                "the date %s is outside the World Magnetic Model's span (%s to %s): the field is taken on %s. If "
+                "the clock is right and that is too far off, give the field instead: --declination DEG "
+                "--inclination DEG (reference.magnetic: {declination_deg, inclination_deg} in the config)",
                 day,
                 WMM_FIRST_DAY,
                 WMM_LAST_DAY,
@@ -193,5 +281,5 @@ class ReferenceTracker:
 
 
 def clamp_to_model(day: dt.date) -> dt.date:
-    """The nearest day within WMM2025's span."""
+    """The nearest day within the models' span."""
     return min(max(day, WMM_FIRST_DAY), WMM_LAST_DAY)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import datetime as dt
 import struct
 from pathlib import Path
@@ -40,13 +41,14 @@ def write_tlog(
     field_ned_uT: np.ndarray | None = None,
     attitude: bool = True,
     position: bool = False,
+    position_from_s: float = 0.5,
     second_vehicle: bool = True,
     gimbal_first: bool = False,
     mag_every: int = 1,
 ) -> Path:
     """A ground station's recording: its own heartbeat, the autopilot(s') heartbeats, RAW_IMU at 100 Hz
     (ArduPilot units, seeded noise; each compass reading repeated in ``mag_every`` messages, as ArduPilot
-    sends a slower compass), ATTITUDE at 10 Hz, optionally GLOBAL_POSITION_INT at 5 Hz."""
+    sends a slower compass), ATTITUDE at 10 Hz, optionally GLOBAL_POSITION_INT at 5 Hz from ``position_from_s``."""
     field = field_from_angles(DECL, INCL, F_UT) if field_ned_uT is None else field_ned_uT
     rng = np.random.default_rng(3)
     profile = PROFILES["ardupilot"]
@@ -79,7 +81,7 @@ def write_tlog(
                 r, p, y = rpy[i] + [0.0, 0.0, np.radians(AUTOPILOT_YAW_OFFSET_DEG)]
                 add(ti, s, links[s].attitude_encode(round(ti * 1e3), r, p, y, 0.0, 0.0, 0.0))
     if position:
-        for ti in np.arange(0.5, seconds, 0.2):
+        for ti in np.arange(position_from_s, seconds, 0.2):
             add(ti, 1, links[1].global_position_int_encode(round(ti * 1e3), 474000000, 85000000, 450000, 0, 0, 0, 0, 0))
     records.sort(key=lambda r: r[0])
     with path.open("wb") as f:
@@ -172,13 +174,60 @@ def test_auto_reference_from_the_logged_position_and_date(tmp_path):
     ("kwargs", "args", "message"),
     [
         ({}, ["--message", "SCALED_IMU"], "no SCALED_IMU from the autopilot"),
-        ({"position": False}, [], "reference.magnetic is auto but the log holds no position"),
+        ({"position": False}, [], "holds no position with a fix, and no field was measured from its compass (5 s"),
     ],
 )
 def test_what_the_log_lacks_is_named(tmp_path, capsys, kwargs, args, message):
     log = write_tlog(tmp_path / "x.tlog", seconds=1.0, second_vehicle=False, **kwargs)
     assert main(["replay", str(log), "-o", str(tmp_path / "x.csv"), *args, *([] if "position" in kwargs else REF)]) == 2
     assert message in capsys.readouterr().err
+
+
+def yaw_error_deg(rows: np.ndarray) -> np.ndarray:
+    """Our yaw minus the truth's, degrees (±180°)."""
+    truth = np.degrees(truth_euler_rad(rows[:, 0], 1)[:, 2])
+    return (rows[:, 7] - truth + 180.0) % 360.0 - 180.0
+
+
+def test_without_a_position_the_field_is_measured_from_the_compass(tmp_path, capsys):
+    """No position in the log: after the wait (reference.position_wait_s, vehicle time), magnetic north and the
+    dip and |B| the compass shows; said in one line and in the summary's reference column."""
+    log = write_tlog(tmp_path / "nogps.tlog", seconds=8.0, second_vehicle=False)
+    given = write_tlog(tmp_path / "given.tlog", seconds=6.0, second_vehicle=False)
+    out = tmp_path / "out"
+    config = tmp_path / "given.yaml"  # the summary says which reference each log had: one given for both
+    assert main(["replay", str(log), "-o", str(out), "--no-plot"]) == 0
+    err = capsys.readouterr().err
+    line = next(x for x in err.splitlines() if "no GPS position" in x)
+    # the written field: 62.0° dip, 49 µT, with 0.3 µT noise per axis over hundreds of quiet ticks
+    assert "heading is magnetic north, field measured from the compass: dip 62.0°, 49.0 µT" in line
+    rows = read_rows(out / "nogps.csv")
+    assert 5.0 <= rows[0, 0] < 5.1  # the default wait from the first tick (0.01 s)
+    # magnetic heading = true heading − declination (here −1.5°): within the bound of the given-field tests
+    assert np.abs(yaw_error_deg(rows[10:]) + DECL).max() < MAX_ERR_DEG
+    assert main(["replay", str(log), str(given), "-o", str(out), "--no-plot"]) == 0
+    with (out / "summary.csv").open() as f:
+        assert [r["reference"] for r in csv.DictReader(f)] == ["measured: dip 62.0°, 49.0 µT, magnetic north"] * 2
+    config.write_text(yaml.safe_dump({"reference": {"magnetic": {"declination_deg": DECL, "inclination_deg": INCL}}}))
+    assert main(["replay", str(log), str(given), "-o", str(out), "--no-plot", "--config", str(config)]) == 0
+    with (out / "summary.csv").open() as f:
+        assert [r["reference"] for r in csv.DictReader(f)] == ["given: declination -1.5°, inclination 62°"] * 2
+
+
+def test_a_position_after_the_wait_replaces_the_measured_field(tmp_path, capsys):
+    """Measured first, then the WMM at the first position (replayed one by one, as live)."""
+    when = dt.datetime.fromtimestamp(T0_UNIX, dt.timezone.utc).date()
+    wmm = np.array(wmm_field_ned_uT(LAT, LON, ALT, when))
+    declination = np.degrees(np.arctan2(wmm[1], wmm[0]))
+    log = write_tlog(tmp_path / "late.tlog", 10.0, wmm, position=True, position_from_s=7.5, second_vehicle=False)
+    out = tmp_path / "late.csv"
+    assert main(["replay", str(log), "-o", str(out), "--no-plot"]) == 0
+    said = [x for x in capsys.readouterr().err.splitlines() if "magnetic" in x]
+    assert "field measured from the compass" in said[0] and "magnetic reference from WMM2025 at 47.4000°" in said[1]
+    rows = read_rows(out)
+    before, after = rows[(rows[:, 0] > 5.2) & (rows[:, 0] < 7.5)], rows[rows[:, 0] > 7.6]
+    assert np.abs(yaw_error_deg(before) + declination).max() < MAX_ERR_DEG  # magnetic north
+    assert np.abs(yaw_error_deg(after)).max() < MAX_ERR_DEG  # true north
 
 
 def test_replay_as_a_subprocess(tmp_path):

@@ -55,7 +55,7 @@ def test_the_model_is_taken_on_the_vehicles_gps_date(
         line = svc.wait_for_line(rf"magnetic reference from WMM2025 .* on {model_day} \(the vehicle's GPS date\)", 10.0)
         assert line is not None, svc.log_tail()
         wait_outputs(v, 75)
-        clamped = [ln for ln in svc.lines if "is outside WMM2025's span" in ln]
+        clamped = [ln for ln in svc.lines if "is outside the World Magnetic Model's span" in ln]
     assert len(clamped) == (vehicle_day != model_day)  # said once, only when clamped
     if clamped:
         assert f"the date {vehicle_day} is outside" in clamped[0]

@@ -1,4 +1,5 @@
-"""The magnetic reference: angles, a vector, and WMM2025 at the vehicle's position (waiting until one)."""
+"""The magnetic reference: angles, a vector, the WMM of the date at the vehicle's position, the field measured
+from the compass without one."""
 
 from __future__ import annotations
 
@@ -6,12 +7,17 @@ import datetime as dt
 import logging
 import math
 
+import numpy as np
 import pytest
 
 from mavattitude.errors import ConfigError
 from mavattitude.sensors.magref import (
+    MIN_MEASURED_TICKS,
+    WMM_FIRST_DAY,
+    WMM_LAST_DAY,
     MagneticReference,
     ReferenceTracker,
+    decimal_year,
     distance_km,
     field_from_angles,
     wmm_field_ned_uT,
@@ -77,18 +83,85 @@ def test_haversine_distance() -> None:
     assert distance_km(0.0, 0.0, 0.0, 1.0) == pytest.approx(111.19, abs=0.01)
 
 
-def test_a_date_outside_the_model_is_clamped_to_its_edge_with_one_warning(caplog):
-    from mavattitude.sensors.magref import WMM_FIRST_DAY, WMM_LAST_DAY, wmm_field_ned_uT
+@pytest.mark.parametrize(
+    ("day", "coefficients"),
+    [
+        (dt.date(2012, 7, 1), "wmm/WMM_2010.COF"),
+        (dt.date(2014, 12, 31), "wmm/WMM_2010.COF"),
+        (dt.date(2016, 4, 18), "wmm/WMM_2015v2.COF"),
+        (dt.date(2023, 4, 18), "wmm/WMM_2020.COF"),
+        (dt.date(2029, 12, 31), "wmm/WMM_2025.COF"),
+    ],
+)
+def test_the_model_of_the_logs_own_epoch_without_a_warning(caplog, day, coefficients):
+    from pygeomag import GeoMag
 
     caplog.set_level(logging.WARNING, logger="mavattitude.sensors.magref")
     ref = ReferenceTracker(MagneticReference("auto"))
-    assert ref.update_position(47.0, 8.0, 500.0, dt.date(2023, 5, 1))  # a 2023 log: no exit, the 2025 field
+    assert ref.update_position(-35.36, 149.17, 584.0, day)
+    # pygeomag itself, with that release's coefficients, on the same decimal year
+    expected = GeoMag(coefficients_file=coefficients).calculate(-35.36, 149.17, 0.584, decimal_year(day))
+    assert ref.reference.field_ned_uT == pytest.approx((expected.x / 1e3, expected.y / 1e3, expected.z / 1e3), abs=1e-9)
+    assert ref.reference.label.startswith(f"WMM{coefficients[8:-4].replace('_', '')} at -35.3600°, 149.1700° on {day}")
+    assert not caplog.records
+
+
+def test_a_date_outside_every_model_is_clamped_to_the_nearest_edge_with_one_warning(caplog):
+    caplog.set_level(logging.WARNING, logger="mavattitude.sensors.magref")
+    ref = ReferenceTracker(MagneticReference("auto"))
+    assert ref.update_position(47.0, 8.0, 500.0, dt.date(2009, 5, 1))  # a board clock before 2010: the first day
     assert ref.reference.field_ned_uT == pytest.approx(wmm_field_ned_uT(47.0, 8.0, 500.0, WMM_FIRST_DAY))
+    assert (dt.date(2010, 1, 1), dt.date(2029, 12, 31)) == (WMM_FIRST_DAY, WMM_LAST_DAY)
     assert ref.update_position(48.0, 8.0, 500.0, dt.date(2041, 1, 1))  # a board clock far ahead: the last day
     assert ref.reference.field_ned_uT == pytest.approx(wmm_field_ned_uT(48.0, 8.0, 500.0, WMM_LAST_DAY))
     warnings = [r.getMessage() for r in caplog.records]
-    assert len(warnings) == 1 and "2023-05-01 is outside WMM2025's span" in warnings[0]
+    assert len(warnings) == 1 and "2009-05-01 is outside the World Magnetic Model's span" in warnings[0]
     assert "--declination DEG --inclination DEG" in warnings[0]
+
+
+def quiet_ticks(ref: ReferenceTracker, t_s: np.ndarray, dip_deg: float, field_uT: float) -> list[bool]:
+    return [ref.observe(float(t), dip_deg, field_uT) for t in t_s]
+
+
+def test_without_a_position_the_field_is_measured_after_the_wait(caplog):
+    caplog.set_level(logging.INFO, logger="mavattitude.sensors.magref")
+    ref = ReferenceTracker(MagneticReference("auto"), position_wait_s=2.0)
+    moving = quiet_ticks(ref, 100.0 + np.arange(150) / 50.0, math.nan, math.nan)  # 3 s, never quiet: waits on
+    assert not any(moving) and ref.waiting
+    # quiet ticks at 50 Hz, the dip alternating 57 ± 1° and |B| 48 ± 2 µT: their means are the field
+    t = 103.0 + np.arange(MIN_MEASURED_TICKS) / 50.0
+    taken = [ref.observe(float(ti), 57.0 + (-1) ** i, 48.0 + 2 * (-1) ** i) for i, ti in enumerate(t)]
+    assert taken == [False] * (MIN_MEASURED_TICKS - 1) + [True]  # the wait is over: the 25th quiet tick decides
+    assert ref.measured and ref.reference.intensity_uT == pytest.approx(48.0 + 2 / MIN_MEASURED_TICKS)
+    n, e, d = ref.reference.field_ned_uT
+    assert e == 0.0 and n > 0.0  # declination 0: heading is magnetic north
+    assert math.degrees(math.atan2(d, n)) == pytest.approx(57.0 + 1 / MIN_MEASURED_TICKS)  # 13 ticks of 58°, 12 of 56°
+    assert "no GPS position: heading is magnetic north, field measured from the compass: dip 57.0°, 48.1 µT" in (
+        caplog.records[-1].getMessage()
+    )
+    assert ref.observe(200.0, 10.0, 10.0) is False  # measured once: kept until a position
+    assert ref.update_position(47.0, 8.0, 500.0, DATE) and ref.reference.source == "wmm"  # a later fix: the WMM
+    then = f"then WMM2025 at 47.0000°, 8.0000° on {DATE}"
+    assert ref.describe() == f"measured: dip 57.0°, 48.1 µT, magnetic north; {then}"
+
+
+def test_the_wait_is_vehicle_time_and_starts_over_when_the_time_goes_back():
+    ref = ReferenceTracker(MagneticReference("auto"), position_wait_s=5.0)
+    assert not any(quiet_ticks(ref, 10.0 + np.arange(200) / 50.0, 60.0, 50.0))  # 4 s: quiet, but within the wait
+    assert not any(quiet_ticks(ref, np.arange(200) / 50.0, 60.0, 50.0))  # a reboot: 4 s from its own start
+    assert quiet_ticks(ref, [5.0], 60.0, 50.0) == [True]
+    assert ref.describe() == "measured: dip 60.0°, 50.0 µT, magnetic north"
+
+
+def test_a_position_within_the_wait_is_used_and_a_fixed_reference_measures_nothing():
+    ref = ReferenceTracker(MagneticReference("auto"), position_wait_s=5.0)
+    assert not any(quiet_ticks(ref, np.arange(100) / 50.0, 60.0, 50.0))
+    assert ref.update_position(47.0, 8.0, 500.0, DATE) and ref.reference.source == "wmm"
+    assert not any(quiet_ticks(ref, 2.0 + np.arange(400) / 50.0, 60.0, 50.0)) and ref.reference.source == "wmm"
+    given = ReferenceTracker(MagneticReference("angles", declination_deg=3.0, inclination_deg=60.0))
+    assert not any(quiet_ticks(given, np.arange(400) / 50.0, 60.0, 50.0))
+    assert given.describe() == "given: declination 3°, inclination 60°"
+    assert ReferenceTracker(MagneticReference("auto")).describe() == "none"
 
 
 def test_the_vehicles_date_arriving_after_the_first_position_replaces_the_clocks() -> None:
