@@ -11,8 +11,6 @@ from __future__ import annotations
 import argparse
 import difflib
 import importlib
-import logging
-import os
 import pkgutil
 import re
 import sys
@@ -21,11 +19,11 @@ from types import ModuleType
 from typing import Any, NoReturn
 
 from mavattitude import __version__, commands
+from mavattitude.commands import EXIT_INTERRUPTED, EXIT_USER_ERROR, configure_logging
 from mavattitude.config import LOG_LEVELS
 from mavattitude.errors import MavAttitudeError
 
-EXIT_USER_ERROR = 2
-EXIT_INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a command stopped by Ctrl-C
+__all__ = ["EXIT_INTERRUPTED", "EXIT_USER_ERROR", "build_parser", "configure_logging", "main"]
 
 
 def _command_modules() -> list[ModuleType]:
@@ -93,14 +91,6 @@ def build_parser() -> argparse.ArgumentParser:
         command.set_defaults(handler=module.run)
         parser.commands[module.NAME] = command
     return parser
-
-
-def configure_logging(level: str) -> None:
-    """Log to stderr; under systemd (JOURNAL_STREAM set) journald adds the timestamps, so we do not."""
-    fmt = "%(levelname)s %(name)s: %(message)s"
-    if "JOURNAL_STREAM" not in os.environ:
-        fmt = "%(asctime)s " + fmt
-    logging.basicConfig(level=level, format=fmt, stream=sys.stderr, force=True)
 
 
 def one_line(text: str) -> str:

@@ -54,7 +54,7 @@ def pytest_report_header(config: pytest.Config) -> str | None:
 def _restore_root_logging() -> Iterator[None]:
     """Undo what an in-process ``cli.main()`` does to the root logger.
 
-    ``cli.configure_logging`` (``basicConfig(force=True)``) binds a handler to the ``sys.stderr`` of the
+    ``commands.configure_logging`` (``basicConfig(force=True)``) binds a handler to the ``sys.stderr`` of the
     moment, which inside a test is pytest's capture stream; it is closed when that test ends, and a later
     test's log records would then fail with "I/O operation on closed file".
     """

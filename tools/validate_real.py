@@ -14,8 +14,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from mavattitude.cli import EXIT_USER_ERROR, configure_logging
-from mavattitude.commands import validate
+from mavattitude.commands import EXIT_USER_ERROR, configure_logging, validate
 from mavattitude.errors import MavAttitudeError
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -13,7 +13,7 @@ import logging
 import signal
 import time
 
-from mavattitude.cli import EXIT_INTERRUPTED
+from mavattitude.commands import EXIT_INTERRUPTED
 from mavattitude.commands.simulate import add_vehicle_arguments, vehicle_from_args
 from mavattitude.config import DEFAULTS
 from mavattitude.errors import MavAttitudeError

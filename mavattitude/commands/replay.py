@@ -221,7 +221,7 @@ def replay_all(jobs: list[Job], workers: int) -> list[LogResult]:
             results.append(replay_log(job))
             progress.update(len(results))
         return results
-    from mavattitude.cli import configure_logging
+    from mavattitude.commands import configure_logging
 
     level = logging.getLevelName(logging.getLogger().getEffectiveLevel())
     with concurrent.futures.ProcessPoolExecutor(

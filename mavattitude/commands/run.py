@@ -14,7 +14,7 @@ import signal
 import threading
 from typing import Any
 
-from mavattitude.cli import EXIT_INTERRUPTED
+from mavattitude.commands import EXIT_INTERRUPTED
 from mavattitude.config import DEFAULTS, ENV_VAR, load_config
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
 

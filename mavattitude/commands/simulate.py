@@ -11,7 +11,7 @@ import argparse
 import logging
 import time
 
-from mavattitude.cli import EXIT_INTERRUPTED
+from mavattitude.commands import EXIT_INTERRUPTED
 from mavattitude.config import DEFAULTS
 from mavattitude.errors import MavAttitudeError
 from mavattitude.sensors.units import MESSAGES, PROFILES

@@ -16,24 +16,21 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol
+from typing import Protocol
 
 from mavattitude.config import Config
 from mavattitude.errors import DataFileError
 from mavattitude.link.dataflash import read_dataflash
-from mavattitude.link.logstreams import LogStreams, StreamSource
+from mavattitude.link.logstreams import Follower, LogStreams, StreamSource
 from mavattitude.link.source import MavlinkDecoder, MessageSource
 from mavattitude.link.tlog import TlogSource
 from mavattitude.link.ulog import read_ulog
-
-if TYPE_CHECKING:
-    from mavattitude.dispatch import Dispatcher
 
 
 class LogSource(MessageSource, Protocol):
     """A log file as a message source: its items one by one, or the followed vehicle's rows at once."""
 
-    def streams_for(self, dispatcher: Dispatcher) -> LogStreams: ...
+    def streams_for(self, follower: Follower) -> LogStreams: ...
 
 
 @dataclass(frozen=True)

@@ -18,9 +18,9 @@ from __future__ import annotations
 import datetime as dt
 import functools
 import re
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -29,9 +29,6 @@ from mavattitude.errors import DataFileError
 from mavattitude.estimation.conventions import Array
 from mavattitude.link.source import AutopilotAttitude, PositionFix, Received, Sender
 from mavattitude.sensors.units import ImuSample, Position
-
-if TYPE_CHECKING:
-    from mavattitude.dispatch import Dispatcher
 
 #: The sender of every item from a log the autopilot wrote itself (DataFlash, ULog): it holds one vehicle.
 LOG_VEHICLE: Sender = (1, 1)
@@ -57,6 +54,19 @@ def struct_dtype(names: Sequence[str], struct_format: str) -> np.dtype:
         else:
             fields.append((name, "<" + _STRUCT_TO_NUMPY[code]))
     return np.dtype(fields)
+
+
+class Follower(Protocol):
+    """What chooses a log's records and counts the rest: the dispatcher's lock-on and sender rule, as arrays
+    (:class:`~mavattitude.dispatch.Dispatcher`); the log layer knows only these two calls."""
+
+    def follow(self, senders: NDArray[np.int64], heartbeats: Iterable[tuple[int, Received]]) -> NDArray[np.bool_]:
+        """Which records (``senders``: ``system << 8 | component`` each) are the followed vehicle's."""
+        ...
+
+    def undecodable(self, error: BaseException, count: int = 1) -> None:
+        """``count`` input messages of the vehicle that could not be decoded."""
+        ...
 
 
 @dataclass
@@ -124,8 +134,8 @@ class StreamSource:
         self.finished = False
         self._next = 0
 
-    def streams_for(self, dispatcher: Dispatcher) -> LogStreams:
-        """The log's streams: all of them its vehicle's, which ``dispatcher`` follows from the start."""
+    def streams_for(self, follower: Follower) -> LogStreams:
+        """The log's streams: all of them its vehicle's, which ``follower`` follows from the start."""
         return self.streams
 
     @functools.cached_property

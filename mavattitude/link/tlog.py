@@ -28,14 +28,14 @@ import logging
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
 from mavattitude.errors import DataFileError, SensorError
-from mavattitude.link.logstreams import LogStreams, struct_dtype
+from mavattitude.link.logstreams import Follower, LogStreams, struct_dtype
 from mavattitude.link.mavlink2 import mavlink2
 from mavattitude.link.source import (
     ATTITUDE_MESSAGES,
@@ -50,9 +50,6 @@ from mavattitude.link.source import (
     locks_on,
 )
 from mavattitude.sensors import units
-
-if TYPE_CHECKING:
-    from mavattitude.dispatch import Dispatcher
 
 log = logging.getLogger(__name__)
 
@@ -310,22 +307,22 @@ class TlogSource:
 
     # --- all at once, for replay ---------------------------------------------------------------------
 
-    def streams_for(self, dispatcher: Dispatcher) -> LogStreams:
-        """The rows of the autopilot ``dispatcher`` follows (:meth:`Dispatcher.follow`) as arrays, in SI;
+    def streams_for(self, follower: Follower) -> LogStreams:
+        """The rows of the autopilot ``follower`` follows (:meth:`Dispatcher.follow`) as arrays, in SI;
         what it would count (ignored senders, undecodable input) is counted on it."""
         code = np.full(self.count, -1, dtype=np.int64)
         for table in self.tables.values():
             code[table.index] = table.sender
         heartbeats = self.tables.get("HEARTBEAT")
-        taken = dispatcher.follow(code, _heartbeat_items(heartbeats) if heartbeats is not None else iter(()))
-        return self._streams({name: _rows(t, taken[t.index]) for name, t in self.tables.items()}, dispatcher)
+        taken = follower.follow(code, _heartbeat_items(heartbeats) if heartbeats is not None else iter(()))
+        return self._streams({name: _rows(t, taken[t.index]) for name, t in self.tables.items()}, follower)
 
-    def _streams(self, tables: dict[str, _Table], dispatcher: Dispatcher) -> LogStreams:
+    def _streams(self, tables: dict[str, _Table], follower: Follower) -> LogStreams:
         empty1, empty3 = np.empty(0), np.empty((0, 3))
         t, acc, gyr, mag_t, mag, carried, wrap, repeats = empty1, empty3, empty3, empty1, empty3, None, None, False
         imu_index = np.empty(0, dtype=np.int64)
         imu_table = tables.get(self.decoder.message)
-        imu = self._imu_columns(imu_table, dispatcher) if imu_table is not None else None
+        imu = self._imu_columns(imu_table, follower) if imu_table is not None else None
         if imu is not None:
             ok = ~imu.refused if imu.refused.any() else np.s_[:]  # every row decoded, usually: views, no copies
             imu_index = imu_table.index[ok]  # type: ignore[union-attr]
@@ -338,16 +335,17 @@ class TlogSource:
         pos_t, pos, date = self._positions(tables, imu_index, t)
         return LogStreams(t, acc, gyr, mag_t, mag, att_t, att_q, pos_t, pos, date, wrap, self.damage, carried, repeats)
 
-    def _imu_columns(self, table: _Table, dispatcher: Dispatcher) -> units.ImuColumns | None:
-        """The vehicle's IMU messages decoded; what cannot be is counted as the dispatcher counts it."""
+    def _imu_columns(self, table: _Table, follower: Follower) -> units.ImuColumns | None:
+        """The vehicle's IMU messages decoded; what cannot be is counted on ``follower``, as the dispatcher counts
+        it."""
         try:
             imu = units.decode_columns(table.name, table.fields, self.decoder.profile)
         except SensorError as exc:
-            dispatcher.undecodable(exc, len(table.index))
+            follower.undecodable(exc, len(table.index))
             return None
         refused = int(np.count_nonzero(imu.refused))
         if refused:
-            dispatcher.undecodable(imu.error(int(np.flatnonzero(imu.refused)[0])), refused)
+            follower.undecodable(imu.error(int(np.flatnonzero(imu.refused)[0])), refused)
         return imu
 
     def _attitudes(self, tables: dict[str, _Table]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

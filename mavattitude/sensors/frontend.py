@@ -17,7 +17,7 @@ Per input sample (:meth:`FrontEnd.push`, plain floats: the per-message cost is w
    :mod:`.units`); in a float message it is this dead reading: either way no reading enters the filter,
    and the ticks hold the last one, then have none (``MAG_HELD``, ``NO_MAG``);
 3. calibration and mounting (:mod:`.calibration`, :mod:`.mounting`) as one affine map per sensor;
-4. the 2nd-order Butterworth low-pass (:mod:`.lowpass`) per axis, designed for the measured input rate
+4. the 2nd-order Butterworth low-pass (:mod:`mavattitude.lowpass`) per axis, designed for the measured input rate
    (mean of the last ``rate_window`` intervals; re-designed when it moves by more than ``rate_tolerance``,
    continuing from the last two inputs and outputs, so without a jump), started at the steady state of
    the first sample. It treats the samples of a segment as evenly spaced: jitter and a dropped message
@@ -68,9 +68,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mavattitude.estimation.conventions import Array, Vec3
+from mavattitude.lowpass import butter2, filter_batch
 from mavattitude.sensors.calibration import Calibration, sensor_affines
 from mavattitude.sensors.clock import ClockEvent, VehicleClock
-from mavattitude.sensors.lowpass import butter2, filter_batch
 from mavattitude.sensors.mounting import mounting_matrix
 from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2, ImuSample
 

@@ -12,6 +12,7 @@ import scipy.signal
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from mavattitude.lowpass import butter2, filter_batch
 from mavattitude.sensors.frontend import (
     FrontEnd,
     FrontEndSettings,
@@ -21,7 +22,6 @@ from mavattitude.sensors.frontend import (
     process_batch,
     repeat_hold_s,
 )
-from mavattitude.sensors.lowpass import butter2, filter_batch
 from mavattitude.sensors.units import ImuSample
 
 G = 9.80665

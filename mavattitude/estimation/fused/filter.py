@@ -10,7 +10,7 @@ and the measured figures; the parts are :mod:`.ekf` (state, propagation, the upd
 Accelerometer pre-filters (quasi-inertial low-passes): with ``q_g`` the gyro-only attitude,
 ``a_I ← LP₂(R(q_g) a)``, ``ã = A(q_g) a_I`` — second-order Butterworth low-passes at the update rate,
 cut-off ``√2 / (2π τ)`` (VQF's pre-filter, Laidig & Seel 2023), designed by
-:func:`mavattitude.sensors.lowpass.butter2` like the front end's. Two of them: ``ã`` (``τ_a``) is what
+:func:`mavattitude.lowpass.butter2` like the front end's. Two of them: ``ã`` (``τ_a``) is what
 the tilt update measures — long, so that hand motion and vibration, which average out in an earth-fixed
 frame, are gone; ``ã_j`` (``τ_j``, shorter) is what the rejection watches, since it sees an acceleration
 start (and end) sooner.
@@ -63,7 +63,7 @@ from mavattitude.estimation.conventions import (
     rotate_ned_to_body_parts,
     rotation_matrix_parts,
 )
-from mavattitude.sensors.lowpass import Biquad, butter2
+from mavattitude.lowpass import Biquad, butter2
 
 from .ekf import ErrorStateFilter, rotated
 from .magnetic import MagneticChecks

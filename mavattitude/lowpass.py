@@ -1,5 +1,8 @@
 """Second-order Butterworth low-pass: design, steady-state start, and a vectorised batch form.
 
+A signal helper below both the front end (:mod:`mavattitude.sensors.frontend`) and the fused filter's
+pre-filters (:mod:`mavattitude.estimation.fused`): it imports neither.
+
 Design (the bilinear transform with pre-warping, as ``scipy.signal.butter(2, fc, fs=fs)``): with
 ``K = tan(π fc / fs)``, ``b = [K², 2K², K²] / n``, ``a = [1, 2(K² − 1) / n, (1 − √2 K + K²) / n]``,
 ``n = 1 + √2 K + K²``. The streaming form is direct form I,
@@ -22,7 +25,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mavattitude.errors import SensorError
-from mavattitude.estimation.conventions import Array
+
+Array = NDArray[np.float64]
 
 #: A cutoff at or above Nyquist cannot be designed; a slower input than 2.5 × cutoff is filtered at this
 #: fraction of its rate instead (its sampling has already removed what lies above).
