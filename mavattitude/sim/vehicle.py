@@ -4,7 +4,9 @@ It behaves like an autopilot on a companion-computer link:
 
 - HEARTBEAT at 1 Hz (wall-clock), as an ArduPilot (or PX4) autopilot, component 1;
 - GLOBAL_POSITION_INT (2 Hz by default) and the IMU messages of its profile, encoded by
-  :func:`mavattitude.sensors.units.encode` (the project's only MAVLink unit conversion);
+  :func:`mavattitude.sensors.units.encode` (the project's only MAVLink unit conversion); without a GPS
+  fix (``gps_fix``, or :meth:`FakeVehicle.set_gps_fix`) latitude, longitude and altitude 0, as ArduPilot
+  sends it with no GPS;
 - ATTITUDE (10 Hz by default, ``attitude_rate_hz``), as an autopilot's own estimate: the truth, turned
   by ``attitude_error_deg`` (roll, pitch, yaw) to play an autopilot that is off, so a log recorded from
   it gives ``replay`` and the service's cross-check something to compare with;
@@ -100,6 +102,7 @@ class VehicleConfig:
     attitude_rate_hz: float = 10.0  # ATTITUDE streamed from boot (0: only when asked for)
     attitude_error_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # the autopilot's error: roll, pitch, yaw
     gps_unix_s: float | None = None  # the GPS's Unix time at boot, for SYSTEM_TIME (None: no GPS time)
+    gps_fix: bool = True  # False: no GPS position (GLOBAL_POSITION_INT all 0, as ArduPilot without a GPS)
 
 
 @dataclass(frozen=True)
@@ -183,6 +186,7 @@ class FakeVehicle:
         self._threads: list[threading.Thread] = []
         self._epoch = _Epoch()
         self._imu_paused = False
+        self._gps_fix = config.gps_fix
         self._streams: dict[int, _Stream | _ImuStream] = {}
         # the telemetry it sends (paced by the clock) and how
         self._telemetry: dict[int, Callable[[float], None]] = {
@@ -327,6 +331,10 @@ class FakeVehicle:
             self._epoch = _Epoch(boot_script_s=self.script_time())
         self._default_streams()
 
+    def set_gps_fix(self, fix: bool = True) -> None:
+        """A GPS fix from now on (its position the home), or none (GLOBAL_POSITION_INT all 0)."""
+        self._gps_fix = fix
+
     def pause_imu(self, paused: bool = True) -> None:
         """Stop (or resume) IMU messages while the script and everything else go on.
 
@@ -460,10 +468,12 @@ class FakeVehicle:
         truth = self.script.sample([now_s])
         vel_cms = np.round(truth.vel_ned_mps[0] * 100).astype(int)
         cfg = self.config
+        home = Position(cfg.home_lat_deg, cfg.home_lon_deg, cfg.home_alt_m)
+        position = encode_position(home) if self._gps_fix else (0, 0, 0)  # no fix: ArduPilot sends zeros
         self.send(
             mavlink2.MAVLink_global_position_int_message(
                 time_boot_ms(max(0.0, self.vehicle_time(now_s))),
-                *encode_position(Position(cfg.home_lat_deg, cfg.home_lon_deg, cfg.home_alt_m)),
+                *position,
                 0,
                 *(int(np.clip(v, -32768, 32767)) for v in vel_cms),
                 65535,

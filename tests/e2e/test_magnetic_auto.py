@@ -1,5 +1,6 @@
 """``reference.magnetic: auto``: the service takes the field from the World Magnetic Model at the
-vehicle's GLOBAL_POSITION_INT, and flies right when the truth is that field."""
+vehicle's GLOBAL_POSITION_INT, and flies right when the truth is that field; without a fix, the field
+measured from the compass after the bounded wait."""
 
 from __future__ import annotations
 
@@ -7,9 +8,11 @@ import datetime as dt
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 import pytest
 
-from mavattitude.sensors.magref import wmm_field_ned_uT
+from mavattitude.estimation.conventions import euler_from_quat
+from mavattitude.sensors.magref import field_from_angles, wmm_field_ned_uT
 from mavattitude.sim import scenarios
 from mavattitude.sim.trajectory import Hold, Rotate, Script
 from mavattitude.sim.vehicle import VehicleConfig
@@ -63,3 +66,35 @@ def test_the_model_is_taken_on_the_vehicles_gps_date(
     # The field of that day is the one the script flies in: the outputs agree with the truth.
     score = v.score()
     assert score.broken == 0 and score.angle_rms_deg < 1.0, score
+
+
+def test_without_a_gps_fix_the_field_is_measured_then_a_fix_switches_to_the_model(fly: Callable[..., Any]) -> None:
+    """A vehicle with no GPS fix (GLOBAL_POSITION_INT all 0, as ArduPilot sends it): attitudes within the
+    bounded wait (reference.position_wait_s, 5 s by default) on the field measured from the compass, heading
+    magnetic; a fix later switches to the WMM's field, heading true."""
+    field = field_from_angles(0.0, 63.0, 48.0)  # declination 0: magnetic north is the truth's north
+    script = Script([Hold(2.0), Rotate(118.0, (0.03, -0.05, 0.08))], field)
+    with fly(script, scenarios.paper_sensors(200.0), {"reference": {"magnetic": "auto"}}, gps_fix=False) as (v, svc):
+        line = svc.wait_for_line(r"no GPS position: heading is magnetic north, field measured from the compass", 10.0)
+        assert line is not None and "dip 63.0°, 48.0 µT" in line, svc.log_tail()
+        wait_outputs(v, 75)
+        _, first_s, _ = v.outputs_since(0)
+        # the wait is vehicle time from the first IMU tick (script time 0 here); the ticks are 50 Hz
+        assert 5.0 <= first_s[0] < 5.1
+        assert counter(svc, "positions") == 0
+        measured = v.score()
+        v.set_gps_fix(True)
+        wmm = svc.wait_for_line(r"magnetic reference from WMM2025 at 47\.3977°, 8\.5456°", 10.0)
+        assert wmm is not None, svc.log_tail()
+        since = len(v.attitude_log)
+        wait_outputs(v, 75)
+    assert measured.broken == 0 and measured.angle_rms_deg < 1.0, measured  # as with the field given
+    # after the fix the reference is the WMM's, declination D, while the script's field has none: the heading
+    # is turned by D, the switch to the model taken (the field measured from the compass would give 0)
+    home = VehicleConfig("unused")
+    n, e, _ = wmm_field_ned_uT(home.home_lat_deg, home.home_lon_deg, home.home_alt_m, dt.date.today())
+    _, t, q = v.outputs_since(since)
+    yaw_deg = np.degrees(euler_from_quat(q)[:, 2] - euler_from_quat(script.attitude(t))[:, 2])
+    # within the 1° RMS bound of the flight before (the median of 75 outputs is tighter still)
+    assert np.median((yaw_deg + 180.0) % 360.0 - 180.0) == pytest.approx(np.degrees(np.arctan2(e, n)), abs=1.0)
+    assert_all_outputs_valid(v)
