@@ -48,23 +48,22 @@ import logging
 import math
 import threading
 import time
-from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from mavattitude import __version__, alive
 from mavattitude.config import Config
-from mavattitude.dispatch import DISPATCH_REJECTS, DispatchCounters, Dispatcher
+from mavattitude.dispatch import Dispatcher
 from mavattitude.errors import DegenerateGeometryError
-from mavattitude.estimation.compass import CompassEvent, CompassFigures
+from mavattitude.estimation.compass import CompassEvent
 from mavattitude.estimation.crosscheck import CrossCheck
 from mavattitude.link import MavlinkLink, load_signing_key, message_id
 from mavattitude.link.requests import LOW_FRACTION, PendingRequests, RateMonitor, RequestSchedule, StreamRequest
 from mavattitude.link.source import AutopilotAttitude, MavlinkDecoder, MavlinkSource, MessageSource, Sender
 from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, Pushed
+from mavattitude.reports import ServiceCounters, compass_event_words, compass_statustext, counters_line
 from mavattitude.sensors import units
 from mavattitude.sensors.units import ImuSample
 from mavattitude.systemd_notify import SystemdNotifier, default_notifier
@@ -128,29 +127,6 @@ class Waiting(enum.Enum):
     POSITION = "GPS position"  # ``reference.magnetic: auto``: the position, or the field measured without one
     FIRST_ATTITUDE = "first attitude"  # input flows, the filter and solver have not produced one yet
     RUNNING = "running"
-
-
-@dataclass
-class ServiceCounters(DispatchCounters):
-    """What the service has seen and done since it started (the dispatcher's counters and its own).
-
-    ``mean_iterations`` and the latencies are refreshed at each counters line (latency: over the window
-    since the previous line); ``rejected`` holds the service's own reasons, and the line adds the
-    pipeline's (input samples the front end dropped, ticks the solver could not use) by name.
-    """
-
-    emitted: int = 0  # ATTITUDE_QUATERNION sent
-    rejected: dict[str, int] = field(default_factory=lambda: dict.fromkeys(DISPATCH_REJECTS, 0))
-    input_lost: int = 0  # times the input went silent for longer than input_timeout_s
-    interval_requests: int = 0
-    acks: dict[str, int] = field(default_factory=dict)  # SET_MESSAGE_INTERVAL results by name (of our requests)
-    ack_timeouts: int = 0
-    acks_unmatched: int = 0  # ACKs of SET_MESSAGE_INTERVAL addressed to us with no request of ours waiting
-    input_rate_hz: float = float("nan")  # received, over the last RATE_WINDOW_S
-    rate_warnings: int = 0  # times the input stayed below the requested rate
-    mean_iterations: float = float("nan")
-    latency_p50_ms: float = float("nan")  # input read from the socket -> ATTITUDE_QUATERNION handed to the OS
-    latency_p99_ms: float = float("nan")
 
 
 class _RateLimiter:
@@ -515,11 +491,10 @@ class AttitudeService:
 
     def _on_compass(self, event: CompassEvent) -> None:
         """The compass verdict changed: said once each way (the monitor's hysteresis keeps it from flapping)."""
+        level, words = compass_event_words(event)
+        log.log(level, "%s", words)
         if event.inconsistent:
-            log.warning("%s", compass_warning(event.figures))
             self._statustext("compass", compass_statustext(event.figures), "warning", log_it=False)
-        else:
-            log.info("compass consistent again: %s", event.figures.describe())
 
     def on_reject(self, reason: str, exc: BaseException) -> None:
         if reason != "internal_error":
@@ -587,93 +562,3 @@ class AttitudeService:
                 log.info("counters: %s", changed)
         waiting = self.waiting
         self.notifier.status(line if waiting is Waiting.RUNNING else self.waiting_text(waiting))
-
-
-def compass_warning(figures: CompassFigures) -> str:
-    """The log's words for an inconsistent compass."""
-    return f"{figures.describe()}: check the compass orientation and calibration"
-
-
-def compass_statustext(figures: CompassFigures) -> str:
-    """The same in STATUSTEXT's 50 ASCII characters: the figure that is off, and what to check."""
-    if figures.turn_off:
-        return "compass turns unlike the gyro: check mount, cal"
-    word = "start" if figures.reference_measured else "expected"  # a field measured at the start: a change since
-    if abs(figures.dip_deg - figures.expected_dip_deg) > figures.threshold_dip_deg:
-        return f"compass dip {figures.dip_deg:+.0f} ({word} {figures.expected_dip_deg:+.0f}): check mount, cal"
-    return f"compass |B| {100.0 * figures.field_ratio:.0f}% of {word}: check calibration"
-
-
-def compass_pairs(figures: CompassFigures) -> list[tuple[str, float]]:
-    """The compass figures of the counters line (degrees, and |B| as a fraction of the reference's)."""
-    return [
-        ("compass_dip_deg", figures.dip_deg),
-        ("compass_dip_expected_deg", figures.expected_dip_deg),
-        ("compass_dip_std_deg", figures.dip_std_deg),
-        ("compass_dip_1min_deg", figures.first_dip_deg),
-        ("compass_field_ratio", figures.field_ratio),
-        ("compass_turn_mismatch", figures.turn_mismatch),
-        ("compass_warnings", figures.warnings),
-    ]
-
-
-def crosscheck_pairs(xcheck: CrossCheck) -> list[tuple[str, float]]:
-    """The cross-check figures of the counters line: pairs compared, those missed inside our output span and why,
-    the last and RMS total difference (deg)."""
-    last = xcheck.last.total_deg if xcheck.last is not None else math.nan
-    return [
-        ("xc_pairs", xcheck.pairs),
-        ("xc_missed", xcheck.missed),  # inside our output span, not paired: xc_unpaired.REASON says why
-        *((f"xc_unpaired.{k}", v) for k, v in sorted(xcheck.unpaired.items())),
-        ("xc_total_deg", last),
-        ("xc_rms_deg", xcheck.rms_total_deg),
-        ("xc_warnings", xcheck.warnings),
-    ]
-
-
-def counters_line(
-    counters: ServiceCounters,
-    link_counters: Any,
-    pipeline_counters: Any,
-    compass: CompassFigures | None = None,
-    xcheck: CrossCheck | None = None,
-) -> str:
-    """``key=value`` numbers, one line: what the e2e tests and an operator read.
-
-    ``rejected.REASON`` sums the service's reasons, the front end's dropped input samples and the
-    solver's refused ticks; ``mag_rejected.REASON`` counts magnetometer readings the front end dropped;
-    ``compass_*`` are the compass monitor's figures (:func:`compass_pairs`), when it is on.
-    """
-    c = counters
-    frontend = pipeline_counters.frontend
-    rejected = Counter(c.rejected) + Counter(frontend.rejected) + Counter(pipeline_counters.rejected)
-    pairs: list[tuple[str, float]] = [
-        ("received", c.received),
-        ("emitted", c.emitted),
-        ("ignored", c.ignored),
-        *((f"rejected.{k}", rejected[k]) for k in sorted({*c.rejected, *rejected})),
-        *((f"mag_rejected.{k}", v) for k, v in sorted(frontend.mag_rejected.items())),
-        ("gap_resets", frontend.gap_resets),
-        ("reboots", frontend.reboots),
-        ("not_converged", pipeline_counters.not_converged),
-        ("mean_iterations", c.mean_iterations),
-        ("latency_p50_ms", c.latency_p50_ms),
-        ("latency_p99_ms", c.latency_p99_ms),
-        ("input_lost", c.input_lost),
-        ("positions", c.positions),
-        ("interval_requests", c.interval_requests),
-        *((f"acks.{k.lower()}", v) for k, v in sorted(c.acks.items())),
-        ("ack_timeouts", c.ack_timeouts),
-        ("acks_unmatched", c.acks_unmatched),
-        ("input_rate_hz", c.input_rate_hz),
-        ("rate_warnings", c.rate_warnings),
-        ("bad_data", link_counters.bad_data),
-        ("signature_rejected", link_counters.signature_rejected),
-        ("sent", link_counters.sent),
-        ("send_failed", link_counters.send_failed),
-        ("reconnects", link_counters.reconnects),
-        *(compass_pairs(compass) if compass is not None else ()),
-        *(crosscheck_pairs(xcheck) if xcheck is not None else ()),
-        *((f"{pipeline_counters.estimator_prefix}.{k}", v) for k, v in pipeline_counters.estimator().items()),
-    ]
-    return " ".join(f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}" for k, v in pairs)

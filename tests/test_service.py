@@ -30,8 +30,9 @@ from mavattitude.config import Config, load_config
 from mavattitude.estimation.conventions import angle_between, quat_from_euler, rotate_ned_to_body
 from mavattitude.link import LinkCounters
 from mavattitude.pipeline import AttitudePipeline
+from mavattitude.reports import ServiceCounters, counters_line
 from mavattitude.sensors import units
-from mavattitude.service import AttitudeService, ServiceCounters, Waiting, counters_line, open_link
+from mavattitude.service import AttitudeService, Waiting, open_link
 from mavattitude.systemd_notify import SystemdNotifier
 from tests.link.peer import UdpPeer
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mavattitude.estimation.conventions import rotate_ned_to_body
-from mavattitude.service import compass_statustext
+from mavattitude.reports import compass_statustext
 from tests.test_dispatch import Peer, memory_service, sent, serve  # noqa: F401 (memory_service: a fixture)
 from tests.test_service import Q_TRUE, mag_ned_uT
 

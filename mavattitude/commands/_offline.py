@@ -18,7 +18,7 @@ from mavattitude.estimation import METHODS
 from mavattitude.files import open_text
 
 if TYPE_CHECKING:
-    from mavattitude.estimation.compass import CompassEvent, CompassFigures
+    from mavattitude.estimation.compass import CompassEvent
     from mavattitude.pipeline import AttitudeOutput, AttitudePipeline
 
 COVARIANCE_COLUMNS = ("cov_xx_rad2", "cov_xy_rad2", "cov_xz_rad2", "cov_yy_rad2", "cov_yz_rad2", "cov_zz_rad2")
@@ -143,32 +143,12 @@ def summarise_compass(
     pipeline: AttitudePipeline, events: list[CompassEvent], source: str, logger: logging.Logger
 ) -> None:
     """The compass verdict's changes (vehicle time) and its figures, as the service reports them live."""
-    from mavattitude.service import compass_warning
+    from mavattitude.reports import compass_event_words, compass_summary
 
     for event in events:
-        if event.inconsistent:
-            logger.warning("%s: t=%.1f s: %s", source, event.time_s, compass_warning(event.figures))
-        else:
-            logger.info("%s: t=%.1f s: compass consistent again: %s", source, event.time_s, event.figures.describe())
+        level, words = compass_event_words(event)
+        logger.log(level, "%s: t=%.1f s: %s", source, event.time_s, words)
     logger.info("%s: %s", source, compass_summary(pipeline.compass.figures()))
-
-
-def compass_summary(f: CompassFigures) -> str:
-    """The compass monitor's figures over a log as one line; what was not measured is said so, not ``nan``."""
-    if f.samples == 0:
-        return "compass: no quiet sample (the vehicle never rested): dip and |B| not judged"
-    field = (
-        f"|B| {f.field_ratio:.2f} of the {f.expected} (spread {f.field_std:.2f}, "
-        f"first minute {f.first_field_ratio:.2f})"
-        if f.field_ratio == f.field_ratio
-        else "|B| not compared (the magnetic reference gives no field strength: reference.magnetic.intensity_uT "
-        "or a position for the World Magnetic Model)"
-    )
-    return (
-        f"compass: dip {f.dip_deg:.1f}° (spread {f.dip_std_deg:.1f}°, first minute {f.first_dip_deg:.1f}°) vs "
-        f"{f.expected} {f.expected_dip_deg:.1f}°, {field}, {f.samples} quiet samples, judged inconsistent "
-        f"{f.warnings} time(s)"
-    )
 
 
 class Progress:

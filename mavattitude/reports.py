@@ -1,0 +1,159 @@
+"""What the service and the commands say, written once: the counters line and the compass's and the
+cross-check's words.
+
+- :class:`ServiceCounters` and :func:`counters_line`: the ``key=value`` line the service logs every
+  ``stats_interval_s`` (and at the end), which the e2e tests and an operator read;
+- :func:`compass_event_words`, :func:`compass_warning`, :func:`compass_statustext`: a change of the compass
+  monitor's verdict in the log and in STATUSTEXT's 50 characters, live and in an offline summary alike;
+  :func:`compass_summary`: its figures over a log as one line.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any
+
+from mavattitude.dispatch import DISPATCH_REJECTS, DispatchCounters
+from mavattitude.estimation.compass import CompassEvent, CompassFigures
+from mavattitude.estimation.crosscheck import CrossCheck
+
+
+@dataclass
+class ServiceCounters(DispatchCounters):
+    """What the service has seen and done since it started (the dispatcher's counters and its own).
+
+    ``mean_iterations`` and the latencies are refreshed at each counters line (latency: over the window
+    since the previous line); ``rejected`` holds the service's own reasons, and the line adds the
+    pipeline's (input samples the front end dropped, ticks the solver could not use) by name.
+    """
+
+    emitted: int = 0  # ATTITUDE_QUATERNION sent
+    rejected: dict[str, int] = field(default_factory=lambda: dict.fromkeys(DISPATCH_REJECTS, 0))
+    input_lost: int = 0  # times the input went silent for longer than input_timeout_s
+    interval_requests: int = 0
+    acks: dict[str, int] = field(default_factory=dict)  # SET_MESSAGE_INTERVAL results by name (of our requests)
+    ack_timeouts: int = 0
+    acks_unmatched: int = 0  # ACKs of SET_MESSAGE_INTERVAL addressed to us with no request of ours waiting
+    input_rate_hz: float = float("nan")  # received, over the service's last rate window
+    rate_warnings: int = 0  # times the input stayed below the requested rate
+    mean_iterations: float = float("nan")
+    latency_p50_ms: float = float("nan")  # input read from the socket -> ATTITUDE_QUATERNION handed to the OS
+    latency_p99_ms: float = float("nan")
+
+
+def compass_event_words(event: CompassEvent) -> tuple[int, str]:
+    """The log level and words of a change of the compass verdict (said once each way)."""
+    if event.inconsistent:
+        return logging.WARNING, compass_warning(event.figures)
+    return logging.INFO, f"compass consistent again: {event.figures.describe()}"
+
+
+def compass_warning(figures: CompassFigures) -> str:
+    """The log's words for an inconsistent compass."""
+    return f"{figures.describe()}: check the compass orientation and calibration"
+
+
+def compass_statustext(figures: CompassFigures) -> str:
+    """The same in STATUSTEXT's 50 ASCII characters: the figure that is off, and what to check."""
+    if figures.turn_off:
+        return "compass turns unlike the gyro: check mount, cal"
+    word = "start" if figures.reference_measured else "expected"  # a field measured at the start: a change since
+    if abs(figures.dip_deg - figures.expected_dip_deg) > figures.threshold_dip_deg:
+        return f"compass dip {figures.dip_deg:+.0f} ({word} {figures.expected_dip_deg:+.0f}): check mount, cal"
+    return f"compass |B| {100.0 * figures.field_ratio:.0f}% of {word}: check calibration"
+
+
+def compass_pairs(figures: CompassFigures) -> list[tuple[str, float]]:
+    """The compass figures of the counters line (degrees, and |B| as a fraction of the reference's)."""
+    return [
+        ("compass_dip_deg", figures.dip_deg),
+        ("compass_dip_expected_deg", figures.expected_dip_deg),
+        ("compass_dip_std_deg", figures.dip_std_deg),
+        ("compass_dip_1min_deg", figures.first_dip_deg),
+        ("compass_field_ratio", figures.field_ratio),
+        ("compass_turn_mismatch", figures.turn_mismatch),
+        ("compass_warnings", figures.warnings),
+    ]
+
+
+def crosscheck_pairs(xcheck: CrossCheck) -> list[tuple[str, float]]:
+    """The cross-check figures of the counters line: pairs compared, those missed inside our output span and why,
+    the last and RMS total difference (deg)."""
+    last = xcheck.last.total_deg if xcheck.last is not None else math.nan
+    return [
+        ("xc_pairs", xcheck.pairs),
+        ("xc_missed", xcheck.missed),  # inside our output span, not paired: xc_unpaired.REASON says why
+        *((f"xc_unpaired.{k}", v) for k, v in sorted(xcheck.unpaired.items())),
+        ("xc_total_deg", last),
+        ("xc_rms_deg", xcheck.rms_total_deg),
+        ("xc_warnings", xcheck.warnings),
+    ]
+
+
+def counters_line(
+    counters: ServiceCounters,
+    link_counters: Any,
+    pipeline_counters: Any,
+    compass: CompassFigures | None = None,
+    xcheck: CrossCheck | None = None,
+) -> str:
+    """``key=value`` numbers, one line: what the e2e tests and an operator read.
+
+    ``rejected.REASON`` sums the service's reasons, the front end's dropped input samples and the
+    solver's refused ticks; ``mag_rejected.REASON`` counts magnetometer readings the front end dropped;
+    ``compass_*`` are the compass monitor's figures (:func:`compass_pairs`), when it is on.
+    """
+    c = counters
+    frontend = pipeline_counters.frontend
+    rejected = Counter(c.rejected) + Counter(frontend.rejected) + Counter(pipeline_counters.rejected)
+    pairs: list[tuple[str, float]] = [
+        ("received", c.received),
+        ("emitted", c.emitted),
+        ("ignored", c.ignored),
+        *((f"rejected.{k}", rejected[k]) for k in sorted({*c.rejected, *rejected})),
+        *((f"mag_rejected.{k}", v) for k, v in sorted(frontend.mag_rejected.items())),
+        ("gap_resets", frontend.gap_resets),
+        ("reboots", frontend.reboots),
+        ("not_converged", pipeline_counters.not_converged),
+        ("mean_iterations", c.mean_iterations),
+        ("latency_p50_ms", c.latency_p50_ms),
+        ("latency_p99_ms", c.latency_p99_ms),
+        ("input_lost", c.input_lost),
+        ("positions", c.positions),
+        ("interval_requests", c.interval_requests),
+        *((f"acks.{k.lower()}", v) for k, v in sorted(c.acks.items())),
+        ("ack_timeouts", c.ack_timeouts),
+        ("acks_unmatched", c.acks_unmatched),
+        ("input_rate_hz", c.input_rate_hz),
+        ("rate_warnings", c.rate_warnings),
+        ("bad_data", link_counters.bad_data),
+        ("signature_rejected", link_counters.signature_rejected),
+        ("sent", link_counters.sent),
+        ("send_failed", link_counters.send_failed),
+        ("reconnects", link_counters.reconnects),
+        *(compass_pairs(compass) if compass is not None else ()),
+        *(crosscheck_pairs(xcheck) if xcheck is not None else ()),
+        *((f"{pipeline_counters.estimator_prefix}.{k}", v) for k, v in pipeline_counters.estimator().items()),
+    ]
+    return " ".join(f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}" for k, v in pairs)
+
+
+def compass_summary(f: CompassFigures) -> str:
+    """The compass monitor's figures over a log as one line; what was not measured is said so, not ``nan``."""
+    if f.samples == 0:
+        return "compass: no quiet sample (the vehicle never rested): dip and |B| not judged"
+    field = (
+        f"|B| {f.field_ratio:.2f} of the {f.expected} (spread {f.field_std:.2f}, "
+        f"first minute {f.first_field_ratio:.2f})"
+        if f.field_ratio == f.field_ratio
+        else "|B| not compared (the magnetic reference gives no field strength: reference.magnetic.intensity_uT "
+        "or a position for the World Magnetic Model)"
+    )
+    return (
+        f"compass: dip {f.dip_deg:.1f}° (spread {f.dip_std_deg:.1f}°, first minute {f.first_dip_deg:.1f}°) vs "
+        f"{f.expected} {f.expected_dip_deg:.1f}°, {field}, {f.samples} quiet samples, judged inconsistent "
+        f"{f.warnings} time(s)"
+    )
