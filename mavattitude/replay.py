@@ -101,7 +101,7 @@ class _Collector:
 def replay(
     source: LogSource,
     config: Config,
-    progress: Callable[[MessageSource], None] | None = None,
+    progress: Callable[[int, int], None] | None = None,
     at_once: bool = True,
 ) -> Replayed:
     """Run ``source`` to its end through the service's dispatcher and pipeline (see the module docstring)."""
@@ -132,20 +132,16 @@ def _dispatcher(source: MessageSource, sink: Any, result: Replayed) -> Dispatche
     )
 
 
-def _dispatch(
-    source: MessageSource, sink: Any, result: Replayed, progress: Callable[[MessageSource], None] | None
-) -> None:
+def _dispatch(source: MessageSource, sink: Any, result: Replayed, progress: Callable[[int, int], None] | None) -> None:
     handle = _dispatcher(source, sink, result).handle
     while not source.finished:
         for received in source.recv(0.0):
             handle(received)
         if progress is not None:
-            progress(source)
+            progress(source.done, source.total)
 
 
-def _replay_items(
-    source: MessageSource, result: Replayed, progress: Callable[[MessageSource], None] | None
-) -> Replayed:
+def _replay_items(source: MessageSource, result: Replayed, progress: Callable[[int, int], None] | None) -> Replayed:
     """Every item through the dispatcher into the pipeline, one by one, as live."""
     _dispatch(source, result.pipeline, result, progress)
     if result.internal_errors:  # offline, a bug is reported, not served around

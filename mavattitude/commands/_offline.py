@@ -152,30 +152,48 @@ def summarise_compass(
 
 
 class Progress:
-    """A progress line on stderr, redrawn in place on a terminal, every 10% otherwise."""
+    """The one progress line of the commands, on stderr (or ``stream``): redrawn in place on a terminal, a line
+    per change elsewhere (a log, a pipe).
 
-    def __init__(self, total: int, enabled: bool | None, label: str, stream: TextIO | None = None) -> None:
-        self.total = max(total, 1)
-        self.enabled = total >= PROGRESS_MIN_SAMPLES if enabled is None else enabled
+    ``progress(done, total)`` draws a bar, every 1 % on a terminal and 10 % elsewhere: the signature the
+    library's loops report through (replay, the validation); :meth:`show` draws any other line (calibrate's
+    coverage). ``enabled`` None: only for totals of ``PROGRESS_MIN_SAMPLES`` or more.
+    """
+
+    def __init__(self, label: str = "", enabled: bool | None = True, stream: TextIO | None = None) -> None:
         self.label = label
+        self.enabled = enabled
         self.stream = stream or sys.stderr
-        self._tty = self.stream.isatty()
-        self._shown = -1
+        self.tty = self.stream.isatty()
+        self._key: object = None
+        self._width = 0  # of the line drawn in place: a shorter one is padded over it
         self._start = time.monotonic()
 
-    def update(self, done: int) -> None:
-        if not self.enabled:
+    def __call__(self, done: int, total: int) -> None:
+        if not (total >= PROGRESS_MIN_SAMPLES if self.enabled is None else self.enabled):
             return
-        percent = 100 * done // self.total
-        step = 1 if self._tty else 10
-        if percent // step == self._shown // step and done < self.total:
-            return
-        self._shown = percent
-        bar = "#" * (percent // 5)
-        end = "\r" if self._tty and done < self.total else "\n"
+        percent = 100 * done // max(total, 1)
         elapsed = time.monotonic() - self._start
-        self.stream.write(f"{self.label}: [{bar:<20}] {percent:3d}% {done}/{self.total} {elapsed:.1f} s{end}")
+        line = f"{self.label}: [{'#' * (percent // 5):<20}] {percent:3d}% {done}/{total} {elapsed:.1f} s"
+        self.show(line, percent if self.tty else percent // 10)
+        if done >= total:
+            self.end()
+
+    def show(self, line: str, key: object) -> None:
+        """``line`` drawn, unless ``key`` is the drawn line's (say what changed, not every call)."""
+        if key == self._key:
+            return
+        self._key = key
+        self.stream.write("\r" + line.ljust(self._width) if self.tty else line + "\n")
         self.stream.flush()
+        self._width = max(self._width, len(line)) if self.tty else 0
+
+    def end(self) -> None:
+        """The line drawn in place on a terminal finished (the next output starts on a new one)."""
+        if self._width:
+            self.stream.write("\n")
+            self.stream.flush()
+        self._width, self._key = 0, None
 
 
 def summarise(pipeline: AttitudePipeline, n_in: int, source: str, compass: list[CompassEvent]) -> None:

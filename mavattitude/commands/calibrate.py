@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any, TextIO
 import numpy as np
 import yaml
 
+from mavattitude.commands._offline import Progress
 from mavattitude.config import DEFAULTS
 from mavattitude.errors import CalibrationError
 from mavattitude.files import LOG_SUFFIXES, MAG_COLUMNS, read_columns
@@ -306,8 +307,8 @@ def _collect(samples: Iterable[units.ImuSample], args: argparse.Namespace, out: 
     estimate: the offset is not fitted yet); the fit judges it again around the fitted centre.
     """
     rows: list[Vec3] = []
-    frac, shown = 0.0, (-1.0, False)
-    tty = out.isatty()  # redrawn in place on a terminal; a log or a pipe gets a line per change of coverage
+    frac = 0.0
+    progress = Progress(stream=out)  # a line per change of coverage in a log or a pipe; every batch on a terminal
     seen = _Coverage()
     fastest_radps = 0.0  # the fastest rotation in the current batch: a batch without turning is at rest
     for sample in samples:
@@ -326,14 +327,10 @@ def _collect(samples: Iterable[units.ImuSample], args: argparse.Namespace, out: 
             line = f"coverage [{bar}] {frac:.0%} of orientations, {len(rows)} samples"
             if at_rest:
                 line += ": the vehicle is at rest, turn it through every orientation"
-            if tty or (frac, at_rest) != shown:
-                out.write(f"\r{line} " if tty else f"{line}\n")
-                out.flush()
-                shown = (frac, at_rest)
+            progress.show(line, line if progress.tty else (frac, at_rest))
             if live and frac >= args.min_coverage and len(rows) >= LIVE_MIN_SAMPLES:
                 break
-    if tty:
-        out.write("\n")
+    progress.end()
     if not rows:
         raise CalibrationError(f"{args.input}: no magnetometer readings found")
     return np.array(rows, dtype=float)

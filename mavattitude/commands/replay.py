@@ -37,7 +37,7 @@ import logging
 import math
 import multiprocessing
 import sys
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -214,12 +214,12 @@ WORKER_START_METHOD = "forkserver"
 
 
 def replay_all(jobs: list[Job], workers: int) -> list[LogResult]:
-    progress = Progress(len(jobs), len(jobs) > 1 and sys.stderr.isatty(), "replayed logs")
+    progress = Progress("replayed logs", len(jobs) > 1 and sys.stderr.isatty())
     if workers == 1 or len(jobs) == 1:
         results = []
         for job in jobs:
             results.append(replay_log(job))
-            progress.update(len(results))
+            progress(len(results), len(jobs))
         return results
     from mavattitude.commands import configure_logging
 
@@ -232,7 +232,7 @@ def replay_all(jobs: list[Job], workers: int) -> list[LogResult]:
     ) as pool:
         futures = [pool.submit(replay_log, job) for job in jobs]
         for done, _ in enumerate(concurrent.futures.as_completed(futures), start=1):
-            progress.update(done)
+            progress(done, len(jobs))
         return [f.result() for f in futures]
 
 
@@ -244,7 +244,7 @@ def replay_log(job: Job) -> LogResult:
     result = LogResult(str(job.log))
     try:
         source = open_log(job.log, job.config, job.imu, job.mag)
-        replayed = replay(source, job.config, _source_progress(job.log.name) if job.table else None)
+        replayed = replay(source, job.config, Progress(job.log.name) if job.table and sys.stderr.isatty() else None)
         _check_found(str(job.log), job.config.input.message, replayed)
     except MavAttitudeError as exc:
         return dataclasses.replace(result, status="failed", note=str(exc))
@@ -264,22 +264,6 @@ def replay_log(job: Job) -> LogResult:
     else:
         log.info("%s holds no attitude from the autopilot: no comparison", job.log)
     return result
-
-
-def _source_progress(label: str) -> Callable[[Any], None] | None:
-    """A progress bar over a source's items (drawn on a terminal only; built at the first update, when the
-    source knows its size)."""
-    if not sys.stderr.isatty():
-        return None
-    bar: Progress | None = None
-
-    def update(source: Any) -> None:
-        nonlocal bar
-        if bar is None:
-            bar = Progress(source.total, True, label)
-        bar.update(source.done)
-
-    return update
 
 
 def _fill(result: LogResult, replayed: Any) -> None:

@@ -101,14 +101,14 @@ def run(args: argparse.Namespace) -> int:
     t, acc, mag = data["t_s"].tolist(), data["acc"].tolist(), data["mag"].tolist()
     # Without gyro columns: zero rates (the snapshot solve does not use them, and the CSV output has none).
     gyr = data["gyr"].tolist() if "gyr" in data else [[0.0] * 3] * n
-    progress = Progress(n, args.progress, f"solve {Path(args.input).name}")
+    progress = Progress(f"solve {Path(args.input).name}", args.progress)
     outputs, compass = [], []
     for i in range(n):
         pushed = pipeline.push(ImuSample(t[i], tuple(acc[i]), tuple(gyr[i]), tuple(mag[i])))
         outputs += pushed.outputs
         compass += pushed.compass
         if i % 1000 == 0 or i == n - 1:
-            progress.update(i + 1)
+            progress(i + 1, n)
     summarise(pipeline, n, args.input, compass)
     write_outputs(args.output, outputs)
     log.info("wrote %d attitudes to %s", len(outputs), args.output)

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import yaml
 
+from mavattitude.commands._offline import Progress
 from mavattitude.config import load_config
 from mavattitude.errors import ConfigError
 from mavattitude.estimation import METHODS, SNAPSHOT_METHODS
@@ -98,17 +99,6 @@ def _settings(items: Sequence[str]) -> dict[str, object]:
     return out
 
 
-def _progress(label: str):  # type: ignore[no-untyped-def]
-    """Percent on one stderr line when it is a terminal; nothing when it is a log file."""
-    if not sys.stderr.isatty():
-        return None
-
-    def report(done: int, total: int) -> None:
-        print(f"\r{label}: {100 * done // max(total, 1):3d}%", end="", file=sys.stderr, flush=True)
-
-    return report
-
-
 def _peer_estimates(recording):  # type: ignore[no-untyped-def]
     from mavattitude.validation.peers import PEERS, estimate_peer
 
@@ -141,7 +131,7 @@ def run(args: argparse.Namespace) -> int:
             config = validation_config(recording, method, base, **settings)
             label = f"{recording.name} {path} {method}"
             if path == "stream":
-                estimate = estimate_stream(recording, config, _progress(label))
+                estimate = estimate_stream(recording, config, Progress(label, sys.stderr.isatty()))
             else:
                 estimate = estimate_batch(recording, config)
             redraw = "\r" if sys.stderr.isatty() else ""  # over the terminal's percent line; a log gets lines

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import gzip
+import io
 import re
 import warnings
 from pathlib import Path
@@ -13,7 +14,7 @@ import pytest
 import yaml
 
 from mavattitude.cli import main
-from mavattitude.commands._offline import OUTPUT_COLUMNS
+from mavattitude.commands._offline import OUTPUT_COLUMNS, Progress
 from mavattitude.config import ENV_VAR, load_config
 from mavattitude.estimation.conventions import angle_between, euler_from_quat, quat_from_euler, rotate_ned_to_body
 from mavattitude.sensors.magref import field_from_angles
@@ -215,6 +216,27 @@ def test_progress_goes_to_stderr(tmp_path, capsys):
     captured = capsys.readouterr()
     assert "100% 200/200" in captured.err
     assert captured.out == ""
+
+
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+@pytest.mark.parametrize("stream", [io.StringIO, _Terminal])
+def test_the_progress_bar_is_redrawn_each_percent_on_a_terminal_and_each_10_percent_elsewhere(stream):
+    out = stream()
+    progress = Progress("x", stream=out)
+    for done in range(1, 401):
+        progress(done, 400)
+    text = out.getvalue()
+    assert text.endswith("\n") and "100% 400/400" in text.splitlines()[-1]
+    if stream is _Terminal:
+        assert text.count("\r") == 101 and text.count("\n") == 1  # 0 % … 100 %, one line
+    else:
+        assert "\r" not in text and [re.search(r"(\d+)%", line)[1] for line in text.splitlines()] == [
+            str(p) for p in range(0, 101, 10)
+        ]
 
 
 def _measured_inclination_deg(acc: np.ndarray, mag: np.ndarray) -> float:
