@@ -19,10 +19,11 @@ from typing import Any
 from mavattitude.dispatch import DISPATCH_REJECTS, DispatchCounters
 from mavattitude.estimation.compass import CompassEvent, CompassFigures
 from mavattitude.estimation.crosscheck import CrossCheck
+from mavattitude.link.session import RequestCounters
 
 
 @dataclass
-class ServiceCounters(DispatchCounters):
+class ServiceCounters(DispatchCounters, RequestCounters):
     """What the service has seen and done since it started (the dispatcher's counters and its own).
 
     ``mean_iterations`` and the latencies are refreshed at each counters line (latency: over the window
@@ -33,10 +34,6 @@ class ServiceCounters(DispatchCounters):
     emitted: int = 0  # ATTITUDE_QUATERNION sent
     rejected: dict[str, int] = field(default_factory=lambda: dict.fromkeys(DISPATCH_REJECTS, 0))
     input_lost: int = 0  # times the input went silent for longer than input_timeout_s
-    interval_requests: int = 0
-    acks: dict[str, int] = field(default_factory=dict)  # SET_MESSAGE_INTERVAL results by name (of our requests)
-    ack_timeouts: int = 0
-    acks_unmatched: int = 0  # ACKs of SET_MESSAGE_INTERVAL addressed to us with no request of ours waiting
     input_rate_hz: float = float("nan")  # received, over the service's last rate window
     rate_warnings: int = 0  # times the input stayed below the requested rate
     mean_iterations: float = float("nan")

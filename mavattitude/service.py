@@ -60,8 +60,10 @@ from mavattitude.errors import DegenerateGeometryError
 from mavattitude.estimation.compass import CompassEvent
 from mavattitude.estimation.crosscheck import CrossCheck
 from mavattitude.link import MavlinkLink, load_signing_key, message_id
-from mavattitude.link.requests import LOW_FRACTION, PendingRequests, RateMonitor, RequestSchedule, StreamRequest
+from mavattitude.link.requests import LOW_FRACTION, RateMonitor, StreamRequest
+from mavattitude.link.session import LinkSession
 from mavattitude.link.source import AutopilotAttitude, MavlinkDecoder, MavlinkSource, MessageSource, Sender
+from mavattitude.periodic import Every
 from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, Pushed
 from mavattitude.reports import ServiceCounters, compass_event_words, compass_statustext, counters_line
 from mavattitude.sensors import units
@@ -70,11 +72,8 @@ from mavattitude.systemd_notify import SystemdNotifier, default_notifier
 
 log = logging.getLogger(__name__)
 
-HEARTBEAT_PERIOD_S = 1.0
 TICK_S = 0.05  # periodic work runs at least this often; also the longest wait on the link
 UNLOCKED_SYSTEM_ID = 1  # our system id before locking onto an autopilot in automatic mode
-ACK_TIMEOUT_S = 2.0
-ACK_FORGET_S = 10.0  # an unanswered request still matches a late ACK for this long
 RATE_WINDOW_S = 5.0  # the input rate is measured over windows this long
 DEGENERATE = DegenerateGeometryError.__name__  # the pipeline's reject reason for collinear acc and mag
 POSITION_MESSAGE = "GLOBAL_POSITION_INT"
@@ -204,24 +203,21 @@ class AttitudeService:
         self._last_input: float | None = None
         self._input_lost = False
         self._attitude_sent = False
-        self._requests = RequestSchedule(self._stream_requests(config), config.link.request_repeat_s)
-        self._pending = PendingRequests(ACK_TIMEOUT_S, ACK_FORGET_S)
-        self._answers_said: set[tuple[str, str]] = set()  # (stream, result) logged once each
         self._rate = RateMonitor(config.link.request_rate_hz, RATE_WINDOW_S) if config.link.request_messages else None
-        self._reconnects_seen = 0
         self._xcheck = CrossCheck(config.crosscheck) if config.crosscheck.enabled else None
         self._published_s: float | None = None  # vehicle time of the last difference published
         now = time.monotonic()
-        self._next_tick = now
-        self._next_heartbeat = now
-        self._next_publish = now
-        self._next_stats = now + config.output.stats_interval_s
+        self.session = LinkSession(
+            link, self._stream_requests(config), config.link.request_repeat_s, now, self.counters
+        )
+        self._tick = Every(TICK_S, now)
+        self._publish = Every(1.0 / config.crosscheck.publish_rate_hz, now)
+        self._stats = Every(config.output.stats_interval_s, now, first_s=config.output.stats_interval_s)
         watchdog_s = self.notifier.watchdog_interval_s
-        self._watchdog_period = watchdog_s / 4 if watchdog_s else None
-        self._next_watchdog = now
+        self._watchdog = Every(watchdog_s / 4 if watchdog_s else math.inf, now)
+        self._alive = Every(alive.PERIOD_S, now)
         self._wait_reports = WaitReports(Waiting.AUTOPILOT, now)
         self._last_counters: dict[str, str] = {}  # the last periodic line's key=value, to log what changed
-        self._next_alive = now
         self.dispatcher = Dispatcher(
             pipeline,
             self,
@@ -245,7 +241,7 @@ class AttitudeService:
         self.notifier.ready(status=self.waiting_text())
         try:
             while not stop.is_set():
-                self.step(min(max(self._next_tick - time.monotonic(), 0.0), TICK_S))
+                self.step(self._tick.wait_s(time.monotonic()))
         finally:
             self.notifier.stopping()
             self.alive_file.close()
@@ -258,40 +254,26 @@ class AttitudeService:
         for received in self.source.recv(wait_s):
             handle(received)
         now = time.monotonic()
-        if now >= self._next_tick:
+        if self._tick.due(now):
             self._periodic(now)
 
     def _periodic(self, now: float) -> None:
-        self._next_tick = now + TICK_S
-        if now >= self._next_heartbeat:
-            self._next_heartbeat = now + HEARTBEAT_PERIOD_S
-            self.link.send_heartbeat()
-        if self.link.counters.reconnects != self._reconnects_seen:
-            self._reconnects_seen = self.link.counters.reconnects
-            if self.vehicle is not None:
-                self._requests.ask_now(now)  # a new connection: the autopilot may have lost our requests
-        self._request_streams(now)
-        for request in self._pending.timed_out(now):
-            self.counters.ack_timeouts += 1
-            self._say_answer(request, "TIMEOUT")
+        """The work due every ``TICK_S`` at most: the link's upkeep, the watches, what is said and touched."""
+        self.session.tick(now)
         if self._rate is not None:
             self._check_rate(self._rate, now)
-        if self._xcheck is not None and now >= self._next_publish:
-            self._next_publish = now + 1.0 / self.config.crosscheck.publish_rate_hz
+        if self._xcheck is not None and self._publish.due(now):
             self._publish_difference(self._xcheck)
         if not self._input_lost and self._last_input is not None:
             silent_s = now - self._last_input
             if silent_s > self.config.input.input_timeout_s:
                 self._on_input_lost(silent_s)
         self._report_waiting(now)
-        if now >= self._next_stats:
-            self._next_stats = now + self.config.output.stats_interval_s
+        if self._stats.due(now):
             self._log_counters()
-        if self._watchdog_period is not None and now >= self._next_watchdog:
-            self._next_watchdog = now + self._watchdog_period
+        if self._watchdog.due(now):
             self.notifier.watchdog()
-        if now >= self._next_alive:
-            self._next_alive = now + alive.PERIOD_S
+        if self._alive.due(now):
             self.alive_file.touch()
 
     # -- what it waits for -----------------------------------------------------------------------------
@@ -347,11 +329,9 @@ class AttitudeService:
     # -- the autopilot --------------------------------------------------------------------------------
 
     def on_lock(self, vehicle: Sender) -> None:
-        self.link.set_source_system(vehicle[0])
+        self.session.lock(vehicle, time.monotonic())
         log.info("locked onto the autopilot: system %d, component %d", *vehicle)
         self._statustext("start", f"mavattitude {__version__}: attitude from {self._input_name}", "info")
-        self._requests.ask_now(time.monotonic())
-        self._next_heartbeat = time.monotonic()  # announce ourselves under the vehicle's id at once
 
     @staticmethod
     def _stream_requests(config: Config) -> list[StreamRequest]:
@@ -368,17 +348,8 @@ class AttitudeService:
             streams.append(StreamRequest(ATTITUDE_MESSAGE, message_id(ATTITUDE_MESSAGE), rate_hz, optional=True))
         return streams
 
-    def _request_streams(self, now: float) -> None:
-        """Ask for every stream when the schedule says so (it is started on locking on)."""
-        vehicle = self.vehicle
-        for stream in self._requests.due(now) if vehicle is not None else ():
-            if self.link.request_message_interval(vehicle, stream.message_id, stream.rate_hz):
-                self.counters.interval_requests += 1
-                self._pending.sent(stream, now)
-
     def on_message(self, msg: Any, t_rx: float) -> None:
-        if msg.get_type() == "COMMAND_ACK":
-            self._on_ack(msg)
+        self.session.on_message(msg, time.monotonic())
 
     def on_autopilot_attitude(self, attitude: AutopilotAttitude, t_rx: float) -> None:
         if self._xcheck is not None:
@@ -415,36 +386,6 @@ class AttitudeService:
         stamp = units.time_boot_ms(d.time_s)
         for name, value in zip(CROSSCHECK_NAMES, (d.roll_deg, d.pitch_deg, d.yaw_deg, d.total_deg), strict=True):
             self.link.send_named_value_float(stamp, name, value)
-
-    def _on_ack(self, msg: Any) -> None:
-        result = self.link.interval_ack_result(msg)
-        if result is None or not self.link.addressed_to_us(msg):
-            return
-        request = self._pending.answered(time.monotonic())
-        if request is None:
-            self.counters.acks_unmatched += 1
-            return
-        self.counters.acks[result] = self.counters.acks.get(result, 0) + 1
-        self._say_answer(request, result)
-
-    def _say_answer(self, request: StreamRequest, result: str) -> None:
-        """Log the autopilot's answer to a stream request, once per stream and answer (no flip-flop)."""
-        if (request.name, result) in self._answers_said:
-            return
-        self._answers_said.add((request.name, result))
-        if result == "ACCEPTED":
-            log.info("autopilot accepted %s", request.describe())
-        elif request.optional:
-            log.info("autopilot answered SET_MESSAGE_INTERVAL(%s) with %s: going without", request.describe(), result)
-        elif result == "TIMEOUT":
-            log.warning("no COMMAND_ACK for SET_MESSAGE_INTERVAL(%s) within %.0f s", request.describe(), ACK_TIMEOUT_S)
-        else:
-            log.warning(
-                "autopilot answered SET_MESSAGE_INTERVAL(%s) with %s; if it streams the message by itself, "
-                "set link.request_messages: false",
-                request.describe(),
-                result,
-            )
 
     def _check_rate(self, rate: RateMonitor, now: float) -> None:
         turned = rate.update(now)
@@ -523,8 +464,7 @@ class AttitudeService:
         self._statustext("input_lost", text, "warning", log_it=False)
         if self._rate is not None:
             self._rate.restart()
-        if self.vehicle is not None:
-            self._requests.ask_now(time.monotonic())  # a rebooted autopilot has forgotten our request: ask now
+        self.session.ask_now(time.monotonic())  # a rebooted autopilot has forgotten our request: ask now
 
     def _reject(self, reason: str, exc: BaseException, counted: bool = False) -> None:
         if not counted:

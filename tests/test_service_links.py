@@ -45,7 +45,7 @@ def _ack(peer: Peer, target: tuple[int, int] = (1, 191), result: int = mavlink2.
 
 
 def test_each_ack_is_matched_to_the_request_it_answers(caplog):
-    caplog.set_level(logging.INFO, logger="mavattitude.service")
+    caplog.set_level(logging.INFO, logger="mavattitude.link.session")
     service, link = _service(**{"reference.magnetic": "auto"})  # asks for RAW_IMU, the position and the time
     vehicle = Peer()
     link.deliver(vehicle.heartbeat())

@@ -29,7 +29,8 @@ from mavattitude.commands._offline import Progress
 from mavattitude.config import DEFAULTS
 from mavattitude.errors import CalibrationError
 from mavattitude.files import LOG_SUFFIXES, MAG_COLUMNS, read_columns
-from mavattitude.link.requests import RequestSchedule, StreamRequest
+from mavattitude.link.requests import StreamRequest
+from mavattitude.link.session import LinkSession
 from mavattitude.sensors import magfit, units
 from mavattitude.sensors.calibration import mag_block
 
@@ -213,38 +214,27 @@ def _log_samples(path: Path, args: argparse.Namespace) -> Iterator[units.ImuSamp
 
 
 class _Live(_Skipped):
-    """The live link's periodic work while collecting, as the service does it: our HEARTBEAT as often (as an
-    onboard computer, under the autopilot's system id once locked on), and the IMU message requested with
-    SET_MESSAGE_INTERVAL on the service's schedule (:class:`RequestSchedule`: at once on locking on, then
-    every ``REQUEST_REPEAT_S``); until ``duration_s`` is over."""
+    """The live link's upkeep while collecting, the service's :class:`LinkSession`: our HEARTBEAT (as an
+    onboard computer, under the autopilot's system id once locked on), the IMU message requested with
+    SET_MESSAGE_INTERVAL (at once on locking on, then every ``REQUEST_REPEAT_S``) and its answer said; until
+    ``duration_s`` is over."""
 
     def __init__(self, link: MavlinkLink, request: StreamRequest, duration_s: float) -> None:
-        from mavattitude.service import HEARTBEAT_PERIOD_S
-
-        self.heartbeat_s = HEARTBEAT_PERIOD_S
-        self.link = link
-        self.requests = RequestSchedule([request], REQUEST_REPEAT_S)
         now = time.monotonic()
-        self.deadline, self.next_heartbeat = now + duration_s, now
+        self.request = request
+        self.session = LinkSession(link, [request], REQUEST_REPEAT_S, now)
+        self.deadline = now + duration_s
 
     def on_lock(self, vehicle: tuple[int, int]) -> None:
-        self.link.set_source_system(vehicle[0])
-        self.next_heartbeat = time.monotonic()
-        self.requests.ask_now(self.next_heartbeat)
-        log.info(
-            "locked onto the autopilot at system %d, component %d; asking for %s",
-            *vehicle,
-            self.requests.streams[0].name,
-        )
+        self.session.lock(vehicle, time.monotonic())
+        log.info("locked onto the autopilot at system %d, component %d; asking for %s", *vehicle, self.request.name)
+
+    def on_message(self, msg: Any, t_rx: float) -> None:
+        self.session.on_message(msg, time.monotonic())
 
     def __call__(self, dispatcher: Dispatcher) -> bool:
         now = time.monotonic()
-        if now >= self.next_heartbeat:
-            self.next_heartbeat = now + self.heartbeat_s
-            self.link.send_heartbeat()
-        vehicle = dispatcher.vehicle
-        for stream in self.requests.due(now) if vehicle is not None else ():
-            self.link.request_message_interval(vehicle, stream.message_id, stream.rate_hz)
+        self.session.tick(now)
         return now < self.deadline
 
 

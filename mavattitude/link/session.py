@@ -1,0 +1,117 @@
+"""Our side of the MAVLink conversation with the autopilot, kept by one object the loop ticks.
+
+:class:`LinkSession` sends our HEARTBEAT every ``HEARTBEAT_PERIOD_S`` (at once on locking on, under the
+vehicle's system id), asks for the streams with MAV_CMD_SET_MESSAGE_INTERVAL on their schedule (on locking,
+every ``repeat_s``, at once after a reconnect or when told: a rebooted autopilot has forgotten them), and
+matches each COMMAND_ACK to the request it answers (:class:`~.requests.PendingRequests`), saying each
+stream's answer, or its absence, once. ``tick(now)`` does what is due; the service and live ``calibrate``
+keep one each.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any
+
+from mavattitude.link.connection import MavlinkLink
+from mavattitude.link.requests import PendingRequests, RequestSchedule, StreamRequest
+from mavattitude.link.source import Sender
+from mavattitude.periodic import Every
+
+log = logging.getLogger(__name__)
+
+HEARTBEAT_PERIOD_S = 1.0
+ACK_TIMEOUT_S = 2.0
+ACK_FORGET_S = 10.0  # an unanswered request still matches a late ACK for this long
+
+
+@dataclass
+class RequestCounters:
+    """What was asked and answered (the service's counters extend these)."""
+
+    interval_requests: int = 0
+    acks: dict[str, int] = field(default_factory=dict)  # SET_MESSAGE_INTERVAL results by name (of our requests)
+    ack_timeouts: int = 0
+    acks_unmatched: int = 0  # ACKs of SET_MESSAGE_INTERVAL addressed to us with no request of ours waiting
+
+
+class LinkSession:
+    """Heartbeat, stream requests and ACK matching on ``link`` (see the module docstring)."""
+
+    def __init__(
+        self,
+        link: MavlinkLink,
+        streams: list[StreamRequest],
+        repeat_s: float,
+        now: float,
+        counters: RequestCounters | None = None,
+    ) -> None:
+        self.link = link
+        self.counters = counters if counters is not None else RequestCounters()
+        self.vehicle: Sender | None = None
+        self._heartbeat = Every(HEARTBEAT_PERIOD_S, now)
+        self._requests = RequestSchedule(streams, repeat_s)
+        self._pending = PendingRequests(ACK_TIMEOUT_S, ACK_FORGET_S)
+        self._answers_said: set[tuple[str, str]] = set()  # (stream, result) logged once each
+        self._reconnects_seen = 0
+
+    def lock(self, vehicle: Sender, now: float) -> None:
+        """Locked onto ``vehicle``: speak as its system, announce ourselves and ask for the streams at once."""
+        self.vehicle = vehicle
+        self.link.set_source_system(vehicle[0])
+        self._heartbeat.at_once(now)
+        self._requests.ask_now(now)
+
+    def ask_now(self, now: float) -> None:
+        """Ask for the streams at the next tick (a rebooted autopilot has forgotten them)."""
+        if self.vehicle is not None:
+            self._requests.ask_now(now)
+
+    def tick(self, now: float) -> None:
+        if self._heartbeat.due(now):
+            self.link.send_heartbeat()
+        if self.link.counters.reconnects != self._reconnects_seen:
+            self._reconnects_seen = self.link.counters.reconnects
+            self.ask_now(now)  # a new connection: the autopilot may have lost our requests
+        vehicle = self.vehicle
+        for stream in self._requests.due(now) if vehicle is not None else ():
+            if self.link.request_message_interval(vehicle, stream.message_id, stream.rate_hz):
+                self.counters.interval_requests += 1
+                self._pending.sent(stream, now)
+        for request in self._pending.timed_out(now):
+            self.counters.ack_timeouts += 1
+            self._say_answer(request, "TIMEOUT")
+
+    def on_message(self, msg: Any, now: float) -> None:
+        """A message from the vehicle: a COMMAND_ACK of SET_MESSAGE_INTERVAL addressed to us is matched."""
+        if msg.get_type() != "COMMAND_ACK":
+            return
+        result = self.link.interval_ack_result(msg)
+        if result is None or not self.link.addressed_to_us(msg):
+            return
+        request = self._pending.answered(now)
+        if request is None:
+            self.counters.acks_unmatched += 1
+            return
+        self.counters.acks[result] = self.counters.acks.get(result, 0) + 1
+        self._say_answer(request, result)
+
+    def _say_answer(self, request: StreamRequest, result: str) -> None:
+        """Log the autopilot's answer to a stream request, once per stream and answer (no flip-flop)."""
+        if (request.name, result) in self._answers_said:
+            return
+        self._answers_said.add((request.name, result))
+        if result == "ACCEPTED":
+            log.info("autopilot accepted %s", request.describe())
+        elif request.optional:
+            log.info("autopilot answered SET_MESSAGE_INTERVAL(%s) with %s: going without", request.describe(), result)
+        elif result == "TIMEOUT":
+            log.warning("no COMMAND_ACK for SET_MESSAGE_INTERVAL(%s) within %.0f s", request.describe(), ACK_TIMEOUT_S)
+        else:
+            log.warning(
+                "autopilot answered SET_MESSAGE_INTERVAL(%s) with %s; if it streams the message by itself, "
+                "set link.request_messages: false",
+                request.describe(),
+                result,
+            )
