@@ -7,7 +7,8 @@
   everything before the lock) is ignored and counted. A log written by the autopilot itself names its
   vehicle (``source.vehicle``) and is locked onto from the start;
 - routes the vehicle's items: IMU samples into the pipeline (its outputs to the listener), positions to
-  the pipeline's magnetic reference (``wants_position``: ``reference.magnetic: auto``), the autopilot's attitude and any
+  the pipeline's magnetic reference (``wants_position``: ``reference.magnetic: auto``), the GPS receiver's
+  velocities to the pipeline (the fused filter's acceleration), the autopilot's attitude and any
   other message to the listener; an undecodable input message or a pipeline failure is counted as a
   reject and told to the listener, and the next sample goes on.
 
@@ -28,7 +29,7 @@ from numpy.typing import NDArray
 from mavattitude.errors import MavAttitudeError
 from mavattitude.link.source import AutopilotAttitude, Heartbeat, PositionFix, Received, Sender, Undecodable, locks_on
 from mavattitude.pipeline import Pushed
-from mavattitude.sensors.units import ImuSample
+from mavattitude.sensors.units import GpsVelocity, ImuSample
 
 log = logging.getLogger(__name__)
 
@@ -54,6 +55,8 @@ class SampleSink(Protocol):
     def push(self, sample: ImuSample) -> Pushed: ...
 
     def set_position(self, lat_deg: float, lon_deg: float, alt_m: float, when: Any = None) -> bool: ...
+
+    def set_velocity(self, velocity: GpsVelocity) -> None: ...
 
 
 class Listener(Protocol):
@@ -117,6 +120,10 @@ class Dispatcher:
         elif kind is PositionFix:
             if self.wants_position:
                 self._on_position(item)
+            if item.velocity is not None:
+                self.pipeline.set_velocity(item.velocity)
+        elif kind is GpsVelocity:
+            self.pipeline.set_velocity(item)
         elif kind is Undecodable:
             self.undecodable(item.error)
         elif kind is not Heartbeat and item is not None:

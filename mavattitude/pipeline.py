@@ -69,7 +69,7 @@ from mavattitude.sensors.frontend import (
     process_batch,
 )
 from mavattitude.sensors.magref import ReferenceTracker
-from mavattitude.sensors.units import ImuSample
+from mavattitude.sensors.units import GpsVelocity, ImuSample
 
 log = logging.getLogger(__name__)
 
@@ -179,6 +179,10 @@ class Estimator(Protocol):
         """The estimator's own counters since the start (name → number), for the counters line."""
         ...
 
+    def velocity(self, velocity: GpsVelocity) -> None:
+        """The GPS receiver's velocity, received after the last sample (what uses it: the fused filter)."""
+        ...
+
 
 def _noise_model(config: Config) -> NoiseModel:
     return NoiseModel(accel_std=config.noise.accel_std_mps2, mag_std=config.noise.mag_std_uT)
@@ -202,6 +206,9 @@ class SnapshotEstimator:
 
     def counters(self) -> dict[str, float]:
         return {}
+
+    def velocity(self, velocity: GpsVelocity) -> None:
+        """A snapshot has no time to difference a velocity over: unused."""
 
     def _noise_for(self, acc_scale: float, mag_scale: float) -> NoiseModel:
         """The noise model with the front end's down-weighting (few distinct scales: cached)."""
@@ -312,6 +319,10 @@ class FusedEstimator:
             x, y, z = self._filter.mag_offset_uT.tolist()
             out |= {"mag_offset_x_uT": x, "mag_offset_y_uT": y, "mag_offset_z_uT": z}
         return out
+
+    def velocity(self, velocity: GpsVelocity) -> None:
+        if self._filter is not None:
+            self._filter.set_velocity(velocity)
 
     def estimate(self, sample: ProcessedSample, mag_ref_ned_uT: Array) -> list[AttitudeOutput]:
         if self._filter is None:
@@ -485,6 +496,10 @@ class AttitudePipeline:
             self._estimate(tick, pushed)
         return pushed
 
+    def set_velocity(self, velocity: GpsVelocity) -> None:
+        """The GPS receiver's own velocity, received after the last sample (the fused filter's acceleration)."""
+        self.estimator.velocity(velocity)
+
     def push_batch(
         self,
         time_s: Array,
@@ -495,6 +510,7 @@ class AttitudePipeline:
         time_wrap_s: float | None = None,
         reference_after_s: float = -math.inf,
         mag_repeats: bool = False,
+        gps: tuple[Array, list[GpsVelocity]] = (np.empty(0), []),
     ) -> Pushed:
         """:meth:`push` for a whole run of samples at once: what ``push`` gives fed them one by one, as one value.
 
@@ -504,7 +520,8 @@ class AttitudePipeline:
         set now, for every tick after ``reference_after_s`` (the ticks up to it wait, as before a position), or,
         with none set, the field the ticks measure (:meth:`_measure_reference`, the same rule as one by one);
         ``mag_new`` marks rows with a new magnetometer reading, ``mag_repeats`` that the messages repeat the newest
-        one (:attr:`~mavattitude.sensors.units.ImuSample.mag_repeats`).
+        one (:attr:`~mavattitude.sensors.units.ImuSample.mag_repeats`). ``gps``: the receiver's velocities and the
+        times they are handed in at, each before the first tick at or after its time, as :meth:`set_velocity`.
         """
         fe = self.frontend
         inputs = (fe.settings, time_s, acc_mps2, gyr_radps, mag_uT)
@@ -520,8 +537,13 @@ class AttitudePipeline:
         reference = self.mag_ref_ned_uT
         if reference is not None and self.compass.settings.enabled:
             pushed.compass = self._judge_compass_rows(batch, batch.time_s > reference_after_s)
+        gps_t, velocities = gps[0].tolist(), gps[1]
+        next_gps = 0
         with _collector_paused():
             for tick in batch.samples():
+                while next_gps < len(gps_t) and gps_t[next_gps] <= tick.time_s:
+                    self.estimator.velocity(velocities[next_gps])
+                    next_gps += 1
                 self.counters.ticks += 1
                 self.mag_ref_ned_uT = reference if tick.time_s > reference_after_s else None
                 self._estimate(tick, pushed, judge=False)

@@ -180,7 +180,15 @@ def _replay_arrays(s: LogStreams, result: Replayed, vehicle: Sender) -> Replayed
     mag = np.full((len(carried), 3), np.nan)
     mag[carried >= 0] = s.mag_uT[carried[carried >= 0]]
     pushed = pipeline.push_batch(
-        s.imu_t_s, s.acc_mps2, s.gyr_radps, mag, carried >= 0, s.time_wrap_s, reference_after_s, s.mag_repeats
+        s.imu_t_s,
+        s.acc_mps2,
+        s.gyr_radps,
+        mag,
+        carried >= 0,
+        s.time_wrap_s,
+        reference_after_s,
+        s.mag_repeats,
+        (s.gps_t_s, s.gps_velocity),
     )
     result.outputs, result.compass = pushed.outputs, pushed.compass
     counters.received += len(s.imu_t_s)

@@ -13,8 +13,9 @@ service is the dispatcher's listener. What it does on the link:
 - sends its own HEARTBEAT at 1 Hz as the vehicle's system id (an onboard controller, component
   ``link.component_id``). Until it has locked on in automatic mode it has no id to use and sends as
   system 1 (never 255), so that a ``udpout`` peer learns where we are and starts talking;
-- asks for the input (and the position and SYSTEM_TIME's GPS date, with ``reference.magnetic: auto``) with
-  MAV_CMD_SET_MESSAGE_INTERVAL on locking, every ``request_repeat_s``, and as soon as the link (re)opens
+- asks for the input (and the position and SYSTEM_TIME's GPS date, with ``reference.magnetic: auto``;
+  GPS_RAW_INT, the receiver's velocity, with the fused filter) with MAV_CMD_SET_MESSAGE_INTERVAL on locking,
+  every ``request_repeat_s``, and as soon as the link (re)opens
   (unless ``request_messages`` is off); each COMMAND_ACK is matched to the request it answers
   (:mod:`mavattitude.link.requests`), and each stream's answer (or its absence) is said once;
 - cross-checks the autopilot (``crosscheck:``): asks for its ATTITUDE, pairs it with our output by vehicle
@@ -57,6 +58,7 @@ from mavattitude import __version__, alive
 from mavattitude.config import Config
 from mavattitude.dispatch import Dispatcher
 from mavattitude.errors import DegenerateGeometryError
+from mavattitude.estimation import METHODS
 from mavattitude.estimation.compass import CompassEvent
 from mavattitude.estimation.crosscheck import CrossCheck
 from mavattitude.link import MavlinkLink, load_signing_key, message_id
@@ -79,6 +81,9 @@ DEGENERATE = DegenerateGeometryError.__name__  # the pipeline's reject reason fo
 POSITION_MESSAGE = "GLOBAL_POSITION_INT"
 POSITION_RATE_HZ = 1.0
 TIME_MESSAGE = "SYSTEM_TIME"
+# The fused filter's GPS velocity: the receiver's own, at the 5 Hz most receivers give (a faster stream repeats fixes)
+GPS_VELOCITY_MESSAGE = "GPS_RAW_INT"
+GPS_VELOCITY_RATE_HZ = 5.0
 TIME_RATE_HZ = 0.2
 ATTITUDE_MESSAGE = "ATTITUDE"
 CROSSCHECK_NAMES = ("xc_roll", "xc_pitch", "xc_yaw", "xc_total")  # NAMED_VALUE_FLOAT: ≤ 10 characters
@@ -335,7 +340,8 @@ class AttitudeService:
 
     @staticmethod
     def _stream_requests(config: Config) -> list[StreamRequest]:
-        """What to ask the autopilot to stream: the input, and the position for the WMM (when asked to ask)."""
+        """What to ask the autopilot to stream: the input, the position for the WMM and the GPS velocity for the
+        fused filter (when asked to ask)."""
         if not config.link.request_messages:
             return []
         streams = [StreamRequest(config.input.message, message_id(config.input.message), config.link.request_rate_hz)]
@@ -343,6 +349,11 @@ class AttitudeService:
             streams.append(StreamRequest(POSITION_MESSAGE, message_id(POSITION_MESSAGE), POSITION_RATE_HZ))
             # the GPS date for the magnetic model (the companion's clock may be wrong until NTP)
             streams.append(StreamRequest(TIME_MESSAGE, message_id(TIME_MESSAGE), TIME_RATE_HZ, optional=True))
+        if METHODS[config.estimator.method].uses_gps_velocity and config.estimator.fused.gps_max_accel_mps2 > 0.0:
+            rate_hz = GPS_VELOCITY_RATE_HZ  # optional: a vehicle without GPS flies without it
+            streams.append(
+                StreamRequest(GPS_VELOCITY_MESSAGE, message_id(GPS_VELOCITY_MESSAGE), rate_hz, optional=True)
+            )
         if config.crosscheck.enabled:
             rate_hz = config.crosscheck.attitude_rate_hz
             streams.append(StreamRequest(ATTITUDE_MESSAGE, message_id(ATTITUDE_MESSAGE), rate_hz, optional=True))

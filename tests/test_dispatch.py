@@ -219,3 +219,23 @@ def test_the_configured_system_id_is_followed_and_nothing_requested():
     assert service.counters.ignored == 11 and service.counters.received == 100
     assert sent(link, "ATTITUDE_QUATERNION") and all(m.get_srcSystem() == 5 for m in link.sent())
     assert service.counters.interval_requests == 0 and not sent(link, "COMMAND_LONG")
+
+
+def test_the_fused_service_asks_for_the_gps_velocity_and_removes_its_acceleration():
+    """With ``method: fused`` the service asks for GPS_RAW_INT at 5 Hz, and the receiver's velocity reaches the
+    filter whether or not the position is wanted (``reference.magnetic`` is fixed here): still, at 0 m/s."""
+    config = make_config(**{"estimator.method": "fused"})
+    link = MemoryLink()
+    service = AttitudeService(config, link, AttitudePipeline(config), SystemdNotifier(environ={}))
+    vehicle = Peer()
+    link.deliver(vehicle.heartbeat())
+    for _ in range(6):  # 1.2 s at 200 Hz, a fix every 0.2 s, sent 0.1 s after it (ArduPilot: µs since boot)
+        link.deliver(*vehicle.stream(40))
+        time_usec = round((vehicle.time_s - 0.1) * 1e6)
+        link.deliver(vehicle.pack(mavlink2.MAVLink_gps_raw_int_message(time_usec, 3, 0, 0, 0, 80, 90, 0, 0, 10)))
+    serve(service, link)
+    asked = {(c.param1, c.param2) for c in sent(link, "COMMAND_LONG")}
+    assert (mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT, 1e6 / 5.0) in asked
+    counters = service.pipeline.estimator.counters()
+    # the first fix has nothing to difference: from the second (0.4 s in) to the end (1.2 s) 0.8 s of 50 Hz updates
+    assert counters["gps_updates"] == 40 and counters["gps_refused"] == 0

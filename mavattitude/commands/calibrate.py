@@ -158,6 +158,9 @@ class _Readings:
     def set_position(self, lat_deg: float, lon_deg: float, alt_m: float, when: Any = None) -> bool:
         return False
 
+    def set_velocity(self, velocity: units.GpsVelocity) -> None:
+        """Nothing is estimated here."""
+
 
 class _Skipped:
     """The dispatcher's listener in calibrate: says what it skipped, nothing else."""

@@ -4,7 +4,8 @@ A snapshot method (the rows of the kernel's table, :data:`.kernel.RULES`: ``ign`
 solves Wahba's problem once per tick from the accelerometer and magnetometer (:func:`.solve`,
 :func:`.solve_batch`), with the sensors' σ of the config's ``noise:``. ``fused``, the gyro-aided filter of
 :mod:`.fused`, needs the gyroscope, takes its σ from its own section ``estimator.fused`` (the config refuses
-a ``noise:`` with it), learns a hard-iron offset, and names its counters ``fused.*``. Code elsewhere asks
+a ``noise:`` with it), learns a hard-iron offset, takes the vehicle's acceleration from the GPS velocity, and
+names its counters ``fused.*``. Code elsewhere asks
 these rows, never compares a method's name.
 """
 
@@ -25,6 +26,7 @@ class Method:
     settings_section: str | None = None  # its own config section; its σ replace the sensors' ``noise:``
     counters_prefix: str | None = None  # its own counters in the counters line are ``PREFIX.name``
     learns_mag_offset: bool = False  # it estimates a hard-iron offset (``solve --save-mag-offset``)
+    uses_gps_velocity: bool = False  # it takes the vehicle's acceleration from the GPS receiver's velocity
 
     @property
     def sensor_noise(self) -> bool:
@@ -42,6 +44,7 @@ METHODS: dict[str, Method] = {
         settings_section="estimator.fused",
         counters_prefix="fused",
         learns_mag_offset=True,
+        uses_gps_velocity=True,
     ),
 }
 SNAPSHOT_METHODS = tuple(name for name, m in METHODS.items() if m.snapshot)

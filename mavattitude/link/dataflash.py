@@ -119,7 +119,7 @@ def _unindexed(df: Any, size: int) -> str | None:
 
 
 def read_dataflash(path: str | Path, imu_instance: int = 0, mag_instance: int = 0) -> LogStreams:
-    """The IMU (instance ``imu_instance``), magnetometer, ATT and POS streams of a DataFlash log, SI."""
+    """The IMU (instance ``imu_instance``), magnetometer, ATT, POS and GPS velocity streams of a DataFlash log, SI."""
     path = Path(path)
     reader = _Reader(path)
     imu_name, imu_table = reader.instance("IMU", imu_instance)
@@ -134,11 +134,21 @@ def read_dataflash(path: str | Path, imu_instance: int = 0, mag_instance: int = 
         att_t, att_q = du.attitude(att) if att else (np.empty(0), np.empty((0, 4)))
         pos = reader.table("POS")
         pos_t, positions = du.position(pos) if pos else (np.empty(0), empty3)
+        gps_t, gps_velocity = _gps_velocity(reader)
     except KeyError as exc:
         raise DataFileError(f"{path}: a record lacks a field replay reads: {exc}") from exc
     streams = LogStreams(t, acc, gyr, mag_t, mag, att_t, att_q, pos_t, positions, _date(reader), wrap, reader.damage)
     streams.check(str(path), imu_name, mag_name)
+    streams.gps_t_s, streams.gps_velocity = gps_t, gps_velocity
     return streams
+
+
+def _gps_velocity(reader: _Reader) -> tuple[np.ndarray, list[Any]]:
+    """The first GPS receiver's velocities (instance 0), if the log has them."""
+    _, gps = reader.instance("GPS", 0)
+    if not gps or not all(k in gps for k in ("Spd", "GCrs", "VZ", "Status", "NSats")):
+        return np.empty(0), []
+    return du.gps_velocity(gps)
 
 
 def _date(reader: _Reader) -> Any:

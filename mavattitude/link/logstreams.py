@@ -10,7 +10,8 @@ order:
   front end holds the last one, as it does for a live IMU message without a new magnetometer). A slower
   magnetometer is thus held, never interpolated towards a reading that comes later; an all-zero reading
   is no reading, as in MAVLink's integer messages;
-- the autopilot's attitude and the positions (with the log's date, for the World Magnetic Model).
+- the autopilot's attitude and the positions (with the log's date, for the World Magnetic Model);
+- the GPS receiver's velocities (:class:`~mavattitude.estimation.velocity.GpsVelocity`), for the fused filter.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import datetime as dt
 import functools
 import re
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -28,7 +29,7 @@ from numpy.typing import NDArray
 from mavattitude.errors import DataFileError
 from mavattitude.estimation.conventions import Array
 from mavattitude.link.source import AutopilotAttitude, PositionFix, Received, Sender
-from mavattitude.sensors.units import ImuSample, Position
+from mavattitude.sensors.units import GpsVelocity, ImuSample, Position
 
 #: The sender of every item from a log the autopilot wrote itself (DataFlash, ULog): it holds one vehicle.
 LOG_VEHICLE: Sender = (1, 1)
@@ -91,6 +92,10 @@ class LogStreams:
     #: the IMU messages repeat the newest magnetometer reading (:attr:`ImuSample.mag_repeats`: a telemetry log's
     #: integer messages); a DataFlash or ULog magnetometer stream has each reading once
     mag_repeats: bool = False
+    #: the GPS receiver's own velocities (never the autopilot's fused one), each at the vehicle time it is handed
+    #: in at (before the IMU sample at or after it), in time order
+    gps_t_s: Array = field(default_factory=lambda: np.empty(0))
+    gps_velocity: list[GpsVelocity] = field(default_factory=list)
 
     def carried_mag(self) -> NDArray[np.int64]:
         """Which magnetometer row each IMU sample carries, -1 where none."""
@@ -140,15 +145,16 @@ class StreamSource:
 
     @functools.cached_property
     def _items(self) -> tuple[list[float], list[int], list[int]]:
-        """Every item's time, kind (0 position, 1 IMU sample, 2 attitude) and row, in time order; at equal
-        times a position first, the autopilot's attitude after the sample. Built at the first recv: a
-        reader that takes the arrays (replay) never pays for it."""
+        """Every item's time, kind (0 position, 1 IMU sample, 2 attitude, 3 GPS velocity) and row, in time
+        order; at equal times a position and a velocity first, the autopilot's attitude after the sample.
+        Built at the first recv: a reader that takes the arrays (replay) never pays for it."""
         s = self.streams
-        times = np.concatenate([s.position_t_s, s.imu_t_s, s.attitude_t_s])
-        counts = (len(s.position_t_s), len(s.imu_t_s), len(s.attitude_t_s))
-        kinds = np.repeat(np.arange(3, dtype=np.int8), counts)
+        times = np.concatenate([s.position_t_s, s.imu_t_s, s.attitude_t_s, s.gps_t_s])
+        counts = (len(s.position_t_s), len(s.imu_t_s), len(s.attitude_t_s), len(s.gps_t_s))
+        kinds = np.repeat(np.arange(4, dtype=np.int8), counts)
+        order_key = np.repeat(np.array([0, 1, 2, 0], dtype=np.int8), counts)  # a velocity before the sample
         index = np.concatenate([np.arange(n) for n in counts])
-        order = np.lexsort((kinds, times))
+        order = np.lexsort((order_key, times))
         return times[order].tolist(), kinds[order].tolist(), index[order].tolist()
 
     @functools.cached_property
@@ -194,6 +200,8 @@ class StreamSource:
                 out.append((t, vehicle, sample))
             elif kind == 2:
                 out.append((t, vehicle, AutopilotAttitude(t, tuple(s.attitude_q[i].tolist()))))
+            elif kind == 3:
+                out.append((t, vehicle, s.gps_velocity[i]))
             else:
                 lat, lon, alt = s.position[i].tolist()
                 out.append((t, vehicle, PositionFix(Position(lat, lon, alt), s.date)))

@@ -5,7 +5,9 @@ A :class:`MessageSource` hands out what arrived as ``(t_rx, sender, item)`` trip
 ``sender`` the MAVLink ``(system, component)``, and ``item`` one decoded event:
 
 - :class:`~mavattitude.sensors.units.ImuSample`: an IMU reading in SI units, the vehicle's sample time;
-- :class:`PositionFix`: a vehicle position (for the World Magnetic Model), with the log's date if known;
+- :class:`PositionFix`: a vehicle position (for the World Magnetic Model), with the log's date if known, and
+  from GPS_RAW_INT the receiver's velocity;
+- :class:`~mavattitude.estimation.velocity.GpsVelocity`: a receiver's velocity on its own (DataFlash GPS, ULog);
 - :class:`AutopilotAttitude`: the autopilot's own attitude estimate, to compare with;
 - :class:`Heartbeat`: whether the sender is an autopilot (what the dispatcher locks onto);
 - :class:`Undecodable`: an input message whose fields could not be turned into a sample;
@@ -56,6 +58,7 @@ class PositionFix:
 
     position: units.Position
     date: dt.date | None = None
+    velocity: units.GpsVelocity | None = None  # the receiver's own (GPS_RAW_INT), never a fused one
 
 
 @dataclass(frozen=True, slots=True)
@@ -143,14 +146,15 @@ class MavlinkDecoder:
     def _system_time(self, msg: Message) -> None:
         self.vehicle_date = units.decode_utc_date(msg) or self.vehicle_date
 
-    def _position(self, msg: Message) -> PositionFix | None:
+    def _position(self, msg: Message) -> PositionFix | units.GpsVelocity | None:
         self.vehicle_date = units.decode_utc_date(msg) or self.vehicle_date
         position = units.decode_position(msg)
+        velocity = units.decode_gps_velocity(msg) if msg.get_type() == "GPS_RAW_INT" else None
         if position is None:
-            return None
+            return velocity
         if self.vehicle_date is not None:
-            return PositionFix(position, self.vehicle_date)
-        return PositionFix(position, self.date_of(msg) if self.date_of is not None else None)
+            return PositionFix(position, self.vehicle_date, velocity)
+        return PositionFix(position, self.date_of(msg) if self.date_of is not None else None, velocity)
 
 
 def _heartbeat(msg: Message) -> Heartbeat:

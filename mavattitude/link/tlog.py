@@ -277,9 +277,14 @@ class TlogSource:
         if name in units.POSITION_MESSAGES:
             valid, position = units.decode_position_columns(name, f)
             dates = self._dates(table)
+            moving, velocities = (
+                units.decode_gps_velocity_columns(f) if name == "GPS_RAW_INT" else (valid & False, [None] * len(valid))
+            )
             return [
-                PositionFix(units.Position(*p), d) if ok else None
-                for ok, p, d in zip(valid.tolist(), position.tolist(), dates, strict=True)
+                PositionFix(units.Position(*p), d, v if m else None) if ok else (v if m else None)
+                for ok, p, d, m, v in zip(
+                    valid.tolist(), position.tolist(), dates, moving.tolist(), velocities, strict=True
+                )
             ]
         if name == self.decoder.message:
             try:
@@ -333,7 +338,12 @@ class TlogSource:
             carried = np.where(has_mag, np.cumsum(has_mag) - 1, -1)  # each message carries its own reading
         att_t, att_q = self._attitudes(tables)
         pos_t, pos, date = self._positions(tables, imu_index, t)
-        return LogStreams(t, acc, gyr, mag_t, mag, att_t, att_q, pos_t, pos, date, wrap, self.damage, carried, repeats)
+        streams = LogStreams(
+            t, acc, gyr, mag_t, mag, att_t, att_q, pos_t, pos, date, wrap, self.damage, carried, repeats
+        )
+        if "GPS_RAW_INT" in tables:
+            streams.gps_t_s, streams.gps_velocity = _velocities(tables["GPS_RAW_INT"], imu_index, t)
+        return streams
 
     def _imu_columns(self, table: _Table, follower: Follower) -> units.ImuColumns | None:
         """The vehicle's IMU messages decoded; what cannot be is counted on ``follower``, as the dispatcher counts
@@ -374,8 +384,7 @@ class TlogSource:
         order = np.argsort(index, kind="stable")
         index = index[order]
         position = np.concatenate([p[v] for _, v, p in parts])[order]
-        after = np.searchsorted(imu_index, index)  # the samples before each position
-        pos_t = np.append(imu_t, np.inf)[after]
+        pos_t = _at_next_sample(index, imu_index, imu_t)
         t_rx = np.concatenate([t.t_rx[v] for t, v, _ in parts])[order]
         date = self._date_at(int(index[0]), float(t_rx[0])) if len(index) else None
         return pos_t, position, date
@@ -405,6 +414,21 @@ class TlogSource:
 
     def _dates(self, table: _Table) -> list[dt.date]:
         return [self._date_at(i, t) for i, t in zip(table.index.tolist(), table.t_rx.tolist(), strict=True)]
+
+
+def _at_next_sample(index: NDArray[np.int64], imu_index: NDArray[np.int64], imu_t: NDArray[np.float64]) -> Any:
+    """The time of the first IMU sample after each record at ``index``: what it is handed in before."""
+    return np.append(imu_t, np.inf)[np.searchsorted(imu_index, index)]
+
+
+def _velocities(
+    table: _Table, imu_index: NDArray[np.int64], imu_t: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], list[units.GpsVelocity]]:
+    """The receiver's velocities of the GPS_RAW_INT rows that carry one, each at the next IMU sample's time."""
+    valid, velocities = units.decode_gps_velocity_columns(table.fields)
+    return _at_next_sample(table.index[valid], imu_index, imu_t), [
+        v for v, ok in zip(velocities, valid.tolist(), strict=True) if ok
+    ]
 
 
 def _utc_date(unix_s: float) -> dt.date:

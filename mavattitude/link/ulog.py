@@ -44,7 +44,8 @@ def _topic(ulog: Any, name: str, instance: int = 0) -> dict[str, np.ndarray] | N
 
 
 def read_ulog(path: str | Path, imu_instance: int = 0, mag_instance: int = 0) -> LogStreams:
-    """The IMU, magnetometer (instance ``mag_instance``), attitude and position streams of a ULog file, SI."""
+    """The IMU, magnetometer (instance ``mag_instance``), attitude, position and GPS velocity streams of a ULog
+    file, SI."""
     path = Path(path)
     ulog = _open(path)
     empty3 = np.empty((0, 3))
@@ -63,11 +64,14 @@ def read_ulog(path: str | Path, imu_instance: int = 0, mag_instance: int = 0) ->
             uu.attitude(vehicle_attitude) if vehicle_attitude is not None else (np.empty(0), np.empty((0, 4)))
         )
         pos_t, positions, date = _positions(ulog)
+        gps = _topic(ulog, "vehicle_gps_position")
+        gps_t, gps_velocity = uu.gps_velocity(gps) if gps is not None else (np.empty(0), [])
     except KeyError as exc:
         raise DataFileError(f"{path}: a topic lacks a field replay reads: {exc}") from exc
     damage = "damaged or cut off: pyulog skipped what it could not read" if ulog.file_corruption else None
     streams = LogStreams(t, acc, gyr, mag_t, mag, att_t, att_q, pos_t, positions, date, None, damage)
     streams.check(str(path), f"sensor_combined[{imu_instance}]", mag_name)
+    streams.gps_t_s, streams.gps_velocity = gps_t, gps_velocity
     return streams
 
 

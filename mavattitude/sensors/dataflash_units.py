@@ -13,7 +13,9 @@ IMU (IMU2, IMU3)     TimeUS | TimeMS     µs | ms         s (TimeMS: uint32, wra
 MAG (MAG2, MAG3)     MagX, MagY, MagZ    milligauss      µT (× 0.1)
 ATT                  Roll, Pitch, Yaw    degrees         rad → quaternion body → NED
 POS                  Lat, Lng, Alt       °, °, m AMSL    °, °, m
-GPS                  GWk, GMS            week, ms        the date (GPS epoch 1980-01-06)
+GPS                  GWk, GMS            week, ms        the date (GPS epoch 1980-01-06); the fix time, s
+                     Spd, GCrs, VZ       m/s, °, m/s     NED velocity, m/s (VZ positive down)
+                     Status, NSats       -               fix type, satellites
 ===================  ==================  ==============  ==========================
 
 New logs put every instance in one message with an ``I`` column; old ones (TimeMS era) have IMU2, MAG2, …
@@ -29,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mavattitude.estimation.conventions import Array, quat_from_euler
-from mavattitude.sensors.units import BOOT_MS_WRAP_S, MILLIGAUSS_UT
+from mavattitude.sensors.units import BOOT_MS_WRAP_S, MILLIGAUSS_UT, GpsVelocity
 
 Table = dict[str, NDArray]
 
@@ -41,6 +43,7 @@ MAG_FIELDS, MAG_SI = ("MagX", "MagY", "MagZ"), MILLIGAUSS_UT  # milligauss → �
 ATT_FIELDS, ATT_SI = ("Roll", "Pitch", "Yaw"), math.radians(1.0)  # degrees → rad
 POS_FIELDS = ("Lat", "Lng", "Alt")  # °, °, m once DFReader's multipliers are applied
 GPS_EPOCH = dt.date(1980, 1, 6)
+GPS_WEEK_S = 7 * 86_400.0
 
 
 def message_name(base: str, instance: int, table_has_instances: bool) -> str:
@@ -85,3 +88,22 @@ def position(table: Table) -> tuple[Array, Array]:
 def gps_date(week: int, ms_of_week: int) -> dt.date:
     """The date of a GPS week and millisecond of week (GPS time, leap seconds ignored: a date is enough)."""
     return GPS_EPOCH + dt.timedelta(days=7 * int(week) + int(ms_of_week) // 86_400_000)
+
+
+def gps_velocity(table: Table) -> tuple[Array, list[GpsVelocity]]:
+    """GPS records → times (s) and the receiver's velocities (NED m/s from speed, course and VZ), each with its
+    fix time (GPS week and ms, or the record's time without them), fix type and satellites."""
+    t = time_s(table)[0]
+    if "GWk" in table and "GMS" in table:
+        fix_t = np.asarray(table["GWk"], dtype=float) * GPS_WEEK_S + np.asarray(table["GMS"], dtype=float) * 1e-3
+    else:
+        fix_t = t
+    speed, course = np.asarray(table["Spd"], dtype=float), np.radians(np.asarray(table["GCrs"], dtype=float))
+    north, east = (speed * np.cos(course)).tolist(), (speed * np.sin(course)).tolist()
+    down = np.asarray(table["VZ"], dtype=float).tolist()
+    fix, sats = np.asarray(table["Status"]).tolist(), np.asarray(table["NSats"]).tolist()
+    rows = [
+        GpsVelocity(f_s, (n, e, d), True, int(k), int(m))
+        for f_s, n, e, d, k, m in zip(fix_t.tolist(), north, east, down, fix, sats, strict=True)
+    ]
+    return t, rows

@@ -15,6 +15,8 @@ vehicle_attitude           q[0..3]                              [w, x, y, z]    
 vehicle_gps_position       lat, lon | latitude_deg, ...         1e-7 ° | °      °
                            alt | altitude_msl_m                 mm | m          m AMSL
                            fix_type, time_utc_usec              -, µs (1970)    3D fix; the date
+                           vel_n_m_s, vel_e_m_s, vel_d_m_s      m/s             m/s NED (vel_ned_valid)
+                           satellites_used                      -               satellites
 vehicle_global_position    lat, lon, alt                        °, °, m         °, °, m AMSL
 =========================  ===================================  ==============  =====================
 
@@ -29,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mavattitude.estimation.conventions import Array
-from mavattitude.sensors.units import GAUSS_UT
+from mavattitude.sensors.units import GAUSS_UT, GpsVelocity
 
 Topic = dict[str, NDArray]
 
@@ -101,3 +103,18 @@ def global_position(topic: Topic) -> tuple[Array, Array]:
 def utc_date(time_utc_usec: int) -> dt.date:
     """The UTC date of a GPS receiver's µs since 1970."""
     return dt.datetime.fromtimestamp(int(time_utc_usec) * TIMESTAMP_S, dt.timezone.utc).date()
+
+
+def gps_velocity(topic: Topic) -> tuple[Array, list[GpsVelocity]]:
+    """vehicle_gps_position rows with a valid NED velocity → times (s) and the receiver's velocities (their fix
+    time the row's timestamp, on the vehicle clock), fix type and satellites."""
+    valid = np.asarray(topic["vel_ned_valid"]) != 0
+    t = times_s(topic)[valid]
+    vel = np.column_stack([np.asarray(topic[f], dtype=float)[valid] for f in ("vel_n_m_s", "vel_e_m_s", "vel_d_m_s")])
+    fix = np.asarray(topic["fix_type"])[valid].tolist()
+    sats = np.asarray(topic["satellites_used"])[valid].tolist()
+    rows = [
+        GpsVelocity(t_s, (n, e, d), True, int(k), int(m))
+        for t_s, (n, e, d), k, m in zip(t.tolist(), vel.tolist(), fix, sats, strict=True)
+    ]
+    return t, rows

@@ -5,6 +5,7 @@ is. :func:`decode` turns a message (a pymavlink message, or any object with the 
 ``get_type()``) into an :class:`ImuSample` in the sensor/board frame with the vehicle's sample time;
 :func:`encode` is its exact inverse (up to the message's integer or float32 quantisation) and is what the
 fake vehicle sends. :func:`decode_position` reads the vehicle's position for the magnetic reference and
+:func:`decode_gps_velocity` the receiver's own velocity for the fused filter's acceleration;
 :func:`time_boot_ms` turns a vehicle-clock time back into MAVLink's wrapping millisecond field.
 
 Units, checked against the senders:
@@ -39,6 +40,7 @@ from numpy.typing import NDArray
 
 from mavattitude.errors import SensorError
 from mavattitude.estimation.conventions import STANDARD_GRAVITY_MPS2, Vec3
+from mavattitude.estimation.velocity import GPS_FIX_3D, GpsVelocity
 from mavattitude.fields import ranged
 
 MG_MPS2 = STANDARD_GRAVITY_MPS2 * 1e-3
@@ -424,7 +426,6 @@ class Position:
     alt_m: float
 
 
-GPS_FIX_3D = 3
 POSITION_MESSAGES = ("GLOBAL_POSITION_INT", "GPS_RAW_INT")  # what decode_position reads
 
 
@@ -456,6 +457,36 @@ def decode_position_columns(kind: str, fields: Mapping[str, NDArray[Any]]) -> tu
         valid &= fields["fix_type"] >= GPS_FIX_3D
     position = np.column_stack([lat * 1e-7, lon * 1e-7, fields["alt"] * 1e-3])
     return valid, position
+
+
+#: GPS_RAW_INT: velocity and course unknown (UINT16_MAX), satellites unknown (UINT8_MAX); cm/s, centidegrees.
+GPS_UNKNOWN_U16, GPS_UNKNOWN_SATELLITES = 65535, 255
+CMPS_MPS, CDEG_RAD = 0.01, math.radians(0.01)
+
+
+def decode_gps_velocity(msg: Any) -> GpsVelocity | None:
+    """GPS_RAW_INT's ground speed and course → :class:`GpsVelocity` (vertical unknown); ``None`` without a 3D
+    fix or with the speed or course unknown."""
+    valid, rows = decode_gps_velocity_columns(
+        {name: np.array([getattr(msg, name)]) for name in ("time_usec", "vel", "cog", "fix_type", "satellites_visible")}
+    )
+    return rows[0] if valid[0] else None
+
+
+def decode_gps_velocity_columns(fields: Mapping[str, NDArray[Any]]) -> tuple[NDArray[np.bool_], list[GpsVelocity]]:
+    """:func:`decode_gps_velocity` for many GPS_RAW_INT messages: which rows are a velocity, and every row's."""
+    vel, cog, fix = (np.asarray(fields[k]) for k in ("vel", "cog", "fix_type"))
+    valid = (fix >= GPS_FIX_3D) & (vel != GPS_UNKNOWN_U16) & (cog != GPS_UNKNOWN_U16)
+    speed, course = vel * CMPS_MPS, cog * CDEG_RAD
+    north, east = (speed * np.cos(course)).tolist(), (speed * np.sin(course)).tolist()
+    sats = np.asarray(fields["satellites_visible"]).astype(np.int64)
+    sats = np.where(sats == GPS_UNKNOWN_SATELLITES, -1, sats).tolist()
+    t = (np.asarray(fields["time_usec"], dtype=float) * 1e-6).tolist()
+    rows = [
+        GpsVelocity(t_s, (n, e, 0.0), False, int(f), k)
+        for t_s, n, e, f, k in zip(t, north, east, fix.tolist(), sats, strict=True)
+    ]
+    return valid, rows
 
 
 # A Unix time before this is not a GPS date: ArduPilot's GPS_RAW_INT.time_usec counts from boot, and

@@ -108,6 +108,22 @@ def tour(duration_s: float = 60.0) -> Script:
     return _fit(Script(segments, DEFAULT_MAG_NED_UT), duration_s)
 
 
+def turns(duration_s: float = 90.0) -> Script:
+    """Sustained coordinated turns at 10 m/s: two circles to the right (heading rate up to 0.49 rad/s: 4.9 m/s²
+    centripetal, a 27° bank held for tens of seconds), one to the left, then hard stops and a dash."""
+    segments = [
+        Hold(5.0),
+        Fly(5.0, delta_vel_ned_mps=(10.0, 0.0, 0.0)),
+        Fly(40.0, turn_rad=4.0 * np.pi),
+        Fly(20.0, turn_rad=-2.0 * np.pi),
+        Fly(3.0, delta_vel_ned_mps=(-10.0, 0.0, 0.0)),
+        Fly(3.0, delta_vel_ned_mps=(12.0, 0.0, 0.0)),
+        Fly(3.0, delta_vel_ned_mps=(-12.0, 0.0, 0.0)),
+        Hold(5.0),
+    ]
+    return _fit(Script(segments, DEFAULT_MAG_NED_UT), duration_s)
+
+
 def _fit(script: Script, duration_s: float) -> Script:
     """Pad with a final hold up to ``duration_s`` (a script is never cut short)."""
     if duration_s > script.duration_s:
@@ -120,6 +136,7 @@ SCRIPTS: dict[str, Callable[[float], Script]] = {
     "static": static,
     "slow_rotation": slow_rotation,
     "maneuver": maneuver,
+    "turns": turns,
     "flips": flips,
     "tour": tour,
 }

@@ -8,6 +8,7 @@ with ``M = (I + misalignment) · diag(scale)`` for the accelerometer and gyrosco
 magnetometer ``M = soft_iron`` and ``bias = hard_iron`` (the distortion that the calibration
 ``S (raw − h)`` undoes with ``S = soft_iron⁻¹``, ``h = hard_iron``). Noise is white Gaussian, per-axis σ.
 Sample times run at ``rate_hz`` with optional Gaussian jitter (kept monotonic) and dropped samples.
+:class:`GpsModel` is a GPS receiver's velocity (the fused filter's acceleration).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import numpy as np
 
 from mavattitude.errors import InputError
 from mavattitude.estimation.conventions import Array, Mat3, Vec3
+from mavattitude.sensors.units import GpsVelocity
 from mavattitude.sim.trajectory import Script
 
 _IDENTITY: Mat3 = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
@@ -110,3 +112,26 @@ class SensorModel:
             self.gyro.apply(truth.gyr_radps, rng),
             self.mag.apply(truth.mag_uT, rng),
         )
+
+
+@dataclass(frozen=True)
+class GpsModel:
+    """A GPS receiver's velocity: the truth at fixes ``1 / rate_hz`` apart, white noise per axis (m/s),
+    rounded to ``resolution_mps`` (MAVLink's cm/s), handed in ``latency_s`` after its fix."""
+
+    rate_hz: float = 5.0
+    noise_std_mps: float = 0.05
+    resolution_mps: float = 0.01
+    latency_s: float = 0.1
+    satellites: int = 12
+
+    def measure(self, script: Script, stop_s: float, rng: np.random.Generator) -> tuple[Array, list[GpsVelocity]]:
+        """The times the velocities are handed in at, and the velocities (3D fix, vertical known)."""
+        fix_t = np.arange(0.0, stop_s - self.latency_s, 1.0 / self.rate_hz)
+        vel = script.sample(fix_t).vel_ned_mps + rng.normal(0.0, self.noise_std_mps, (len(fix_t), 3))
+        vel = np.round(vel / self.resolution_mps) * self.resolution_mps
+        rows = [
+            GpsVelocity(t, (n, e, d), True, 3, self.satellites)
+            for t, (n, e, d) in zip(fix_t.tolist(), vel.tolist(), strict=True)
+        ]
+        return fix_t + self.latency_s, rows

@@ -63,12 +63,14 @@ from mavattitude.estimation.conventions import (
     rotate_ned_to_body_parts,
     rotation_matrix_parts,
 )
-from mavattitude.lowpass import Biquad, butter2
+from mavattitude.estimation.velocity import GpsVelocity
 
 from .ekf import ErrorStateFilter, rotated
+from .gps import GpsCompensation
 from .magnetic import MagneticChecks
 from .mat3 import Block, cross, dot, symmetric
 from .mat3 import matvec as _matvec
+from .prefilter import EarthFramePrefilters
 from .rest import RestDetector
 from .settings import FusedSettings
 
@@ -82,6 +84,8 @@ COUNTERS = (
     "restarts",
     "degenerate",
     "skipped_updates",
+    "gps_updates",
+    "gps_refused",
 )
 _MAX_UNIT_STD = 0.5  # rad: the largest direction noise handed to a measurement update
 # The update pace is the mean of the last PACE_WINDOW update intervals, measured once PACE_MIN_INTERVALS are
@@ -143,6 +147,7 @@ class FusedFilter:
         self._ekf = ErrorStateFilter(s.gyro_noise_radps, s.gyro_scale_fraction, s.gyro_bias_walk_radps2)
         self._mag = MagneticChecks(s, self._update_period_s)
         self._rest = RestDetector(s, self._update_period_s)
+        self._gps = GpsCompensation(s, s.update_rate_hz) if s.gps_max_accel_mps2 > 0.0 else None
         self._prefilters = EarthFramePrefilters((s.accel_lowpass_s, s.accel_rejection_lowpass_s), s.update_rate_hz)
         self._design_period_s = self._update_period_s  # the update interval the per-update filters are for
         self._update_times: deque[float] = deque(maxlen=PACE_WINDOW + 1)
@@ -200,6 +205,13 @@ class FusedFilter:
         field: Vec3 = tuple(mag.tolist())  # type: ignore[assignment]
         self._ref_angle = math.acos(clip_unit(dot(self._v_acc, field) / norms[0]))
         self._mag.set_reference(field, self._v_acc, self._started)
+
+    def set_velocity(self, velocity: GpsVelocity) -> None:
+        """The GPS receiver's velocity, received after the last sample: its differences are the vehicle's
+        acceleration, removed from the accelerometer's gravity from the next update on (:mod:`.gps`)."""
+        if self._gps is not None:
+            self._gps.source.push(velocity, self._t_last)
+            self.counters["gps_refused"] = self._gps.source.refused
 
     # --- the per-sample entry point -----------------------------------------------------------------
     def push(
@@ -263,6 +275,8 @@ class FusedFilter:
         if abs(period - self._design_period_s) > PACE_TOLERANCE * self._design_period_s:
             self._design_period_s = period
             self._prefilters.design(1.0 / period)
+            if self._gps is not None:
+                self._gps.design(1.0 / period)
             self._rest.set_period(period)
             self._mag.period_s = period
 
@@ -276,9 +290,9 @@ class FusedFilter:
         self.counters["updates"] += 1
         if s.rest_gyro_std_radps > 0.0:
             self._rest_update(raw, time_s)
-        acc, sigma_a2 = self._prefiltered(raw)
-        acc_norm = math.sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
         r = rotation_matrix_parts(ekf.q)
+        acc, sigma_a2 = self._prefiltered(raw, r, time_s)
+        acc_norm = math.sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
         mag = None if mag_uT is None else self._mag.corrected((float(mag_uT[0]), float(mag_uT[1]), float(mag_uT[2])))
         rate = self._body_rate()  # the bias is the same until the update's reset
         if mag is not None and mag_age_s > 0.0:
@@ -306,12 +320,18 @@ class FusedFilter:
         b, g = self._ekf.bias, self._gyr_last
         return (g[0] - b[0], g[1] - b[1], g[2] - b[2])
 
-    def _prefiltered(self, raw: Vec3) -> tuple[Vec3, float]:
-        """``ã`` (the long pre-filter, body frame) and ``σ_a'²`` without the residual term (module docstring)."""
+    def _prefiltered(self, raw: Vec3, r: Sequence[float], time_s: float) -> tuple[Vec3, float]:
+        """``ã`` (the long pre-filter, body frame) and ``σ_a'²`` without the residual term (module docstring);
+        with a GPS acceleration, both pre-filters' outputs are gravity alone (:mod:`.gps`)."""
         s = self.settings
         r_g = rotation_matrix_parts(self._ekf.q_gyro)
         a_earth = _matvec(r_g, raw)  # R(q_g) a
-        lp_m, lp_r = self._prefilters.step(a_earth)
+        lp = lp_m, lp_r = self._prefilters.step(a_earth)
+        if self._gps is not None:
+            gravity = self._gps.gravity(lp, r, r_g, time_s)
+            if gravity is not None:
+                self.counters["gps_updates"] += 1
+                lp_m, lp_r = gravity
         m0, m1, m2 = lp_m
         j0, j1, j2 = lp_r
         # Squares as x * x, here and in every update: a float's ** is a libm pow call (same value to an ulp).
@@ -400,6 +420,8 @@ class FusedFilter:
             self._mag.start(self._mag.corrected((float(mag[0]), float(mag[1]), float(mag[2]))))
         self._started = True
         self._prefilters.reset()
+        if self._gps is not None:
+            self._gps.reset()
         self._update_times.clear()
         self._t_last = time_s
         self._gyr_last = gyr
@@ -429,54 +451,6 @@ class FusedFilter:
             tick_s = self._start_s + self._ticks * self._output_period_s
         self._next_output_s = tick_s
         return out
-
-
-_UNUSED = (0.25, 0.0, 0.0)  # an output that is the input (τ = 0) runs as a 4-sample mean, never returned
-
-
-class EarthFramePrefilters:
-    """The two accelerometer pre-filters (module docstring): second-order Butterworth low-passes of the same
-    quasi-inertial vector, cut-offs ``√2 / (2π τ)`` for ``τ_a`` and ``τ_j`` (τ = 0: that output is the input),
-    started at steady state on their first input. A Butterworth low-pass's numerator is ``b₀ (1, 2, 1)``, so
-    ``x + 2 x₋₁ + x₋₂`` is formed once for both: 39 float operations a step instead of 54."""
-
-    def __init__(self, taus_s: tuple[float, float], rate_hz: float) -> None:
-        self._taus_s = taus_s
-        self._passed = (taus_s[0] == 0.0, taus_s[1] == 0.0)  # τ = 0: the input as it is
-        self.biquads: tuple[Biquad | None, Biquad | None] = (None, None)
-        self._coefficients = (_UNUSED, _UNUSED)  # (b₀, a₁, a₂) of each, read once a step
-        self.design(rate_hz)
-        self._state: tuple[Vec3, Vec3, Vec3, Vec3, Vec3, Vec3] | None = None
-
-    def design(self, rate_hz: float) -> None:
-        """(Re-)design for inputs at ``rate_hz``; the state (the last inputs and outputs) carries on."""
-        self.biquads = tuple(  # type: ignore[assignment]
-            butter2(math.sqrt(2.0) / (2.0 * math.pi * tau_s), rate_hz) if tau_s > 0.0 else None
-            for tau_s in self._taus_s
-        )
-        self._coefficients = tuple(  # type: ignore[assignment]
-            _UNUSED if bq is None else (bq.b0, bq.a1, bq.a2) for bq in self.biquads
-        )
-
-    def reset(self) -> None:
-        self._state = None
-
-    def step(self, x: Vec3) -> tuple[Vec3, Vec3]:
-        """Both outputs for the next input ``x``."""
-        if self._state is None:
-            self._state = (x, x, x, x, x, x)  # x₋₁, x₋₂ and each filter's y₋₁, y₋₂, at steady state
-        x_1, x_2, y_1, y_2, z_1, z_2 = self._state
-        (p0, p1, p2), (q0, q1, q2) = x_1, x_2
-        x0, x1, x2 = x
-        s0, s1, s2 = x0 + 2.0 * p0 + q0, x1 + 2.0 * p1 + q1, x2 + 2.0 * p2 + q2
-        (b, a1, a2), (c, e1, e2) = self._coefficients
-        (m0, m1, m2), (n0, n1, n2) = y_1, y_2
-        y = (b * s0 - a1 * m0 - a2 * n0, b * s1 - a1 * m1 - a2 * n1, b * s2 - a1 * m2 - a2 * n2)
-        (m0, m1, m2), (n0, n1, n2) = z_1, z_2
-        z = (c * s0 - e1 * m0 - e2 * n0, c * s1 - e1 * m1 - e2 * n1, c * s2 - e1 * m2 - e2 * n2)
-        self._state = (x, x_1, y, y_1, z, z_1)
-        passed_y, passed_z = self._passed
-        return (x if passed_y else y), (x if passed_z else z)
 
 
 _AXES: tuple[Vec3, Vec3, Vec3] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))

@@ -71,6 +71,16 @@ class FusedSettings:
     mag_offset_turn_fraction: float = ranged(
         0.05, "the turn the offset needs: 1 − ‖mean predicted field direction‖ over the window", hi=1.0
     )
+    gps_max_accel_mps2: float = ranged(
+        20.0, "a GPS velocity step implying more than this acceleration is a glitch, m/s² (0: GPS velocity unused)"
+    )
+    gps_min_satellites: float = ranged(6.0, "GPS velocities from fewer satellites are not used", hi=255.0)
+    gps_max_interval_s: float = ranged(
+        0.5, "GPS fixes further apart are not differenced; an acceleration is dropped this long after, s", hi=10.0
+    )
+    gps_latency_s: float = ranged(
+        0.1, "the GPS receiver's latency: its velocity is this much older than its fix time, s", hi=2.0
+    )
     rest_gyro_threshold_radps: float = ranged(math.radians(2.0), "rest: gyro deviation and rate below this, rad/s")
     rest_accel_threshold_mps2: float = ranged(0.5, "rest: accelerometer deviation below this, m/s²")
     rest_min_s: float = ranged(1.5, "rest: still for this long before the zero-rate update, s", hi=3600.0)
