@@ -193,9 +193,9 @@ class SnapshotEstimator:
 
     wants_filtered = True
 
-    def __init__(self, config: Config) -> None:
+    def __init__(self, config: Config, method: str | None = None) -> None:
         e = config.estimator
-        self.method = e.method
+        self.method = method or e.method
         self.options = {"max_iterations": e.max_iterations, "tolerance": e.tolerance, "min_angle_deg": e.min_angle_deg}
         self.noise = _noise_model(config)
         self._scaled: dict[tuple[float, float], NoiseModel] = {(1.0, 1.0): self.noise}
@@ -243,7 +243,7 @@ class SnapshotEstimator:
 #: Tick flags under which the magnetometer sets heading only: its |B| is off, or the compass is judged off.
 _MAG_OFF = int(SampleFlag.MAG_NORM | SampleFlag.MAG_INCONSISTENT)
 HEADING_ONLY_METHOD = "triad"  # the accelerometer's direction kept exactly, the magnetometer's heading only
-_RESET, _NOT_CONVERGED, _HEADING_ONLY, _DISTURBED, _INCONSISTENT = (
+_RESET, _NOT_CONVERGED, _HEADING_ONLY, _DISTURBED, _INCONSISTENT, _PER_SAMPLE = (
     int(f)
     for f in (
         SampleFlag.RESET,
@@ -251,8 +251,11 @@ _RESET, _NOT_CONVERGED, _HEADING_ONLY, _DISTURBED, _INCONSISTENT = (
         SampleFlag.MAG_HEADING_ONLY,
         SampleFlag.MAG_DISTURBED,
         SampleFlag.MAG_INCONSISTENT,
+        SampleFlag.PER_SAMPLE,
     )
 )
+#: What the fused method solves a tick of an input too slow to integrate with (``PER_SAMPLE``).
+SLOW_INPUT_METHOD = "ign"
 
 
 class _SolutionCovariance:
@@ -287,7 +290,15 @@ def _heading_uncertain(result: Any, acc_mps2: Any) -> Callable[[], Array]:
 
 
 class FusedEstimator:
-    """The gyro-aided filter (:class:`~mavattitude.estimation.fused.FusedFilter`), set by ``estimator.fused``."""
+    """The gyro-aided filter (:class:`~mavattitude.estimation.fused.FusedFilter`), set by ``estimator.fused``.
+
+    A tick of an input too slow to filter (``PER_SAMPLE``: slower than twice the low-pass cutoff, 20 Hz) is too
+    slow to integrate too: the gyro's samples are snapshots of a rate that changes faster than they come (a 2 Hz
+    RAW_IMU in a turn reaching 60°/s steps 30° between two, at angular accelerations of 100°/s² and more, so
+    the rate held over a step is wrong by tens of degrees), so such a tick is solved from its accelerometer and
+    magnetometer alone (:data:`SLOW_INPUT_METHOD`), as the snapshot methods do, and the filter starts afresh
+    (from IGN) when the input is fast again.
+    """
 
     wants_filtered = False
 
@@ -305,8 +316,13 @@ class FusedEstimator:
         self._filter: Any = None
         self._mag_ref: Array | None = None
         self._past: Counter[str] = Counter()  # counters of the filters dropped by a reset
+        self._slow = SnapshotEstimator(config, SLOW_INPUT_METHOD)
 
     def reset(self) -> None:
+        self._drop_filter()
+        self._slow.reset()
+
+    def _drop_filter(self) -> None:
         if self._filter is not None:
             self._past.update(self._filter.counters)
         self._filter = None
@@ -325,6 +341,9 @@ class FusedEstimator:
             self._filter.set_velocity(velocity)
 
     def estimate(self, sample: ProcessedSample, mag_ref_ned_uT: Array) -> list[AttitudeOutput]:
+        if sample.flags & _PER_SAMPLE:
+            self._drop_filter()
+            return self._slow.estimate(sample, mag_ref_ned_uT)
         if self._filter is None:
             self._filter = self._new_filter(mag_ref_ned_uT)
         # The pipeline replaces its reference array when the field changes and never writes into it, so the

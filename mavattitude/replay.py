@@ -32,6 +32,7 @@ from mavattitude.link.logs import LogSource
 from mavattitude.link.logstreams import LogStreams
 from mavattitude.link.source import AutopilotAttitude, MessageSource, Sender
 from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, Pushed
+from mavattitude.sensors.frontend import median_rate_hz
 from mavattitude.sensors.magref import distance_km
 from mavattitude.sensors.units import ImuSample
 
@@ -50,6 +51,7 @@ class Replayed:
     vehicle: Sender | None
     first_sample_s: float = float("nan")
     last_sample_s: float = float("nan")
+    sample_times_s: list[float] = field(default_factory=list)  # the vehicle's IMU sample times, for its rate
     internal_errors: list[BaseException] = field(default_factory=list)
     compass: list[CompassEvent] = field(default_factory=list)
 
@@ -58,6 +60,11 @@ class Replayed:
         if not self.outputs:
             return np.empty((0, 5))
         return np.array([(o.time_s, *o.q.tolist()) for o in self.outputs])
+
+    @property
+    def input_rate_hz(self) -> float:
+        """The rate the vehicle's IMU samples came at (one over their median interval)."""
+        return median_rate_hz(np.array(self.sample_times_s))
 
     def autopilot_array(self) -> np.ndarray:
         """Rows ``t_s, qw, qx, qy, qz`` of the autopilot's attitudes."""
@@ -81,6 +88,7 @@ class _Collector:
         if r.first_sample_s != r.first_sample_s:  # NaN: the first one
             r.first_sample_s = sample.time_s
         r.last_sample_s = sample.time_s
+        r.sample_times_s.append(sample.time_s)
 
     def on_outputs(self, pushed: Pushed, t_rx: float) -> None:
         self.result.outputs += pushed.outputs
@@ -194,6 +202,7 @@ def _replay_arrays(s: LogStreams, result: Replayed, vehicle: Sender) -> Replayed
     counters.received += len(s.imu_t_s)
     if len(s.imu_t_s):
         result.first_sample_s, result.last_sample_s = float(s.imu_t_s[0]), float(s.imu_t_s[-1])
+        result.sample_times_s = s.imu_t_s.tolist()
     result.autopilot = [
         AutopilotAttitude(t, tuple(q)) for t, q in zip(s.attitude_t_s.tolist(), s.attitude_q.tolist(), strict=True)
     ]

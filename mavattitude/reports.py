@@ -5,7 +5,8 @@ cross-check's words.
   ``stats_interval_s`` (and at the end), which the e2e tests and an operator read;
 - :func:`compass_event_words`, :func:`compass_warning`, :func:`compass_statustext`: a change of the compass
   monitor's verdict in the log and in STATUSTEXT's 50 characters, live and in an offline summary alike;
-  :func:`compass_summary`: its figures over a log as one line.
+  :func:`compass_summary`: its figures over a log as one line;
+- :func:`rate_handling`: how the input was processed at its rate (the service's log, replay's summary).
 """
 
 from __future__ import annotations
@@ -16,10 +17,13 @@ from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any
 
+from mavattitude.config import Config
 from mavattitude.dispatch import DISPATCH_REJECTS, DispatchCounters
+from mavattitude.estimation import METHODS
 from mavattitude.estimation.compass import CompassEvent, CompassFigures
 from mavattitude.estimation.crosscheck import CrossCheck
 from mavattitude.link.session import RequestCounters
+from mavattitude.pipeline import SLOW_INPUT_METHOD
 
 
 @dataclass
@@ -154,3 +158,27 @@ def compass_summary(f: CompassFigures) -> str:
         f"{f.expected} {f.expected_dip_deg:.1f}°, {field}, {f.samples} quiet samples, judged inconsistent "
         f"{f.warnings} time(s)"
     )
+
+
+#: A share of slow samples said as "all" (a slow stream's first sample, before its pace is known, is not)
+MOSTLY = 0.99
+
+
+def rate_handling(config: Config, message: str, rate_hz: float, per_sample: int, samples: int) -> str:
+    """How the input was processed at its rate, one line (the service's log, replay's ``rate_handling``):
+    ``per_sample`` of the accepted ``samples`` gave one attitude each, unfiltered (the input slower than twice
+    the low-pass cutoff; :func:`~mavattitude.sensors.frontend.slow_interval_s`)."""
+    head = f"{message} at {rate_hz:.1f} Hz"
+    integrates = METHODS[config.estimator.method].needs_gyro
+    if per_sample:
+        what = "one attitude per sample, no filtering"
+        if integrates:
+            what = f"too slow to integrate the gyro: one {SLOW_INPUT_METHOD.upper()} attitude per sample, no filtering"
+        below = f"below {2 * config.filter.cutoff_hz:g} Hz"
+        share = "" if per_sample >= MOSTLY * samples else f" ({per_sample} of {samples} samples, {below})"
+        return f"{head}: {what}{share}"
+    if integrates:
+        return f"{head}: every sample into the gyro-aided filter"
+    if not config.filter.enabled:
+        return f"{head}: one attitude per sample (filter.enabled is false)"
+    return f"{head}: {config.filter.cutoff_hz:g} Hz low-pass, {config.filter.output_rate_hz:g} Hz output"

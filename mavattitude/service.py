@@ -67,7 +67,13 @@ from mavattitude.link.session import LinkSession
 from mavattitude.link.source import AutopilotAttitude, MavlinkDecoder, MavlinkSource, MessageSource, Sender
 from mavattitude.periodic import Every
 from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, Pushed
-from mavattitude.reports import ServiceCounters, compass_event_words, compass_statustext, counters_line
+from mavattitude.reports import (
+    ServiceCounters,
+    compass_event_words,
+    compass_statustext,
+    counters_line,
+    rate_handling,
+)
 from mavattitude.sensors import units
 from mavattitude.sensors.units import ImuSample
 from mavattitude.systemd_notify import SystemdNotifier, default_notifier
@@ -207,6 +213,7 @@ class AttitudeService:
         self._latencies_s: list[float] = []
         self._last_input: float | None = None
         self._input_lost = False
+        self._per_sample = False  # the input too slow to filter, as last said (_say_rate_handling)
         self._attitude_sent = False
         self._rate = RateMonitor(config.link.request_rate_hz, RATE_WINDOW_S) if config.link.request_messages else None
         self._xcheck = CrossCheck(config.crosscheck) if config.crosscheck.enabled else None
@@ -271,7 +278,7 @@ class AttitudeService:
             self._publish_difference(self._xcheck)
         if not self._input_lost and self._last_input is not None:
             silent_s = now - self._last_input
-            if silent_s > self.config.input.input_timeout_s:
+            if silent_s > self.pipeline.frontend.gap_limit_s:  # input_timeout_s, or longer for a slow input
                 self._on_input_lost(silent_s)
         self._report_waiting(now)
         if self._stats.due(now):
@@ -434,12 +441,21 @@ class AttitudeService:
         for event in pushed.compass:
             self._on_compass(event)
         outputs = pushed.outputs
+        if self.pipeline.frontend.per_sample != self._per_sample:
+            self._say_rate_handling()
         for out in outputs:
             self._emit(out, t_rx)
         if self._xcheck is not None and outputs:
             for out in outputs:
                 self._xcheck.add_ours(out.time_s, out.q)
             self._cross_check(self._xcheck)
+
+    def _say_rate_handling(self) -> None:
+        """The input crossed the rate below which it is too slow to filter: how it is processed now, once."""
+        frontend = self.pipeline.frontend
+        self._per_sample = frontend.per_sample
+        slow = int(frontend.per_sample)
+        log.info("%s", rate_handling(self.config, self._input_name, frontend.rate_hz, slow, slow))
 
     def _on_compass(self, event: CompassEvent) -> None:
         """The compass verdict changed: said once each way (the monitor's hysteresis keeps it from flapping)."""

@@ -55,6 +55,7 @@ from mavattitude.config import DEFAULTS, Config
 from mavattitude.errors import DataFileError, MavAttitudeError
 from mavattitude.estimation import METHODS
 from mavattitude.files import LOG_SUFFIXES
+from mavattitude.reports import rate_handling
 from mavattitude.sensors.magref import MIN_MEASURED_TICKS
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
 
@@ -248,7 +249,8 @@ def replay_log(job: Job) -> LogResult:
         _check_found(str(job.log), job.config.input.message, replayed)
     except MavAttitudeError as exc:
         return dataclasses.replace(result, status="failed", note=str(exc))
-    _fill(result, replayed)
+    _fill(result, replayed, _imu_name(source, job.config))
+    log.info("%s: %s", job.log, result.columns["rate_handling"])
     write_outputs(job.csv, replayed.outputs)
     log.info("%s: wrote %d attitudes to %s", job.log, result.outputs, job.csv)
     damage = getattr(source, "damage", None)
@@ -266,8 +268,19 @@ def replay_log(job: Job) -> LogResult:
     return result
 
 
-def _fill(result: LogResult, replayed: Any) -> None:
+def _imu_name(source: Any, config: Config) -> str:
+    """What the log's IMU samples are called: a telemetry log's message, else the autopilot's IMU records."""
+    from mavattitude.link.tlog import TlogSource
+
+    return config.input.message if isinstance(source, TlogSource) else "IMU"
+
+
+def _fill(result: LogResult, replayed: Any, imu_name: str) -> None:
     pipeline = replayed.pipeline.counters
+    frontend = pipeline.frontend
+    result.columns["rate_handling"] = rate_handling(
+        replayed.pipeline.config, imu_name, replayed.input_rate_hz, frontend.per_sample, frontend.accepted
+    )
     result.samples = replayed.counters.received
     result.outputs = len(replayed.outputs)
     result.duration_s = replayed.last_sample_s - replayed.first_sample_s

@@ -43,6 +43,16 @@ Per input sample (:meth:`FrontEnd.push`, plain floats: the per-message cost is w
 
 With ``filter_enabled`` false, steps 4–5 are skipped: every accepted input sample is one output.
 
+**The input's pace.** Each stream keeps its last ``rate_window`` intervals (across gaps, not across a reboot).
+A gap is an interval longer than ``input_timeout_s`` *and* than
+:data:`~mavattitude.estimation.conventions.GAP_INTERVALS` (2.5) of the median of the intervals before it, so a
+2 Hz stream's 0.5 s steps are its pace, not gaps (a stream's first interval, its pace unknown, starts the
+stream anew without counting a gap). When most of the IMU's last intervals are longer than
+:func:`slow_interval_s` (the input slower than twice the low-pass cutoff: 20 Hz), the input is too slow to
+filter: each accepted sample is one tick at its own time, its values unfiltered (the magnetometer the newest
+unfiltered reading), flagged ``PER_SAMPLE``; the filters keep running underneath, so when the pace rises again
+the 50 Hz ticks start afresh on the grid (``RESET``), as after a gap.
+
 No check of the *filtered* vector against the dead floor is needed: with dead inputs refused, every
 input to the low-pass is a live vector, and the filter (Q = 1/√2, 4 % overshoot) can bring its output
 near zero or turn it around only if its input reverses within its ~0.1 s memory, which neither gravity
@@ -67,7 +77,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mavattitude.estimation.conventions import Array, Vec3
+from mavattitude.estimation.conventions import Array, Vec3, gap_limit_s
 from mavattitude.lowpass import butter2, filter_batch
 from mavattitude.sensors.calibration import Calibration, sensor_affines
 from mavattitude.sensors.clock import ClockEvent, VehicleClock
@@ -81,7 +91,7 @@ class SampleFlag(IntFlag):
     """What the front end noticed about an output sample (and the pipeline and estimator about its attitude)."""
 
     NONE = 0
-    RESET = 1  # first output after the start, a gap longer than input_timeout_s, or a reboot
+    RESET = 1  # first output after the start, a gap, a reboot, or a change of the input's pace (PER_SAMPLE)
     ACC_NORM = 2  # |a| far from g: down-weighted
     MAG_NORM = 4  # |B| far from the expected magnitude: down-weighted
     MAG_HELD = 8  # magnetometer held from its last sample, not interpolated
@@ -90,6 +100,7 @@ class SampleFlag(IntFlag):
     NOT_CONVERGED = 64  # set by the estimator: the solve stopped at its iteration bound
     MAG_DISTURBED = 128  # set by the fused filter: it rejected or down-weighted this magnetometer update
     MAG_HEADING_ONLY = 256  # set by the estimator: the magnetometer set heading only (TRIAD, accelerometer first)
+    PER_SAMPLE = 512  # the input is too slow to filter: this tick is one input sample, unfiltered
 
 
 @dataclass(frozen=True)
@@ -142,6 +153,7 @@ class FrontEndCounters:
     flagged: Counter[str] = field(default_factory=Counter)  # output samples flagged, by flag name
     gap_resets: int = 0
     mag_gap_resets: int = 0
+    per_sample: int = 0  # ticks that are one input sample each, unfiltered: the input too slow to filter
     reboots: int = 0
     wraps: int = 0
     redesigns: int = 0
@@ -203,6 +215,29 @@ def dead_floors2(settings: FrontEndSettings, expected_field_uT: float | None) ->
 CONTINUED, STARTED, GAP = 0, 1, 2
 
 
+def slow_interval_s(settings: FrontEndSettings) -> float:
+    """An input interval longer than this makes the stream too slow to filter: below twice the low-pass cutoff
+    (20 Hz for 10 Hz), the sampling has already folded whatever lies above the cutoff into the band the filter
+    keeps, so it would only delay the signal, and 50 Hz ticks would be interpolated between samples further
+    apart than the motion they should show (a multirotor's attitude moves at up to the same ~10 Hz)."""
+    return 1.0 / (2.0 * settings.cutoff_hz)
+
+
+def median_rate_hz(time_s: Array) -> float:
+    """A stream's rate: one over the median of its intervals (NaN with fewer than two samples)."""
+    d = np.diff(np.asarray(time_s, dtype=float))
+    d = d[d > 0.0]
+    return 1.0 / float(np.median(d)) if len(d) else math.nan
+
+
+def _median(values: Sequence[float]) -> float:
+    """The median (upper of the two middle values for an even count); NaN when empty."""
+    if not values:
+        return math.nan
+    ordered = sorted(values)
+    return ordered[len(ordered) // 2]
+
+
 def repeat_hold_s(settings: FrontEndSettings) -> float:
     """How long a repeated magnetometer reading (``ImuSample.mag_repeats``) is held before the same value is
     taken again as a new reading: half the hold of any reading (``input_timeout_s``), so a constant field is
@@ -252,6 +287,9 @@ class _Stream:
         "coef",
         "cutoff_hz",
         "fs_hz",
+        "intervals",
+        "slow_count",
+        "slow_interval_s",
         "t_last",
         "t_prev",
         "timeout_s",
@@ -259,25 +297,61 @@ class _Stream:
         "tolerance",
         "x1",
         "x2",
+        "x_last",
+        "x_prev",
         "y1",
         "y2",
         "y_last",
         "y_prev",
     )
 
-    def __init__(self, cutoff_hz: float | None, timeout_s: float, window: int, tolerance: float) -> None:
+    def __init__(
+        self, cutoff_hz: float | None, timeout_s: float, window: int, tolerance: float, slow_interval_s: float
+    ) -> None:
         self.cutoff_hz = cutoff_hz
         self.timeout_s = timeout_s
         self.tolerance = tolerance
+        self.slow_interval_s = slow_interval_s
         self.times: deque[float] = deque(maxlen=window + 1)
+        # the stream's rhythm: its last intervals across gaps (within one boot), and how many are slow
+        self.intervals: deque[float] = deque(maxlen=window)
+        self.slow_count = 0
         self.restart()
+
+    def reboot(self) -> None:
+        """The vehicle rebooted: the stream and its rhythm start over."""
+        self.intervals.clear()
+        self.slow_count = 0
+        self.restart()
+
+    @property
+    def slow(self) -> bool:
+        """Most of the last intervals longer than ``slow_interval_s`` (:func:`slow_interval_s`)."""
+        return 2 * self.slow_count > len(self.intervals)
+
+    @property
+    def gap_limit_s(self) -> float:
+        """The longest interval that is no gap now (:func:`~mavattitude.estimation.conventions.gap_limit_s`)."""
+        return gap_limit_s(self.timeout_s, _median(self.intervals))
+
+    def _take_interval(self, dt: float) -> bool:
+        """Whether ``dt`` since the last sample is a gap (against the intervals before it); then it joins them."""
+        gap = dt > self.timeout_s and dt > self.gap_limit_s
+        intervals = self.intervals
+        if len(intervals) == intervals.maxlen:
+            self.slow_count -= intervals[0] > self.slow_interval_s
+        intervals.append(dt)
+        self.slow_count += dt > self.slow_interval_s
+        return gap
 
     def restart(self) -> None:
         self.times.clear()
         self.t_last: float | None = None
         self.y_last: list[float] = []
+        self.x_last: Sequence[float] = ()  # the input unfiltered, for ticks of a slow stream
         self.t_prev: float | None = None  # the sample before the last, in the same segment
         self.y_prev: list[float] = []
+        self.x_prev: Sequence[float] = ()
         self.coef: tuple[float, float, float, float, float] | None = None
         self.fs_hz = 0.0
 
@@ -289,14 +363,16 @@ class _Stream:
     def push(self, t: float, x: Sequence[float]) -> tuple[int, bool]:
         """Filter one sample; returns (CONTINUED | STARTED | GAP, re-designed)."""
         t_last = self.t_last
-        if t_last is None or t - t_last > self.timeout_s:
+        known = bool(self.intervals)  # the pace: the first interval of a stream is not a gap, only a new start
+        if t_last is None or self._take_interval(t - t_last):
             self.restart()
             self.times.append(t)
-            self.t_last, self.y_last = t, x
-            return STARTED if t_last is None else GAP, False
+            self.t_last, self.y_last, self.x_last = t, x, x
+            return GAP if t_last is not None and known else STARTED, False
         times = self.times
         times.append(t)
         self.t_prev, self.y_prev, self.t_last = t_last, self.y_last, t
+        self.x_prev, self.x_last = self.x_last, x
         if self.cutoff_hz is None:
             self.y_last = x
             return CONTINUED, False
@@ -344,8 +420,10 @@ class FrontEnd:
         self._mag_cal = _affine_rows(*affines["mag"])
         cutoff = s.cutoff_hz if s.filter_enabled else None
         self._clock = VehicleClock(s.reorder_window_s)
-        self._imu = _Stream(cutoff, s.input_timeout_s, s.rate_window, s.rate_tolerance)
-        self._mag = _Stream(cutoff, s.input_timeout_s, s.rate_window, s.rate_tolerance)
+        slow = slow_interval_s(s)
+        self._imu = _Stream(cutoff, s.input_timeout_s, s.rate_window, s.rate_tolerance, slow)
+        self._mag = _Stream(cutoff, s.input_timeout_s, s.rate_window, s.rate_tolerance, slow)
+        self.per_sample = False  # the input is slow: one tick per sample, unfiltered (the module docstring)
         self._mag_taken: Vec3 | None = None  # the last magnetometer reading taken, as received
         self._repeat_hold_s = repeat_hold_s(s)
         self._next_k = 0
@@ -368,8 +446,9 @@ class FrontEnd:
         if event is ClockEvent.REBOOT:
             c.reboots += 1
             log.warning("vehicle clock went back from the newest sample to %.3f s: reboot, front end restarted", t)
-            self._imu.restart()
-            self._mag.restart()
+            self._imu.reboot()
+            self._mag.reboot()
+            self.per_sample = False
         elif event is ClockEvent.WRAP:
             c.wraps += 1
         s = self.settings
@@ -394,15 +473,29 @@ class FrontEnd:
                 c.mag_gap_resets += status == GAP
                 c.redesigns += redesigned
         a, g = _apply(self._acc, acc), _apply(self._gyr, gyr)
+        limit_s = self._imu.gap_limit_s
         status, redesigned = self._imu.push(t, (*a, *g))
         c.redesigns += redesigned
-        if status != CONTINUED:
+        slow = self._imu.slow
+        if status != CONTINUED or slow != self.per_sample:
             if status == GAP:
                 c.gap_resets += 1
-                log.warning("input gap longer than %.3g s before %.3f s: filter restarted", s.input_timeout_s, t)
+                log.warning("input gap longer than %.3g s before %.3f s: filter restarted", limit_s, t)
             self._pending_reset = True
-            self._next_k = first_tick(t, s.output_rate_hz) if s.filter_enabled else 0
+            self._next_k = first_tick(t, s.output_rate_hz)
+            self.per_sample = slow
         return self._emit(t)
+
+    @property
+    def rate_hz(self) -> float:
+        """The input's rate now: one over the median of its last intervals (NaN before two samples)."""
+        return 1.0 / _median(self._imu.intervals) if self._imu.intervals else math.nan
+
+    @property
+    def gap_limit_s(self) -> float:
+        """The longest silence of the input that is no gap at its present rhythm (``input_timeout_s``, or
+        :data:`~mavattitude.estimation.conventions.GAP_INTERVALS` of a slower stream's usual interval)."""
+        return self._imu.gap_limit_s
 
     def _repeated(self, t: float, mag: Vec3) -> bool:
         """Whether ``mag`` is the last reading taken again, within :func:`repeat_hold_s` of it: held."""
@@ -436,6 +529,10 @@ class FrontEnd:
     def _emit(self, t: float) -> list[ProcessedSample]:
         s, imu = self.settings, self._imu
         out: list[ProcessedSample] = []
+        if self.per_sample:
+            self.counters.per_sample += 1
+            out.append(self._tick(t, imu.x_last, raw=True))
+            return out
         if not s.filter_enabled:
             out.append(self._tick(t, imu.y_last))
             return out
@@ -450,14 +547,15 @@ class FrontEnd:
         self._next_k = k
         return out
 
-    def _tick(self, tk: float, y: Sequence[float]) -> ProcessedSample:
+    def _tick(self, tk: float, y: Sequence[float], raw: bool = False) -> ProcessedSample:
+        """The tick at ``tk`` from the IMU values ``y``; ``raw``: one per sample of a slow stream (unfiltered)."""
         s = self.settings
-        flags = 0  # plain int bits while building: IntFlag arithmetic costs a microsecond per operation
+        flags = _PER_SAMPLE if raw else 0  # plain int bits while building: IntFlag arithmetic costs a microsecond
         if self._pending_reset:
-            flags = _RESET
+            flags |= _RESET
             self._pending_reset = False
         acc = (y[0], y[1], y[2])
-        mag, mag_flag, mag_age_s = self._mag_at(tk)
+        mag, mag_flag, mag_age_s = self._mag_at(tk, raw)
         flags |= mag_flag
         acc_scale = mag_scale = 1.0
         if acc_suspect(_norm(acc), s):
@@ -475,23 +573,26 @@ class FrontEnd:
                     c.flagged[flag.name or ""] += 1
         return ProcessedSample(tk, acc, mag, (y[3], y[4], y[5]), _FLAGS[flags], acc_scale, mag_scale, mag_age_s)
 
-    def _mag_at(self, tk: float) -> tuple[Vec3 | None, int, float]:
-        """The magnetometer at a tick, its flag, and its age (the tick's time minus the held reading's)."""
+    def _mag_at(self, tk: float, raw: bool = False) -> tuple[Vec3 | None, int, float]:
+        """The magnetometer at a tick, its flag, and its age (the tick's time minus the held reading's); ``raw``:
+        from the unfiltered readings."""
         m = self._mag
         if m.t_last is None:
             return None, _NO_MAG, 0.0
+        last, prev = (m.x_last, m.x_prev) if raw else (m.y_last, m.y_prev)
         if m.t_last >= tk:
             if m.t_prev is not None and m.t_prev < tk:
-                return _vec(_lerp(m.t_prev, m.y_prev, m.t_last, m.y_last, tk)), 0, 0.0
-            return _vec(m.y_last), _MAG_HELD, 0.0
+                return _vec(_lerp(m.t_prev, prev, m.t_last, last, tk)), 0, 0.0
+            return _vec(last), _MAG_HELD, 0.0
         if tk - m.t_last <= self.settings.input_timeout_s:
-            return _vec(m.y_last), _MAG_HELD, tk - m.t_last
+            return _vec(last), _MAG_HELD, tk - m.t_last
         return None, _NO_MAG, 0.0
 
 
 _RESET, _ACC_NORM, _MAG_NORM, _MAG_HELD, _NO_MAG = (
     int(f) for f in (SampleFlag.RESET, SampleFlag.ACC_NORM, SampleFlag.MAG_NORM, SampleFlag.MAG_HELD, SampleFlag.NO_MAG)
 )
+_PER_SAMPLE = int(SampleFlag.PER_SAMPLE)
 _FLAGS = [SampleFlag(v) for v in range(2 * max(SampleFlag))]  # every combination, built once
 #: The flag set of plain int bits (a table look-up: IntFlag arithmetic costs a microsecond per operation).
 flag_set = _FLAGS.__getitem__
@@ -773,10 +874,36 @@ def _retake(tr: Array, a: int, b: int, hold_s: float, same: NDArray[np.bool_]) -
         k = j
 
 
-def _segments(t: Array, timeout_s: float) -> list[tuple[int, int]]:
-    """``(start, stop)`` of each run without a gap longer than ``timeout_s``; one, ``(0, 0)``, when empty."""
-    starts = [0, *(np.flatnonzero(np.diff(t) > timeout_s) + 1).tolist()]
+def _segments(t: Array, timeout_s: float, window: int) -> list[tuple[int, int]]:
+    """``(start, stop)`` of each run without a gap (:meth:`_Stream._take_interval`: longer than ``timeout_s`` and
+    than :func:`gap_limit_s` of the median of the ``window`` intervals before it); one, ``(0, 0)``, when empty."""
+    d = np.diff(t)
+    gaps = [i for i in np.flatnonzero(d > timeout_s).tolist() if d[i] > _batch_gap_limit_s(d, i, timeout_s, window)]
+    starts = [0, *(i + 1 for i in gaps)]
     return list(zip(starts, [*starts[1:], len(t)], strict=True))
+
+
+def _gaps(segments: list[tuple[int, int]]) -> int:
+    """The gaps between ``segments`` (:meth:`_Stream.push`: after the first interval, which starts anew uncounted)."""
+    return sum(a > 1 for a, _ in segments[1:])
+
+
+def _batch_gap_limit_s(d: Array, i: int, timeout_s: float, window: int) -> float:
+    """:attr:`_Stream.gap_limit_s` before interval ``d[i]``: from the (up to) ``window`` intervals before it."""
+    before = d[max(0, i - window) : i]
+    return gap_limit_s(timeout_s, float(np.sort(before)[len(before) // 2]) if len(before) else math.nan)
+
+
+def _slow_rows(t: Array, s: FrontEndSettings) -> NDArray[np.bool_]:
+    """Per sample, :attr:`_Stream.slow` after it: most of the (up to) ``rate_window`` intervals up to it slow."""
+    slow = np.zeros(len(t), dtype=bool)
+    if len(t) < 2:
+        return slow
+    long = np.concatenate([[0], np.cumsum(np.diff(t) > slow_interval_s(s))])  # slow intervals up to each sample
+    i = np.arange(1, len(t))
+    first = np.maximum(i - s.rate_window, 0)
+    slow[1:] = 2 * (long[i] - long[first]) > i - first
+    return slow
 
 
 def _filter_batch_stream(
@@ -829,40 +956,63 @@ def _batch_epoch(
     """Ticks of one boot epoch: (times, IMU values (6, ·), magnetometer (·, 3) NaN-padded, flags, its age)."""
     if len(t) == 0:
         return _NO_TICKS
-    segments, mag_segments = _segments(t, s.input_timeout_s), _segments(tm, s.input_timeout_s)
+    segments = _segments(t, s.input_timeout_s, s.rate_window)
+    mag_segments = _segments(tm, s.input_timeout_s, s.rate_window)
     y, _ = _filter_batch_stream(s, t, imu, segments, c)
     ym, segm = _filter_batch_stream(s, tm, mag, mag_segments, c)
-    c.gap_resets += len(segments) - 1
-    c.mag_gap_resets += len(mag_segments) - 1
-    r = s.output_rate_hz
+    c.gap_resets += _gaps(segments)
+    c.mag_gap_resets += _gaps(mag_segments)
+    slow = _slow_rows(t, s)
+    c.per_sample += int(np.count_nonzero(slow))
     times, values, idx_all, flags = [], [], [], []
     for a, b in segments:
-        ts, ys = t[a:b], y[:, a:b]
-        if s.filter_enabled:
-            ks = np.arange(first_tick(float(ts[0]), r), last_tick(float(ts[-1]), r) + 1)
-            tk = ks / r
-        else:
-            tk = ts.copy()
-        if len(tk) == 0:
-            continue
-        idx = np.searchsorted(ts, tk, side="left")
-        exact = ts[idx] == tk
-        prev = np.maximum(idx - 1, 0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            frac = (tk - ts[prev]) / (ts[idx] - ts[prev])
-        val = np.where(exact[None, :], ys[:, idx], ys[:, prev] + (ys[:, idx] - ys[:, prev]) * frac[None, :])
-        f = np.zeros(len(tk), dtype=np.int64)
-        f[0] = SampleFlag.RESET
-        times.append(tk)
-        values.append(val)
-        idx_all.append(a + idx)
-        flags.append(f)
+        for r0, r1 in _runs(slow, a, b):  # a change of pace starts the ticks over, as a gap does
+            tk, idx, val = _run_ticks(s, t[a:b], y[:, a:b], imu[:, a:b], r0 - a, r1 - a, bool(slow[r0]))
+            if len(tk) == 0:
+                continue
+            f = np.full(len(tk), _PER_SAMPLE if slow[r0] else 0, dtype=np.int64)
+            f[0] |= SampleFlag.RESET
+            times.append(tk)
+            values.append(val)
+            idx_all.append(a + idx)
+            flags.append(f)
     if not times:
         return _NO_TICKS
     tk, idx, f = (np.concatenate(v) for v in (times, idx_all, flags))
     val = np.concatenate(values, axis=1)
-    mag_out, age = _mag_at_batch(s, tk, t[idx], tm, ym, segm, f)
+    mag_out, age = np.full((len(tk), 3), np.nan), np.zeros(len(tk))
+    raw = (f & _PER_SAMPLE) != 0
+    for rows, values_m in ((~raw, ym), (raw, mag)):  # a slow stream's ticks take the readings unfiltered
+        if rows.any():
+            f_rows = f[rows]
+            mag_out[rows], age[rows] = _mag_at_batch(s, tk[rows], t[idx[rows]], tm, values_m, segm, f_rows)
+            f[rows] = f_rows
     return tk, val, mag_out, f, age
+
+
+def _runs(slow: NDArray[np.bool_], a: int, b: int) -> list[tuple[int, int]]:
+    """``(start, stop)`` of the runs of one pace (``slow`` constant) in the segment ``a:b``."""
+    starts = [a, *(a + 1 + np.flatnonzero(slow[a + 1 : b] != slow[a : b - 1])).tolist()]
+    return list(zip(starts, [*starts[1:], b], strict=True))
+
+
+def _run_ticks(
+    s: FrontEndSettings, ts: Array, ys: Array, xs: Array, r0: int, r1: int, slow: bool
+) -> tuple[Array, NDArray[np.int64], Array]:
+    """The ticks of the samples ``r0:r1`` of one segment (times ``ts``, filtered ``ys``, unfiltered ``xs``):
+    times, the sample each is emitted by, values. A slow run: each sample, unfiltered; else the 50 Hz ticks
+    interpolated in the filtered stream (or each sample, filtering off)."""
+    if slow or not s.filter_enabled:
+        idx = np.arange(r0, r1)
+        return ts[r0:r1].copy(), idx, (xs if slow else ys)[:, r0:r1]
+    r = s.output_rate_hz
+    tk = np.arange(first_tick(float(ts[r0]), r), last_tick(float(ts[r1 - 1]), r) + 1) / r
+    idx = np.searchsorted(ts, tk, side="left")
+    exact = ts[idx] == tk
+    prev = np.maximum(idx - 1, 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frac = (tk - ts[prev]) / (ts[idx] - ts[prev])
+    return tk, idx, np.where(exact[None, :], ys[:, idx], ys[:, prev] + (ys[:, idx] - ys[:, prev]) * frac[None, :])
 
 
 _NO_TICKS = (np.empty(0), np.empty((6, 0)), np.empty((0, 3)), np.empty(0, dtype=np.int64), np.empty(0))

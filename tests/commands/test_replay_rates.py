@@ -5,11 +5,16 @@ from __future__ import annotations
 import csv
 from pathlib import Path
 
+import numpy as np
+import pytest
+
 from mavattitude.cli import main
+from mavattitude.sim.logwriter import SensorLog, static_log, write_tlog
 from tests.shared import shared_path
 
 CONFIG = Path(__file__).resolve().parents[2] / "configs" / "ardupilot.yaml"
 MIN_SHARE_PCT = 95.0  # the target: the autopilot's attitudes inside our output span that are compared
+REF = ["--declination", "0", "--inclination", "63.5"]  # static_log's field, magnetic north
 
 
 def summary_row(out: Path) -> dict[str, str]:
@@ -30,3 +35,56 @@ def test_ours_starting_at_the_first_gps_fix_still_pair_every_later_autopilot_att
     when the replay's pairing ran one output ahead per autopilot attitude before our first."""
     row = replay_dir(tmp_path, shared_path("data", "ardupilot-sitl", "twocompass.tlog"))
     assert float(row["compared_pct"]) >= MIN_SHARE_PCT and int(row["compared"]) > 10_000
+
+
+def low_rate_log(seconds: float = 60.0, yaw_rate_dps: float = 10.0, seed: int = 1) -> SensorLog:
+    """static_log's turning vehicle as a ground station records it by default: RAW_IMU at 2 Hz (its compass in
+    every message), each 0.5 s apart ± 30 ms (many intervals longer than input_timeout_s, 0.5 s)."""
+    log = static_log(seconds, imu_rate_hz=2.0, mag_rate_hz=2.0, yaw_rate_dps=yaw_rate_dps)
+    jitter = np.random.default_rng(seed).uniform(-0.03, 0.03, len(log.imu_t_s))
+    log.imu_t_s = log.imu_t_s + 0.013 + jitter  # off the 50 Hz grid
+    log.mag_t_s = log.imu_t_s.copy()
+    log.mag_uT = _turned_field(log.mag_t_s, yaw_rate_dps)
+    log.gyr_radps = np.tile([0.0, 0.0, np.radians(yaw_rate_dps)], (len(log.imu_t_s), 1))
+    return log
+
+
+def _turned_field(t_s: np.ndarray, yaw_rate_dps: float) -> np.ndarray:
+    """static_log's field (48 µT, 63.5° inclination) in the body of a vehicle level at yaw rate × (t − 1 s)."""
+    inc, yaw = np.radians(63.5), np.radians(yaw_rate_dps) * (t_s - 1.0)
+    north, down = 48.0 * np.cos(inc), 48.0 * np.sin(inc)
+    return np.column_stack([np.cos(yaw) * north, -np.sin(yaw) * north, np.full(len(t_s), down)])
+
+
+@pytest.mark.parametrize("method", ["ign", "fused"])
+def test_a_low_rate_telemetry_log_gives_one_attitude_per_sample_compared_at_both_rates(tmp_path, method):
+    log = low_rate_log()
+    path = write_tlog(tmp_path / "slow.tlog", log)
+    row = replay_dir(tmp_path, path, "--method", method, *REF)
+    # the first sample, its pace unknown, starts a filtered stream: no 50 Hz tick (ign) or the filter's first
+    assert row["status"] == "ok" and int(row["outputs"]) >= len(log.imu_t_s) - 1
+    slow = "one attitude per sample"
+    if method == "fused":
+        slow = "too slow to integrate the gyro: one IGN attitude per sample"
+    assert row["rate_handling"] == f"RAW_IMU at 2.0 Hz: {slow}, no filtering"
+    assert float(row["compared_pct"]) == 100.0 and row["not_compared"] == ""
+    # noise-free, the compass read with each sample: heading to the int16 milligauss rounding (0.15°), ATT's
+    # float32 degrees and our interpolation between two outputs 0.5 s apart in a 10°/s turn (chord: ~1e-3°)
+    assert max(float(row[f"{a}_p99_deg"]) for a in ("roll", "pitch", "yaw")) < 0.3
+
+
+@pytest.mark.parametrize("method", ["ign", "fused"])
+def test_the_shared_low_rate_logs_are_processed_per_sample_and_compared_at_their_rates(tmp_path, method):
+    """lowrate.tlog (SITL, RAW_IMU 2 Hz, ATTITUDE 4 Hz, 60°/s turns) and a real ArduSub dive (RAW_IMU 2 Hz,
+    ATTITUDE 20 Hz, no GPS: the field given): one attitude per sample, nearly all of the autopilot's compared."""
+    sitl = replay_dir(tmp_path / "sitl", shared_path("data", "ardupilot-sitl", "lowrate.tlog"), "--method", method)
+    sub = replay_dir(
+        tmp_path / "sub",
+        shared_path("data", "real", "ardusub41_2023-04-18.tlog"),
+        *("--method", method, "--declination", "0", "--inclination", "60"),
+    )
+    for row in (sitl, sub):
+        assert row["status"] == "ok" and row["rate_handling"].startswith("RAW_IMU at 2.0 Hz: ")
+        assert "attitude per sample, no filtering" in row["rate_handling"]
+        assert float(row["compared_pct"]) >= MIN_SHARE_PCT
+    assert int(sitl["compared"]) > 700 and int(sub["compared"]) > 6000  # 4 Hz over 185 s, 20 Hz over 313 s

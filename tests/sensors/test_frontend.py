@@ -460,3 +460,51 @@ def test_batch_holds_the_repeated_readings_the_stream_holds(seed: int, run: int,
     assert batch.counters.mag_rejected == fe.counters.mag_rejected and batch.counters.reboots == fe.counters.reboots
     assert batch.counters.redesigns == fe.counters.redesigns
     _assert_same_ticks(batch.samples(), stream)
+
+
+def _slow_then_fast(seed: int, slow_s: float = 30.0, fast_s: float = 3.0) -> list[ImuSample]:
+    """2 Hz with ±0.06 s of jitter (intervals of 0.44-0.56 s: many longer than input_timeout_s), then 100 Hz."""
+    rng = np.random.default_rng(seed)
+    slow_t = 1.013 + np.arange(0.0, slow_s, 0.5) + rng.uniform(-0.03, 0.03, round(slow_s / 0.5))
+    fast_t = slow_t[-1] + 0.5 + np.arange(0.0, fast_s, 0.01)
+    t = np.concatenate([slow_t, fast_t])
+    n = len(t)
+    acc = rng.normal([0, 0, -G], 1.0, (n, 3))
+    return _samples(t, acc, rng.normal(0, 0.5, (n, 3)), rng.normal([20, 2, 40], 2.0, (n, 3)))
+
+
+def test_a_slow_stream_gives_one_unfiltered_attitude_per_sample_and_no_gap_at_its_own_pace() -> None:
+    samples = _slow_then_fast(5, fast_s=0.0)
+    out, fe = _stream(FrontEndSettings(), samples)
+    # the first sample, its pace not known yet, is a filtered stream's start (off the 50 Hz grid: no tick)
+    assert [o.time_s for o in out] == [s.time_s for s in samples[1:]]
+    assert all(o.flags & SampleFlag.PER_SAMPLE for o in out) and fe.per_sample
+    assert [o.flags & SampleFlag.RESET for o in out].count(SampleFlag.RESET) == 1  # the switch, not a gap
+    assert fe.counters.gap_resets == 0 and fe.counters.per_sample == len(out)
+    got = np.array([o.acc_mps2 + o.gyr_radps + o.mag_uT for o in out])
+    sent = np.array([s.acc_mps2 + s.gyr_radps + s.mag_uT for s in samples[1:]])
+    assert np.max(np.abs(got - sent)) < 1e-12  # unfiltered: the input through the identity calibration, rounded
+    assert fe.rate_hz == pytest.approx(2.0, rel=0.05) and fe.gap_limit_s == pytest.approx(1.25, rel=0.1)
+
+
+def test_a_slow_stream_still_has_gaps_when_messages_are_lost() -> None:
+    samples = _slow_then_fast(6, fast_s=0.0)
+    del samples[30:34]  # 2.5 s without a message: more than 2.5 of its 0.5 s intervals
+    out, fe = _stream(FrontEndSettings(), samples)
+    assert fe.counters.gap_resets == 1 and len(out) == len(samples) - 1
+
+
+@pytest.mark.parametrize("filtered", [True, False])
+def test_a_stream_that_speeds_up_is_filtered_again_on_the_grid_and_the_batch_path_agrees(filtered: bool) -> None:
+    samples = _slow_then_fast(7)
+    settings = FrontEndSettings(expected_field_uT=44.7, filter_enabled=filtered)
+    stream, fe = _stream(settings, samples)
+    fast = [o for o in stream if not o.flags & SampleFlag.PER_SAMPLE and o.time_s > samples[1].time_s]
+    # the pace turns when most of the last 32 intervals are short: the 17th fast sample
+    assert fast[0].flags & SampleFlag.RESET and not fe.per_sample
+    assert fast[0].time_s == pytest.approx(samples[-300 + 16].time_s, abs=0.02)
+    if filtered:
+        assert np.allclose(np.diff([o.time_s for o in fast]), 0.02)  # the 50 Hz ticks
+    batch = process_batch(settings, **batch_inputs(samples))
+    _assert_same_ticks(batch.samples(), stream)
+    assert batch.counters.per_sample == fe.counters.per_sample == 59 + 16
