@@ -27,7 +27,7 @@ from mavattitude.errors import DataFileError
 from mavattitude.link.logstreams import LogStreams, struct_dtype
 from mavattitude.sensors import dataflash_units as du
 
-GPS_FIX_3D = 3
+OFFSET = "_offset"  # the column of a table holding each record's byte offset: no DataFlash field is named so
 
 
 class _Index(DFReader.DFReader_binary):
@@ -53,7 +53,16 @@ class _Reader:
         self._bytes = np.frombuffer(self.df.data_map, dtype=np.uint8)
 
     def table(self, name: str) -> dict[str, np.ndarray]:
-        """Every complete record of ``name`` as columns, DFReader's multipliers applied (empty if none)."""
+        """Every complete record of ``name`` as columns, DFReader's multipliers applied (empty if none), and
+        each one's byte offset (``OFFSET``); records with no time since boot of their own (a GPS record before
+        ArduPilot 3.1, the oldest MAG and ATT) are given the time of the last IMU record before them in the
+        file, as ``TimeUS``."""
+        columns = self._columns(name)
+        if columns and name != "IMU" and not _has_time(columns):
+            columns["TimeUS"] = self._file_order_time_s(columns[OFFSET]) * 1e6
+        return columns
+
+    def _columns(self, name: str) -> dict[str, np.ndarray]:
         if name not in self.df.name_to_id:
             return {}
         fmt = self.df.formats[self.df.name_to_id[name]]
@@ -68,7 +77,16 @@ class _Reader:
         return {
             column: records[column] * mult if mult is not None else records[column]
             for column, mult in zip(fmt.columns, fmt.msg_mults, strict=True)
-        }
+        } | {OFFSET: offsets}
+
+    def _file_order_time_s(self, offsets: np.ndarray) -> np.ndarray:
+        """The time of the last IMU record (any instance) before each offset; the first IMU's before them all."""
+        imu = self._columns("IMU")
+        if not imu:
+            raise KeyError("no time field, and no IMU record to take one from")
+        clock_s = du.time_s(imu)[0]
+        before = np.searchsorted(imu[OFFSET], offsets) - 1
+        return clock_s[np.maximum(before, 0)]
 
     def instance(self, base: str, instance: int) -> tuple[str, dict[str, np.ndarray]]:
         """The records of one instance of a sensor (``IMU`` with an ``I`` column, or ``IMU2`` … in old logs)."""
@@ -78,6 +96,14 @@ class _Reader:
             keep = table["I"] == instance
             return f"{base}[I={instance}]", {k: v[keep] for k, v in table.items()}
         return name, self.table(name) if name != base else table
+
+
+def _has_time(columns: dict[str, np.ndarray]) -> bool:
+    try:
+        du.time_s(columns)
+    except KeyError:
+        return False
+    return True
 
 
 @contextlib.contextmanager
@@ -132,8 +158,7 @@ def read_dataflash(path: str | Path, imu_instance: int = 0, mag_instance: int = 
         mag_t, mag = du.mag(mag_table) if mag_table and len(mag_table["MagX"]) else (np.empty(0), empty3)
         att = reader.table("ATT")
         att_t, att_q = du.attitude(att) if att else (np.empty(0), np.empty((0, 4)))
-        pos = reader.table("POS")
-        pos_t, positions = du.position(pos) if pos else (np.empty(0), empty3)
+        pos_t, positions = _positions(reader)
         gps_t, gps_velocity = _gps_velocity(reader)
     except KeyError as exc:
         raise DataFileError(f"{path}: a record lacks a field replay reads: {exc}") from exc
@@ -151,12 +176,28 @@ def _gps_velocity(reader: _Reader) -> tuple[np.ndarray, list[Any]]:
     return du.gps_velocity(gps)
 
 
+def _gps_tables(reader: _Reader) -> list[dict[str, np.ndarray]]:
+    """The GPS receivers' records: GPS (every instance, in new logs by its ``I`` column), and GPS2 in old ones."""
+    return [t for t in (reader.table("GPS"), reader.table("GPS2")) if t]
+
+
+def _positions(reader: _Reader) -> tuple[np.ndarray, np.ndarray]:
+    """The vehicle's positions in time order: the autopilot's POS records where it logged them (0°, 0° is
+    none), else every GPS receiver's records with a 3D fix."""
+    pos = reader.table("POS")
+    if pos:
+        t, rows = du.position(pos)
+        known = np.any(rows[:, :2] != 0.0, axis=1)
+        if known.any():
+            return t[known], rows[known]
+    fixes = [du.gps_fixes(gps) for gps in _gps_tables(reader)]
+    if not fixes:
+        return np.empty(0), np.empty((0, 3))
+    t, rows = np.concatenate([f[0] for f in fixes]), np.concatenate([f[1] for f in fixes])
+    order = np.argsort(t, kind="stable")
+    return t[order], rows[order]
+
+
 def _date(reader: _Reader) -> Any:
-    """The day of the first GPS record with a 3D fix and a GPS week (new logs: GWk, GMS)."""
-    gps = reader.table("GPS")
-    if not gps or "GWk" not in gps:
-        return None
-    fixed = np.flatnonzero((gps["Status"] >= GPS_FIX_3D) & (gps["GWk"] > 0))
-    if len(fixed) == 0:
-        return None
-    return du.gps_date(int(gps["GWk"][fixed[0]]), int(gps["GMS"][fixed[0]]))
+    """The day of the first GPS record with a 3D fix and a GPS week, from any receiver."""
+    return next((d for d in map(du.first_gps_date, _gps_tables(reader)) if d is not None), None)

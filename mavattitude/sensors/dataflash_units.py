@@ -2,24 +2,32 @@
 
 The fields replay reads, with the units ArduPilot logs them in (its ``LogStructure.h`` and the log
 messages documentation; DataFlash's own FMTU units agree), after pymavlink's DFReader has applied the
-format's multiplier (``L``: 1e-7 °, ``e``: 0.01 m):
+format's multiplier (``L``: 1e-7 °, ``e``: 0.01 m, ``c``/``C``: 0.01 °):
 
-===================  ==================  ==============  ==========================
-message              field               logged unit     SI / here
-===================  ==================  ==============  ==========================
-IMU (IMU2, IMU3)     TimeUS | TimeMS     µs | ms         s (TimeMS: uint32, wraps)
-                     AccX, AccY, AccZ    m/s²            m/s² (board frame, FRD)
-                     GyrX, GyrY, GyrZ    rad/s           rad/s
-MAG (MAG2, MAG3)     MagX, MagY, MagZ    milligauss      µT (× 0.1)
-ATT                  Roll, Pitch, Yaw    degrees         rad → quaternion body → NED
-POS                  Lat, Lng, Alt       °, °, m AMSL    °, °, m
-GPS                  GWk, GMS            week, ms        the date (GPS epoch 1980-01-06); the fix time, s
-                     Spd, GCrs, VZ       m/s, °, m/s     NED velocity, m/s (VZ positive down)
-                     Status, NSats       -               fix type, satellites
-===================  ==================  ==============  ==========================
+===================  =====================  ==============  ==============================================
+message              field                  logged unit     SI / here
+===================  =====================  ==============  ==============================================
+IMU (IMU2, IMU3)     TimeUS | TimeMS        µs | ms         s (TimeMS: uint32, wraps)
+                     AccX, AccY, AccZ       m/s²            m/s² (board frame, FRD)
+                     GyrX, GyrY, GyrZ       rad/s           rad/s
+MAG (MAG2, MAG3)     MagX, MagY, MagZ       milligauss      µT (× 0.1)
+ATT                  Roll, Pitch, Yaw       degrees         rad → quaternion body → NED
+POS                  Lat, Lng, Alt          °, °, m AMSL    °, °, m
+GPS (GPS2)           TimeUS | T             µs | ms         s, since boot
+                     Status, NSats          fix type, -     a position when ≥ 3 (3D fix); satellites
+                     Lat, Lng, Alt          °, °, m AMSL    °, °, m
+                     GWk, GMS | Week,       week, ms        the date (GPS epoch 1980-01-06); the fix time, s
+                     TimeMS
+                     Spd, GCrs, VZ          m/s, °, m/s     NED velocity, m/s (VZ positive down)
+===================  =====================  ==============  ==============================================
 
-New logs put every instance in one message with an ``I`` column; old ones (TimeMS era) have IMU2, MAG2, …
-Functions take a table: column name → array (one message type's records), and return SI arrays.
+The layouts of every era pymavlink's DFReader reads: TimeUS (ArduPilot 3.3 on) or TimeMS (before: uint32
+ms since boot); new logs put every instance in one message with an ``I`` column, old ones have IMU2, MAG2,
+GPS2 as messages of their own. The GPS record's own fields changed too: 3.3 on, ``TimeUS``, ``GMS``
+(ms of the GPS week), ``GWk``; before, ``TimeMS`` *is* the ms of the GPS week, beside ``Week``, and the
+time since boot is ``T`` (3.1, 3.2) or not logged at all (earlier: such records take their time from
+the log's order, :func:`time_s`). Functions take a table: column name → array (one message type's
+records), and return SI arrays.
 """
 
 from __future__ import annotations
@@ -31,12 +39,19 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mavattitude.estimation.conventions import Array, quat_from_euler
+from mavattitude.estimation.velocity import GPS_FIX_3D
 from mavattitude.sensors.units import BOOT_MS_WRAP_S, MILLIGAUSS_UT, GpsVelocity
 
 Table = dict[str, NDArray]
 
-#: SI per logged unit of each time field, and its wrap period (s; None: a uint64 of µs never wraps).
-TIME_FIELDS: dict[str, tuple[float, float | None]] = {"TimeUS": (1e-6, None), "TimeMS": (1e-3, BOOT_MS_WRAP_S)}
+#: SI per logged unit of each time-since-boot field, in the order taken, and its wrap period (s; None: a
+#: uint64 of µs never wraps). ``T``: an old GPS record's time since boot (its ``TimeMS`` is GPS time).
+TIME_FIELDS: dict[str, tuple[float, float | None]] = {
+    "TimeUS": (1e-6, None),
+    "T": (1e-3, BOOT_MS_WRAP_S),
+    "TimeMS": (1e-3, BOOT_MS_WRAP_S),
+}
+GPS_WEEK_FIELDS = (("GWk", "GMS"), ("Week", "TimeMS"))  # (week, ms of week): 3.3 on, and before
 ACC_FIELDS, ACC_SI = ("AccX", "AccY", "AccZ"), 1.0  # m/s²
 GYR_FIELDS, GYR_SI = ("GyrX", "GyrY", "GyrZ"), 1.0  # rad/s
 MAG_FIELDS, MAG_SI = ("MagX", "MagY", "MagZ"), MILLIGAUSS_UT  # milligauss → µT
@@ -52,9 +67,10 @@ def message_name(base: str, instance: int, table_has_instances: bool) -> str:
 
 
 def time_s(table: Table) -> tuple[Array, float | None]:
-    """The records' times on the vehicle clock, s, and the field's wrap period."""
+    """The records' times on the vehicle clock, s, and the field's wrap period. An old GPS record's ``TimeMS``
+    beside ``Week`` is GPS time, not the vehicle's: without a ``T`` there is no time (``KeyError``)."""
     for name, (scale, wrap) in TIME_FIELDS.items():
-        if name in table:
+        if name in table and not (name == "TimeMS" and "Week" in table):
             return np.asarray(table[name], dtype=float) * scale, wrap
     raise KeyError(f"no time field (one of {', '.join(TIME_FIELDS)})")
 
@@ -83,6 +99,24 @@ def attitude(table: Table) -> tuple[Array, Array]:
 def position(table: Table) -> tuple[Array, Array]:
     """POS records → times (s) and (latitude °, longitude °, altitude m AMSL) rows."""
     return time_s(table)[0], _vectors(table, POS_FIELDS, 1.0)
+
+
+def gps_fixes(table: Table) -> tuple[Array, Array]:
+    """GPS records → the times (s) and (latitude °, longitude °, altitude m AMSL) rows of those with a 3D fix
+    and a position (0°, 0° is none)."""
+    pos = _vectors(table, POS_FIELDS, 1.0)
+    fixed = (np.asarray(table["Status"]) >= GPS_FIX_3D) & np.any(pos[:, :2] != 0.0, axis=1)
+    return time_s(table)[0][fixed], pos[fixed]
+
+
+def first_gps_date(table: Table) -> dt.date | None:
+    """The day of the first GPS record with a 3D fix and a GPS week (``GWk``/``GMS``, or ``Week``/``TimeMS``)."""
+    names = next(((w, ms) for w, ms in GPS_WEEK_FIELDS if w in table and ms in table), None)
+    if names is None:
+        return None
+    week, ms = (np.asarray(table[n]) for n in names)
+    fixed = np.flatnonzero((np.asarray(table["Status"]) >= GPS_FIX_3D) & (week > 0))
+    return gps_date(int(week[fixed[0]]), int(ms[fixed[0]])) if len(fixed) else None
 
 
 def gps_date(week: int, ms_of_week: int) -> dt.date:

@@ -1,10 +1,11 @@
 """Synthetic flight logs written the way autopilots write them: DataFlash (.bin) records, for tests and benchmarks.
 
 :func:`write_dataflash` lays out FMT records and then the records of each message type in time order,
-byte for byte as ArduPilot does (``A3 95 <type>`` then the packed fields, little-endian). The ``new``
-layout is today's (TimeUS, one IMU and one MAG message with an instance column ``I``); the ``old`` one is
-ArduPilot's before 2015 (TimeMS, IMU2/MAG2 as separate messages). Values are given in SI and stored in
-the logged units of :mod:`mavattitude.sensors.dataflash_units` (MAG in milligauss, ATT in degrees).
+byte for byte as ArduPilot does (``A3 95 <type>`` then the packed fields, little-endian), in the layout of
+an ArduPilot era (:data:`LAYOUTS`: today's, 3.3's, 3.2's and 3.0's FMT records, as the firmware wrote
+them). Values are given in SI and stored in the logged units of
+:mod:`mavattitude.sensors.dataflash_units` (MAG in milligauss, ATT in degrees, positions in 1e-7 °),
+encoded with the multipliers of pymavlink's DFReader.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
+from pymavlink import DFReader
 
 from mavattitude.estimation.conventions import (
     Array,
@@ -30,7 +32,48 @@ from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2
 
 HEADER = b"\xa3\x95"
 FMT_TYPE = 0x80
-_NUMPY = {"Q": "<u8", "I": "<u4", "B": "u1", "f": "<f4", "h": "<i2", "L": "<i4"}
+_NUMPY = {"Q": "<u8", "I": "<u4", "i": "<i4", "B": "u1", "H": "<u2", "h": "<i2", "f": "<f4"}
+
+#: Every layout written, as the ArduPilot of its era logged the records replay reads: (type, name, format
+#: characters, columns) of each, from ArduPilot's LogStructure.h of that release. ``4.1``: today's (TimeUS; IMU,
+#: MAG and GPS with an instance column ``I``; POS; ATT written as floats). ``3.3``: TimeUS, IMU2, MAG2 and GPS2
+#: as messages of their own, GPS with GMS/GWk; no POS. ``3.2``: TimeMS (ms since boot); GPS's TimeMS is the ms
+#: of the GPS week and its time since boot ``T``. ``3.0``: as 3.2, and the GPS record has no time since boot.
+LAYOUTS: dict[str, tuple[tuple[int, str, str, str], ...]] = {
+    "4.1": (
+        (129, "IMU", "QBffffff", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ"),
+        (130, "MAG", "QBhhh", "TimeUS,I,MagX,MagY,MagZ"),
+        (131, "ATT", "Qffffff", "TimeUS,DesRoll,Roll,DesPitch,Pitch,DesYaw,Yaw"),
+        (132, "POS", "QLLf", "TimeUS,Lat,Lng,Alt"),
+        (135, "GPS", "QBBIHBcLLeffffB", "TimeUS,I,Status,GMS,GWk,NSats,HDop,Lat,Lng,Alt,Spd,GCrs,VZ,Yaw,U"),
+    ),
+    "3.3": (
+        (129, "IMU", "QffffffIIfBB", "TimeUS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,ErrG,ErrA,Temp,GyHlt,AcHlt"),
+        (133, "IMU2", "QffffffIIfBB", "TimeUS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,ErrG,ErrA,Temp,GyHlt,AcHlt"),
+        (130, "MAG", "QhhhhhhhhhB", "TimeUS,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOfsX,MOfsY,MOfsZ,Health"),
+        (134, "MAG2", "QhhhhhhhhhB", "TimeUS,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOfsX,MOfsY,MOfsZ,Health"),
+        (131, "ATT", "QccccCCCC", "TimeUS,DesRoll,Roll,DesPitch,Pitch,DesYaw,Yaw,ErrRP,ErrYaw"),
+        (135, "GPS", "QBIHBcLLeeEefB", "TimeUS,Status,GMS,GWk,NSats,HDop,Lat,Lng,RAlt,Alt,Spd,GCrs,VZ,U"),
+        (136, "GPS2", "QBIHBcLLeeEefB", "TimeUS,Status,GMS,GWk,NSats,HDop,Lat,Lng,RAlt,Alt,Spd,GCrs,VZ,U"),
+    ),
+    "3.2": (
+        (131, "IMU", "IffffffIIf", "TimeMS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,ErrG,ErrA,Temp"),
+        (135, "IMU2", "IffffffIIf", "TimeMS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,ErrG,ErrA,Temp"),
+        (141, "MAG", "Ihhhhhhhhh", "TimeMS,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOfsX,MOfsY,MOfsZ"),
+        (142, "MAG2", "Ihhhhhhhhh", "TimeMS,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOfsX,MOfsY,MOfsZ"),
+        (136, "ATT", "IccccCCCC", "TimeMS,DesRoll,Roll,DesPitch,Pitch,DesYaw,Yaw,ErrRP,ErrYaw"),
+        (130, "GPS", "BIHBcLLeeEefI", "Status,TimeMS,Week,NSats,HDop,Lat,Lng,RelAlt,Alt,Spd,GCrs,VZ,T"),
+        (132, "GPS2", "BIHBcLLeEefIBI", "Status,TimeMS,Week,NSats,HDop,Lat,Lng,Alt,Spd,GCrs,VZ,T,DSc,DAg"),
+    ),
+    "3.0": (
+        (131, "IMU", "Iffffff", "TimeMS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ"),
+        (135, "IMU2", "Iffffff", "TimeMS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ"),
+        (141, "MAG", "Ihhhhhhhhh", "TimeMS,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOfsX,MOfsY,MOfsZ"),
+        (142, "MAG2", "Ihhhhhhhhh", "TimeMS,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOfsX,MOfsY,MOfsZ"),
+        (136, "ATT", "IccccCC", "TimeMS,RollIn,Roll,PitchIn,Pitch,YawIn,Yaw"),
+        (130, "GPS", "BIHBcLLeeEe", "Status,TimeMS,Week,NSats,HDop,Lat,Lng,RelAlt,Alt,Spd,GCrs"),
+    ),
+}
 
 
 @dataclass(frozen=True)
@@ -42,7 +85,15 @@ class _Format:
 
     @property
     def dtype(self) -> np.dtype:
-        return np.dtype([(c, _NUMPY[f]) for c, f in zip(self.columns, self.format, strict=True)])
+        codes = (DFReader.FORMAT_TO_STRUCT[c][0] for c in self.format)  # c, e, L, ...: their struct type
+        return np.dtype([(name, _NUMPY[code]) for name, code in zip(self.columns, codes, strict=True)])
+
+    def stored(self, column: str, values: Array) -> Array:
+        """SI-ish ``values`` (DFReader's units, after its multipliers) as this column's logged integers or floats."""
+        code = self.format[self.columns.index(column)]
+        mult = DFReader.FORMAT_TO_STRUCT[code][1]
+        scaled = np.asarray(values, dtype=float) / (mult or 1.0)
+        return scaled if code == "f" else np.round(scaled)
 
     def fmt_record(self) -> bytes:
         body = np.zeros(1, dtype=[("t", "u1"), ("len", "u1"), ("name", "S4"), ("fmt", "S16"), ("cols", "S64")])
@@ -58,7 +109,9 @@ class _Format:
 
 @dataclass
 class SensorLog:
-    """What to write, SI, vehicle clock: IMU rows, magnetometer rows, optional ATT and POS rows."""
+    """What to write, SI, vehicle clock: IMU rows, magnetometer rows, optional ATT and position rows (POS, or
+    GPS records with a 3D fix where the layout has no POS), and the GPS time at vehicle time 0 (s since the GPS
+    epoch; None: no GPS time, week 0)."""
 
     imu_t_s: Array
     acc_mps2: Array
@@ -69,37 +122,28 @@ class SensorLog:
     attitude_rpy_rad: Array | None = None
     position_t_s: Array | None = None
     position: Array | None = None  # latitude °, longitude °, altitude m
+    gps_time_s: float | None = None
 
 
-def _formats(new: bool) -> dict[str, _Format]:
-    time_code, time_name = ("Q", "TimeUS") if new else ("I", "TimeMS")
-    imu_cols = ("GyrX", "GyrY", "GyrZ", "AccX", "AccY", "AccZ")
-    mag_cols = ("MagX", "MagY", "MagZ")
-    inst = ("I",) if new else ()
-    inst_code = "B" if new else ""
-    formats = {
-        "IMU": _Format(129, "IMU", time_code + inst_code + "ffffff", (time_name, *inst, *imu_cols)),
-        "MAG": _Format(130, "MAG", time_code + inst_code + "hhh", (time_name, *inst, *mag_cols)),
-        "ATT": _Format(
-            131, "ATT", time_code + "ffffff", (time_name, "DesRoll", "Roll", "DesPitch", "Pitch", "DesYaw", "Yaw")
-        ),
-        "POS": _Format(132, "POS", time_code + "LLf", (time_name, "Lat", "Lng", "Alt")),
-    }
-    if not new:
-        formats["IMU2"] = _Format(133, "IMU2", formats["IMU"].format, formats["IMU"].columns)
-        formats["MAG2"] = _Format(134, "MAG2", formats["MAG"].format, formats["MAG"].columns)
-    return formats
+def _formats(layout: str) -> dict[str, _Format]:
+    try:
+        rows = LAYOUTS[layout]
+    except KeyError:
+        raise ValueError(f"layout {layout!r}: expected one of {', '.join(LAYOUTS)}") from None
+    return {name: _Format(t, name, fmt, tuple(cols.split(","))) for t, name, fmt, cols in rows}
 
 
-def _records(
-    fmt: _Format, t_s: Array, columns: dict[str, Array], new: bool, instance: int = 0
-) -> tuple[Array, NDArray]:
+def _records(fmt: _Format, t_s: Array, columns: dict[str, Array], instance: int = 0) -> tuple[Array, NDArray]:
+    """Records of ``fmt`` at vehicle times ``t_s``: its time since boot (TimeUS, TimeMS, or an old GPS's T),
+    its instance, and ``columns`` (DFReader's units); the others zero."""
     rows = np.zeros(len(t_s), dtype=fmt.dtype)
-    rows[fmt.columns[0]] = np.round(t_s / du.TIME_FIELDS[fmt.columns[0]][0])
-    if new and "I" in fmt.columns:
+    boot = "T" if "Week" in fmt.columns else fmt.columns[0]  # an old GPS record's TimeMS is GPS time
+    if boot in fmt.columns and boot in du.TIME_FIELDS:
+        rows[boot] = np.round(t_s / du.TIME_FIELDS[boot][0])
+    if "I" in fmt.columns:
         rows["I"] = instance
     for name, values in columns.items():
-        rows[name] = values
+        rows[name] = fmt.stored(name, values)
     raw = np.empty((len(t_s), 3 + fmt.dtype.itemsize), dtype=np.uint8)
     raw[:, :2] = np.frombuffer(HEADER, dtype=np.uint8)
     raw[:, 2] = fmt.type
@@ -107,36 +151,51 @@ def _records(
     return t_s, raw
 
 
-def write_dataflash(path: str | Path, log: SensorLog, new: bool = True, instances: int = 1) -> Path:
-    """Write ``log`` as a DataFlash file; with ``instances`` > 1 every IMU and MAG row is logged again for
-    instance 1, … (the copies scaled by 1 + instance/100, so a reader that takes the wrong one is seen)."""
-    formats = _formats(new)
+def write_dataflash(path: str | Path, log: SensorLog, layout: str = "4.1", instances: int = 1) -> Path:
+    """Write ``log`` as a DataFlash file in ``layout`` (:data:`LAYOUTS`); with ``instances`` > 1 every IMU and
+    MAG row is logged again for instance 1, … (the copies scaled by 1 + instance/100, so a reader that takes
+    the wrong one is seen), and the positions by a second GPS receiver where the layout has one."""
+    formats = _formats(layout)
     parts: list[tuple[Array, NDArray]] = []
     for k in range(instances):
         gain = 1.0 + k / 100.0
-        imu_name = "IMU" if new or k == 0 else f"IMU{k + 1}"
-        mag_name = "MAG" if new or k == 0 else f"MAG{k + 1}"
-        acc, gyr = log.acc_mps2 * gain, log.gyr_radps * gain
-        imu_cols = {**_split(du.GYR_FIELDS, gyr), **_split(du.ACC_FIELDS, acc)}
-        parts.append(_records(formats[imu_name], log.imu_t_s, imu_cols, new, k))
-        mag = np.round(log.mag_uT * gain / du.MAG_SI)
-        parts.append(_records(formats[mag_name], log.mag_t_s, _split(du.MAG_FIELDS, mag), new, k))
+        imu_cols = {**_split(du.GYR_FIELDS, log.gyr_radps * gain), **_split(du.ACC_FIELDS, log.acc_mps2 * gain)}
+        parts.append(_records(_instance(formats, "IMU", k), log.imu_t_s, imu_cols, k))
+        mag_cols = _split(du.MAG_FIELDS, log.mag_uT * gain / du.MAG_SI)
+        parts.append(_records(_instance(formats, "MAG", k), log.mag_t_s, mag_cols, k))
     if log.attitude_t_s is not None and log.attitude_rpy_rad is not None:
         deg = np.degrees(log.attitude_rpy_rad)
-        parts.append(_records(formats["ATT"], log.attitude_t_s, _split(du.ATT_FIELDS, deg), new))
+        deg[:, 2] %= 360.0  # the old layouts' Yaw is unsigned (C): 0–360°, as ArduPilot logs it
+        parts.append(_records(formats["ATT"], log.attitude_t_s, _split(du.ATT_FIELDS, deg)))
     if log.position_t_s is not None and log.position is not None:
-        pos = {
-            "Lat": np.round(log.position[:, 0] * 1e7),
-            "Lng": np.round(log.position[:, 1] * 1e7),
-            "Alt": log.position[:, 2],
-        }
-        parts.append(_records(formats["POS"], log.position_t_s, pos, new))
+        parts += _positions(formats, log, instances)
     path = Path(path)
     with path.open("wb") as f:
         for fmt in formats.values():
             f.write(fmt.fmt_record())
         f.write(_interleave(parts))
     return path
+
+
+def _instance(formats: dict[str, _Format], base: str, k: int) -> _Format:
+    """The message of instance ``k``: the one with an ``I`` column, or ``IMU2`` … in the old layouts."""
+    return formats[base] if k == 0 or "I" in formats[base].columns else formats[f"{base}{k + 1}"]
+
+
+def _positions(formats: dict[str, _Format], log: SensorLog, instances: int) -> list[tuple[Array, NDArray]]:
+    """POS records where the layout has them, and GPS records (3D fix) from each receiver."""
+    assert log.position_t_s is not None and log.position is not None
+    t, pos = log.position_t_s, log.position
+    where = {"Lat": pos[:, 0], "Lng": pos[:, 1], "Alt": pos[:, 2]}
+    parts = [_records(formats["POS"], t, where)] if "POS" in formats else []
+    gps_s = t + (log.gps_time_s if log.gps_time_s is not None else math.nan)
+    week = np.where(np.isfinite(gps_s), np.floor(gps_s / du.GPS_WEEK_S), 0.0)
+    ms = np.where(np.isfinite(gps_s), (gps_s - week * du.GPS_WEEK_S) * 1e3, 0.0)
+    for k in range(min(instances, 2) if "GPS2" in formats or "I" in formats["GPS"].columns else 1):
+        gps = _instance(formats, "GPS", k)
+        weeks = {"GWk": week, "GMS": ms} if "GWk" in gps.columns else {"Week": week, "TimeMS": ms}
+        parts.append(_records(gps, t, {"Status": np.full(len(t), 3.0), **where, **weeks}, k))
+    return parts
 
 
 def _split(names: tuple[str, ...], values: Array) -> dict[str, Array]:

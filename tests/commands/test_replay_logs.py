@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import datetime as dt
 import re
 
 import numpy as np
@@ -11,7 +12,7 @@ import pytest
 from mavattitude.cli import main
 from mavattitude.errors import DataFileError
 from mavattitude.estimation.conventions import angle_between, quat_from_euler
-from mavattitude.sim.logwriter import static_log, write_dataflash
+from mavattitude.sim.logwriter import LAYOUTS, static_log, write_dataflash
 from tests.commands.process import run_cli
 from tests.commands.test_replay import read_rows
 from tests.shared import shared_path
@@ -36,9 +37,9 @@ def summary(path) -> dict[str, dict[str, str]]:
         return {row["log"].rsplit("/", 1)[1]: row for row in csv.DictReader(f)}
 
 
-@pytest.mark.parametrize("new", [True, False])
-def test_one_dataflash_log_of_either_generation(tmp_path, capsys, new):
-    log = write_dataflash(tmp_path / "f.bin", static_log(3.0, yaw_rate_dps=YAW_RATE_DPS), new=new)
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_one_dataflash_log_of_every_layout(tmp_path, capsys, layout):
+    log = write_dataflash(tmp_path / "f.bin", static_log(3.0, yaw_rate_dps=YAW_RATE_DPS), layout=layout)
     out = tmp_path / "f.csv"
     assert main(["replay", str(log), "-o", str(out), *REF, "--no-plot"]) == 0
     rows = read_rows(out)
@@ -74,11 +75,31 @@ def test_workers_log_as_the_command_line_does(tmp_path):
         )
 
 
+def test_old_logs_give_their_position_and_date_to_the_model_of_their_epoch(tmp_path):
+    """GPS records of every layout (no POS before 3.3): the WMM release of the log's own date, at its place."""
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    flight = static_log(3.0, yaw_rate_dps=YAW_RATE_DPS)
+    for layout, day in (("3.0", dt.date(2013, 5, 4)), ("3.2", dt.date(2014, 8, 20)), ("3.3", dt.date(2016, 4, 18))):
+        flight.gps_time_s = (day - dt.date(1980, 1, 6)).days * 86_400.0 + 17.0  # leap seconds: a date is enough
+        write_dataflash(logs / f"v{layout}.bin", flight, layout=layout)
+    out = tmp_path / "out"
+    assert main(["replay", str(logs), "-o", str(out), "--no-plot"]) == 0
+    table = summary(out / "summary.csv")
+    assert [table[f"v{v}.bin"]["reference"] for v in ("3.0", "3.2", "3.3")] == [
+        "WMM2010 at 47.4000°, 8.5000° on 2013-05-04",
+        "WMM2010 at 47.4000°, 8.5000° on 2014-08-20",
+        "WMM2015v2 at 47.4000°, 8.5000° on 2016-04-18",
+    ]
+    # the written field has declination 0, the model's there and then 1.7–2.2° east: the yaw is off by that much
+    assert all(float(row["yaw_rms_deg"]) < 3.0 for row in table.values())
+
+
 def test_a_directory_of_logs_with_bad_ones_among_them(tmp_path, capsys):
     logs = tmp_path / "logs"
     logs.mkdir()
     good = write_dataflash(logs / "a.bin", static_log(3.0, yaw_rate_dps=YAW_RATE_DPS))
-    write_dataflash(logs / "b.bin", static_log(3.0, yaw_rate_dps=YAW_RATE_DPS), new=False)
+    write_dataflash(logs / "b.bin", static_log(3.0, yaw_rate_dps=YAW_RATE_DPS), layout="3.2")
     data = good.read_bytes()
     (logs / "c_cut.bin").write_bytes(data[: len(data) // 2 + 7])
     (logs / "d_junk.ulg").write_bytes(b"\x00" * 100)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import datetime as dt
 
 import numpy as np
 import pytest
@@ -15,18 +16,19 @@ from mavattitude.link.logstreams import LOG_VEHICLE, StreamSource
 from mavattitude.link.source import AutopilotAttitude, PositionFix
 from mavattitude.link.ulog import read_ulog
 from mavattitude.sensors.units import ImuSample
-from mavattitude.sim.logwriter import static_log, write_dataflash
+from mavattitude.sim.logwriter import LAYOUTS, static_log, write_dataflash
 from tests.shared import shared_path
 from tests.test_service import make_config
 
 
-@pytest.mark.parametrize("new", [True, False])
+@pytest.mark.parametrize("layout", LAYOUTS)
 @pytest.mark.parametrize("instance", [0, 1])
-def test_dataflash_both_generations_and_instances_read_back(tmp_path, new, instance):
+def test_dataflash_every_layout_and_instance_read_back(tmp_path, layout, instance):
     log = static_log(2.0, yaw_rate_dps=10.0)
-    path = write_dataflash(tmp_path / "x.bin", log, new=new, instances=2)
+    path = write_dataflash(tmp_path / "x.bin", log, layout=layout, instances=2)
     s = read_dataflash(path, instance, instance)
     gain = 1.0 + instance / 100.0  # the writer's mark of each instance
+    new = layout >= "3.3"
     tick_s = 1e-6 if new else 1e-3  # TimeUS or TimeMS
     assert s.imu_t_s == pytest.approx(log.imu_t_s, abs=0.501 * tick_s)  # rounded to the tick (+ float error)
     assert s.acc_mps2 == pytest.approx(log.acc_mps2 * gain, rel=1e-6)  # float32 fields
@@ -34,6 +36,38 @@ def test_dataflash_both_generations_and_instances_read_back(tmp_path, new, insta
     assert s.time_wrap_s == (None if new else 2**32 / 1000)
     assert len(s.attitude_t_s) == 20 and s.position[0].tolist() == pytest.approx([47.4, 8.5, 450.0], abs=1e-6)
     assert s.damage is None
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_positions_times_and_the_date_of_every_layout(tmp_path, layout):
+    """POS where the layout has it, else the GPS records with a 3D fix (GPS and GPS2, or instances), each at
+    its time since boot (TimeUS, an old GPS's T, or before 3.1 the log's order: the IMU record before it), and
+    the date from the GPS week (GWk/GMS, or Week/TimeMS)."""
+    log = static_log(4.0, imu_rate_hz=50.0)
+    day = dt.date(2014, 8, 20)  # 00:00 UTC is GPS week 1806 + 3 days, plus the 16 leap seconds of 2014
+    log.gps_time_s = (day - dt.date(1980, 1, 6)).days * 86_400.0 + 16.0
+    s = read_dataflash(write_dataflash(tmp_path / "g.bin", log, layout=layout, instances=2))
+    receivers = 1 if layout in ("4.1", "3.0") else 2  # 4.1: POS; 3.0: no GPS2
+    assert len(s.position_t_s) == receivers * len(log.position_t_s)
+    assert np.abs(s.position - [47.4, 8.5, 450.0]).max() < 1e-6  # 1e-7 ° and 1 cm are the logged resolutions
+    # the old GPS logged no time since boot: the IMU record before it (50 Hz: at most 20 ms before)
+    bound_s = 0.0201 if layout == "3.0" else 0.0011
+    assert np.repeat(log.position_t_s, receivers) - s.position_t_s == pytest.approx(0.0, abs=bound_s)
+    assert s.date == day
+    attitude = read_dataflash(write_dataflash(tmp_path / "a.bin", log, layout=layout)).attitude_t_s
+    assert attitude == pytest.approx(log.attitude_t_s, abs=0.0011)  # to the ms of TimeMS
+
+
+def test_gps_records_without_a_fix_are_no_position(tmp_path):
+    log = static_log(2.0, imu_rate_hz=50.0)
+    path = write_dataflash(tmp_path / "n.bin", log, layout="3.2")
+    data = bytearray(path.read_bytes())
+    status = 3  # the GPS record's first field, right after its 3-byte header (type 130 in the 3.2 layout)
+    for at in [i for i in range(len(data) - 3) if data[i : i + 3] == b"\xa3\x95\x82"]:
+        data[at + status] = 1  # no fix
+    path.write_bytes(bytes(data))
+    s = read_dataflash(path)
+    assert len(s.position_t_s) == 0 and s.date is None
 
 
 def test_a_slower_magnetometer_is_carried_once_by_the_first_sample_at_or_after_it(tmp_path):
