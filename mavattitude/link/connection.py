@@ -217,6 +217,15 @@ class _Udp(mavutil.mavudp):
             return mavlink2.MAVLink_bad_data(mbuf, reason.message)
 
 
+def autopilot_heartbeat(autopilot: Any, mav_type: Any, system: Any) -> Any:
+    """Whether HEARTBEAT fields say a flight controller (not a GCS, companion, gimbal, camera or ADS-B unit, and
+    not system 255, the ground stations' id): on one message's ints, or a log's columns (``&`` and ``!=`` only)."""
+    verdict = (autopilot != mavlink2.MAV_AUTOPILOT_INVALID) & (system != 255)
+    for kind in NOT_AUTOPILOT_TYPES:
+        verdict = verdict & (mav_type != kind)
+    return verdict
+
+
 def _whole_frame(data: bytes) -> bool:
     """Whether a datagram is exactly one MAVLink 2 frame by its header (length, signature; no other
     incompatibility flag, which the parser's framing rejects): what :meth:`_Udp._decode` takes."""
@@ -483,14 +492,8 @@ class MavlinkLink:
 
     @staticmethod
     def is_autopilot_heartbeat(msg: Message) -> bool:
-        """A HEARTBEAT from a flight controller (not a GCS, companion, gimbal, camera or ADS-B unit, and not
-        from system 255, the ground stations' id)."""
-        return (
-            msg.get_type() == "HEARTBEAT"
-            and msg.autopilot != mavlink2.MAV_AUTOPILOT_INVALID
-            and msg.type not in NOT_AUTOPILOT_TYPES
-            and msg.get_srcSystem() != 255
-        )
+        """A HEARTBEAT from a flight controller (:func:`autopilot_heartbeat`)."""
+        return msg.get_type() == "HEARTBEAT" and bool(autopilot_heartbeat(msg.autopilot, msg.type, msg.get_srcSystem()))
 
     @staticmethod
     def interval_ack_result(msg: Message) -> str | None:

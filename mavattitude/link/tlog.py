@@ -452,15 +452,10 @@ def _lock(heartbeats: _Table, system_id: int) -> tuple[int, Sender] | None:
 
 
 def _autopilot_heartbeats(table: _Table) -> NDArray[np.bool_]:
-    """Which HEARTBEATs are a flight controller's (:meth:`MavlinkLink.is_autopilot_heartbeat`, as columns)."""
-    from mavattitude.link.connection import NOT_AUTOPILOT_TYPES
+    """Which HEARTBEATs are a flight controller's: the live link's rule on the columns."""
+    from mavattitude.link.connection import autopilot_heartbeat
 
-    f = table.fields
-    return (
-        (f["autopilot"] != mavlink2.MAV_AUTOPILOT_INVALID)
-        & ~np.isin(f["type"], list(NOT_AUTOPILOT_TYPES))
-        & ((table.sender >> 8) != 255)
-    )
+    return autopilot_heartbeat(table.fields["autopilot"], table.fields["type"], table.sender >> 8)
 
 
 def _attitudes(name: str, f: dict[str, NDArray[Any]]) -> list[AutopilotAttitude]:
