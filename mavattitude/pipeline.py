@@ -328,12 +328,14 @@ class FusedEstimator:
         self._filter = None
 
     def counters(self) -> dict[str, float]:
-        """The filter's event counts (summed over resets) and its learnt hard-iron offset, µT (body frame)."""
+        """The filter's event counts (summed over resets), its learnt hard-iron offset, µT (body frame), and how
+        long its heading has come from the gyro alone (``heading_gap_s``, whole seconds)."""
         counts = self._past + Counter(self._filter.counters if self._filter is not None else {})
         out: dict[str, float] = {k: counts[k] for k in self._counter_names}
         if self._filter is not None:
             x, y, z = self._filter.mag_offset_uT.tolist()
             out |= {"mag_offset_x_uT": x, "mag_offset_y_uT": y, "mag_offset_z_uT": z}
+            out["heading_gap_s"] = math.floor(self._filter.heading_gap_s)  # whole s: the line says what changed
         return out
 
     def velocity(self, velocity: GpsVelocity) -> None:

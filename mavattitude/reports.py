@@ -6,7 +6,8 @@ cross-check's words.
 - :func:`compass_event_words`, :func:`compass_warning`, :func:`compass_statustext`: a change of the compass
   monitor's verdict in the log and in STATUSTEXT's 50 characters, live and in an offline summary alike;
   :func:`compass_summary`: its figures over a log as one line;
-- :func:`rate_handling`: how the input was processed at its rate (the service's log, replay's summary).
+- :func:`rate_handling`: how the input was processed at its rate (the service's log, replay's summary);
+- :func:`heading_lost`: the fused filter's compass that gave no heading (almost) all along, live and offline.
 """
 
 from __future__ import annotations
@@ -43,6 +44,27 @@ class ServiceCounters(DispatchCounters, RequestCounters):
     mean_iterations: float = float("nan")
     latency_p50_ms: float = float("nan")  # input read from the socket -> ATTITUDE_QUATERNION handed to the OS
     latency_p99_ms: float = float("nan")
+
+
+#: The fused filter's heading is the gyro's alone (the compass rejected, absent or degenerate) for at least this
+#: share of its updates, or for this long without a break: said, not left to drift in silence.
+HEADING_LOST_FRACTION = 0.5
+HEADING_LOST_S = 60.0
+
+
+def heading_lost(counters: dict[str, float]) -> str | None:
+    """The words for a fused filter whose compass gave (almost) no heading, from its counters; ``None`` when it
+    gave one. A compass off for a while is the filter's to coast over; one that never comes back is a finding."""
+    updates, tilt_only = counters.get("updates", 0), counters.get("tilt_only_updates", 0)
+    gap_s = counters.get("heading_gap_s", 0.0)
+    if not updates or (tilt_only < HEADING_LOST_FRACTION * updates and gap_s < HEADING_LOST_S):
+        return None
+    share = 100.0 * tilt_only / updates
+    return (
+        f"the compass gave no heading for {tilt_only:.0f} of {updates:.0f} updates ({share:.0f} %), none for the "
+        f"last {gap_s:.0f} s: the heading is the gyro's alone and drifts; check the compass (a disturbance that "
+        "never ends, a field off the reference, no magnetometer)"
+    )
 
 
 def compass_event_words(event: CompassEvent) -> tuple[int, str]:

@@ -72,6 +72,7 @@ from mavattitude.reports import (
     compass_event_words,
     compass_statustext,
     counters_line,
+    heading_lost,
     rate_handling,
 )
 from mavattitude.sensors import units
@@ -225,6 +226,7 @@ class AttitudeService:
         self._tick = Every(TICK_S, now)
         self._publish = Every(1.0 / config.crosscheck.publish_rate_hz, now)
         self._stats = Every(config.output.stats_interval_s, now, first_s=config.output.stats_interval_s)
+        self._heading_lost = False  # the fused filter's compass gave no heading (said once)
         watchdog_s = self.notifier.watchdog_interval_s
         self._watchdog = Every(watchdog_s / 4 if watchdog_s else math.inf, now)
         self._alive = Every(alive.PERIOD_S, now)
@@ -508,6 +510,17 @@ class AttitudeService:
 
     # -- counters -------------------------------------------------------------------------------------
 
+    def _say_heading(self, lost: str | None) -> None:
+        """The fused filter's compass that gives no heading (:func:`heading_lost`): said once, and when it is back."""
+        if (lost is not None) == self._heading_lost:
+            return
+        self._heading_lost = lost is not None
+        if lost is not None:
+            log.warning("%s", lost)
+            self._statustext("heading", "compass: no heading, gyro only: check compass", "warning", log_it=False)
+        else:
+            log.info("the compass gives a heading again")
+
     def _log_counters(self, final: bool = False) -> None:
         """The counters: a periodic INFO line with what changed since the last one (the whole line at
         DEBUG; nothing at INFO when nothing changed), the whole line at the end and in systemd's STATUS."""
@@ -518,6 +531,7 @@ class AttitudeService:
         self.counters.mean_iterations = self.pipeline.counters.mean_iterations
         compass = self.pipeline.compass.figures() if self.config.compass.enabled else None
         line = counters_line(self.counters, self.link.counters, self.pipeline.counters, compass, self._xcheck)
+        self._say_heading(heading_lost(self.pipeline.counters.estimator()))
         if final:
             log.info("counters (final): %s", line)
         else:

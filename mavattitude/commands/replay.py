@@ -55,7 +55,7 @@ from mavattitude.config import DEFAULTS, Config
 from mavattitude.errors import DataFileError, MavAttitudeError
 from mavattitude.estimation import METHODS
 from mavattitude.files import LOG_SUFFIXES
-from mavattitude.reports import rate_handling
+from mavattitude.reports import heading_lost, rate_handling
 from mavattitude.sensors.magref import MIN_MEASURED_TICKS
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
 
@@ -291,8 +291,14 @@ def _fill(result: LogResult, replayed: Any, imu_name: str) -> None:
         + sum(pipeline.rejected.values())
     )
     # The fused filter's own counters and learnt offset (nothing for the snapshot methods).
-    fused = pipeline.estimator().items()
-    result.columns |= {f"fused.{k}": round(v, 2) if isinstance(v, float) else v for k, v in fused}
+    fused = pipeline.estimator()
+    result.columns |= {f"fused.{k}": round(v, 2) if isinstance(v, float) else v for k, v in fused.items()}
+    if fused:
+        updates = fused["updates"]
+        result.columns["heading_from_compass"] = round(1.0 - fused["tilt_only_updates"] / updates, 3) if updates else ""
+        lost = heading_lost(fused)
+        if lost:
+            log.warning("%s: %s", result.log, lost)
 
 
 def _compass_columns(figures: Any, result: LogResult) -> None:

@@ -174,6 +174,7 @@ def test_the_shared_sitl_flight_ign_and_fused(tmp_path):
     assert int(fused["fused.updates"]) > 1000 and "fused.updates" not in ign  # the filter's counters, fused only
     # the receiver's 5 Hz velocity (GPS Spd/GCrs/VZ) is differenced from its first fixes: nearly every update
     assert int(fused["fused.gps_updates"]) > 0.95 * int(fused["fused.updates"]) and fused["fused.gps_refused"] == "0"
+    assert float(fused["heading_from_compass"]) == 1.0 and "heading_from_compass" not in ign  # SITL's clean compass
 
 
 @pytest.mark.parametrize("name", ["sample.ulg", "sample_log_small.ulg"])

@@ -17,6 +17,7 @@ from mavattitude.estimation import NoiseModel, solve, solve_batch
 from mavattitude.estimation import conventions as cv
 from mavattitude.estimation.fused import FusedFilter, FusedSettings
 from mavattitude.estimation.fused.ekf import ErrorStateFilter
+from mavattitude.reports import heading_lost
 from mavattitude.sim import scenarios
 from mavattitude.sim.scoring import heading_error, tilt_error
 from mavattitude.sim.sensors import AxisModel, SensorModel
@@ -354,6 +355,25 @@ def test_missing_magnetometer_keeps_tilt_from_the_accelerometer() -> None:
     tilt = np.degrees(tilt_error(np.array([o.q for o in late]), script.attitude([o.time_s for o in late])))
     assert tilt.max() < 0.5
     assert f.counters["tilt_only_updates"] > 0
+
+
+def test_a_compass_that_never_comes_back_is_said_and_one_that_does_is_not() -> None:
+    """No heading from 5 s on: the gap grows with the vehicle time and the finding names the share of updates;
+    a field back at 10 s clears the gap, and with heading for three quarters of the run there is nothing to say."""
+    script = Script([Hold(10.0), Rotate(10.0, (0.2, 0.1, -0.1))], tuple(MAG_NED_UT))
+    t, acc, gyr, mag = _measure(script, _sensors())
+    for back_s, said in ((math.inf, True), (10.0, False)):
+        f = FusedFilter(FusedSettings(), MAG_NED_UT)
+        for i in range(len(t)):
+            f.push(t[i], gyr[i], acc[i], mag[i] if t[i] < 5.0 or t[i] >= back_s else None)
+        counters = {**f.counters, "heading_gap_s": f.heading_gap_s}
+        lost = heading_lost(counters)
+        if said:
+            assert f.heading_gap_s == pytest.approx(t[-1] - 5.0, abs=0.03)  # the last heading: the 50 Hz update at 5 s
+            share = round(100 * f.counters["tilt_only_updates"] / f.counters["updates"])
+            assert lost is not None and f"({share} %)" in lost and share == 75  # 15 of the 20 s
+        else:
+            assert f.heading_gap_s < 0.03 and lost is None  # one 50 Hz update at most
 
 
 def test_updates_wait_for_a_magnetometer_reading_when_it_comes_slower() -> None:

@@ -156,6 +156,7 @@ class FusedFilter:
         self._mag_var, self._skew2 = s.mag_std_uT**2, s.mag_skew_s**2
         self._noise = NoiseModel(accel_std=(s.accel_std_mps2,) * 3, mag_std=(s.mag_std_uT,) * 3)
         self._t_last = 0.0
+        self._heading_at_s = 0.0  # the last heading update's time (or the last start's: IGN's heading)
         self._gyr_last: Vec3 = (0.0, 0.0, 0.0)
         self._start_s = 0.0  # the schedule's origin: the last (re)start
         self._next_update_s = 0.0
@@ -181,6 +182,12 @@ class FusedFilter:
     @property
     def mag_disturbed(self) -> bool:
         return self._mag.disturbed
+
+    @property
+    def heading_gap_s(self) -> float:
+        """How long the heading has come from the gyro alone (no heading update since), s: the compass
+        rejected (disturbed), absent or degenerate for that long."""
+        return self._t_last - self._heading_at_s if self._started else 0.0
 
     @property
     def covariance(self) -> Array:
@@ -312,6 +319,7 @@ class FusedFilter:
             sigma_max2 = sigma_max * sigma_max
             sigma_m2 = sigma_max2 if sigma_max2 < sigma_m2 else sigma_m2
             if self._heading_update(mag, mag_norm, sigma_m2, r):
+                self._heading_at_s = time_s
                 return
         self.counters["tilt_only_updates"] += 1
 
@@ -423,7 +431,7 @@ class FusedFilter:
         if self._gps is not None:
             self._gps.reset()
         self._update_times.clear()
-        self._t_last = time_s
+        self._t_last = self._heading_at_s = time_s  # IGN's heading is the field's
         self._gyr_last = gyr
         self._start_s = self._next_output_s = time_s
         self._next_update_s = time_s + self._update_period_s
