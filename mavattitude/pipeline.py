@@ -532,6 +532,7 @@ class AttitudePipeline:
         reference_after_s: float = -math.inf,
         mag_repeats: bool = False,
         gps: tuple[Array, list[GpsVelocity]] = (np.empty(0), []),
+        attitudes: bool = True,
     ) -> Pushed:
         """:meth:`push` for a whole run of samples at once: what ``push`` gives fed them one by one, as one value.
 
@@ -543,6 +544,7 @@ class AttitudePipeline:
         ``mag_new`` marks rows with a new magnetometer reading, ``mag_repeats`` that the messages repeat the newest
         one (:attr:`~mavattitude.sensors.units.ImuSample.mag_repeats`). ``gps``: the receiver's velocities and the
         times they are handed in at, each before the first tick at or after its time, as :meth:`set_velocity`.
+        ``attitudes=False``: the compass monitor alone, no estimator (how a log's other magnetometers are judged).
         """
         fe = self.frontend
         inputs = (fe.settings, time_s, acc_mps2, gyr_radps, mag_uT)
@@ -558,6 +560,8 @@ class AttitudePipeline:
         reference = self.mag_ref_ned_uT
         if reference is not None and self.compass.settings.enabled:
             pushed.compass = self._judge_compass_rows(batch, batch.time_s > reference_after_s)
+        if not attitudes:
+            return pushed
         gps_t, velocities = gps[0].tolist(), gps[1]
         next_gps = 0
         with _collector_paused():

@@ -24,10 +24,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from mavattitude.config import Config
 from mavattitude.dispatch import DispatchCounters, Dispatcher
-from mavattitude.estimation.compass import CompassEvent
+from mavattitude.estimation.compass import CompassEvent, CompassMonitor
+from mavattitude.estimation.conventions import Array
 from mavattitude.link.logs import LogSource
 from mavattitude.link.logstreams import LogStreams
 from mavattitude.link.source import AutopilotAttitude, MessageSource, Sender
@@ -37,6 +39,26 @@ from mavattitude.sensors.magref import distance_km
 from mavattitude.sensors.units import ImuSample
 
 log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class JudgedCompass:
+    """One magnetometer of a log as the compass monitor judged it over the whole log (docs/vehicle.md)."""
+
+    instance: int
+    events: list[CompassEvent]
+    monitor: CompassMonitor
+
+    @property
+    def warnings(self) -> int:
+        return self.monitor.warnings
+
+    def verdict(self) -> str:
+        """``ok``, ``not judged`` (too few quiet or turning ticks), or what was off when it was first warned about."""
+        warned = next((e for e in self.events if e.inconsistent), None)
+        if warned is not None:
+            return warned.figures.short()
+        return "ok" if self.monitor.samples >= self.monitor.settings.min_samples else "not judged"
 
 
 @dataclass
@@ -54,6 +76,9 @@ class Replayed:
     sample_times_s: list[float] = field(default_factory=list)  # the vehicle's IMU sample times, for its rate
     internal_errors: list[BaseException] = field(default_factory=list)
     compass: list[CompassEvent] = field(default_factory=list)
+    #: every magnetometer judged (the replayed one's from the pipeline), where the log holds several
+    compasses: list[JudgedCompass] = field(default_factory=list)
+    compass_used: str = ""  # which magnetometer was replayed and why ("1: the autopilot's: COMPASS_USE 0, …")
 
     def output_array(self) -> np.ndarray:
         """Rows ``t_s, qw, qx, qy, qz`` of every output."""
@@ -184,21 +209,15 @@ def _replay_arrays(s: LogStreams, result: Replayed, vehicle: Sender) -> Replayed
         counters.positions = len(s.position_t_s)
         before = s.imu_t_s[s.imu_t_s < s.position_t_s[0]]  # a tick is computed when the sample after it arrives
         reference_after_s = float(before[-1]) if len(before) else -math.inf
-    carried = s.carried_mag()
-    mag = np.full((len(carried), 3), np.nan)
-    mag[carried >= 0] = s.mag_uT[carried[carried >= 0]]
+    others = _judge_compasses(s, pipeline, reference_after_s)
+    s = _chosen_compass(s, others, result)
     pushed = pipeline.push_batch(
-        s.imu_t_s,
-        s.acc_mps2,
-        s.gyr_radps,
-        mag,
-        carried >= 0,
-        s.time_wrap_s,
-        reference_after_s,
-        s.mag_repeats,
-        (s.gps_t_s, s.gps_velocity),
+        *_batch_arrays(s), s.time_wrap_s, reference_after_s, s.mag_repeats, (s.gps_t_s, s.gps_velocity)
     )
     result.outputs, result.compass = pushed.outputs, pushed.compass
+    if s.compasses is not None:
+        used = JudgedCompass(s.compasses.used, pushed.compass, pipeline.compass)
+        result.compasses = sorted([*(j for j in others if j.instance != used.instance), used], key=_instance)
     counters.received += len(s.imu_t_s)
     if len(s.imu_t_s):
         result.first_sample_s, result.last_sample_s = float(s.imu_t_s[0]), float(s.imu_t_s[-1])
@@ -208,3 +227,53 @@ def _replay_arrays(s: LogStreams, result: Replayed, vehicle: Sender) -> Replayed
     ]
     counters.autopilot_attitudes = len(result.autopilot)
     return result
+
+
+def _instance(judged: JudgedCompass) -> int:
+    return judged.instance
+
+
+def _batch_arrays(s: LogStreams) -> tuple[Array, Array, Array, Array, NDArray[np.bool_]]:
+    """:meth:`AttitudePipeline.push_batch`'s sample arrays: each IMU row with the magnetometer reading it carries."""
+    carried = s.carried_mag()
+    mag = np.full((len(carried), 3), np.nan)
+    mag[carried >= 0] = s.mag_uT[carried[carried >= 0]]
+    return s.imu_t_s, s.acc_mps2, s.gyr_radps, mag, carried >= 0
+
+
+def _judge_compasses(s: LogStreams, pipeline: AttitudePipeline, reference_after_s: float) -> list[JudgedCompass]:
+    """Every magnetometer of ``s`` but the replayed one, judged by a compass monitor of its own over the same
+    IMU (:meth:`AttitudePipeline.push_batch` without attitudes: the replay's front end and reference); all of
+    them where the log does not say which one the autopilot used (the most consistent is replayed)."""
+    if s.compasses is None or not pipeline.compass.settings.enabled:
+        return []
+    judged = []
+    for instance in s.compasses.readings:
+        if instance == s.compasses.used and s.compasses.why is not None:
+            continue  # the pipeline judges it
+        judge = AttitudePipeline(pipeline.config)
+        if pipeline.mag_ref_ned_uT is not None:  # else each measures its own field: its turn is judged all the same
+            known = pipeline.frontend.expected_field_uT is not None
+            judge.set_magnetic_reference(pipeline.mag_ref_ned_uT, known, pipeline.magref.measured)
+        streams = s.with_compass(instance, s.compasses.why)
+        arrays = _batch_arrays(streams)
+        pushed = judge.push_batch(*arrays, s.time_wrap_s, reference_after_s, streams.mag_repeats, attitudes=False)
+        judged.append(JudgedCompass(instance, pushed.compass, judge.compass))
+    return judged
+
+
+def _chosen_compass(s: LogStreams, judged: list[JudgedCompass], result: Replayed) -> LogStreams:
+    """``s`` with the magnetometer to replay: the one the log names (``--mag``, the autopilot's), else the most
+    consistent of those judged (fewest warnings, then vouched for, then the lowest instance); said in
+    :attr:`Replayed.compass_used`."""
+    if s.compasses is None:
+        result.compass_used = "the only one"
+        return s
+    if s.compasses.why is None and judged:
+        best = min(judged, key=lambda j: (j.warnings, not j.monitor.confirmed, j.instance))
+        s = s.with_compass(best.instance, f"the most consistent of {len(judged)}")
+        if best.instance != 0:
+            log.info("replaying magnetometer %d, the most consistent of %d", best.instance, len(judged))
+    assert s.compasses is not None
+    result.compass_used = f"{s.compasses.used}: {s.compasses.why or 'the first'}"
+    return s

@@ -101,7 +101,7 @@ def run_broad(rec: Recording, method: str, mag_uT: np.ndarray) -> Run:
 
 def run_sitl(streams: LogStreams, method: str, mag_uT: np.ndarray) -> Run:
     """The SITL DataFlash log through replay, its magnetometer replaced by ``mag_uT``."""
-    source = StreamSource("flightA.BIN", dataclasses.replace(streams, mag_uT=mag_uT))
+    source = StreamSource("flightA.BIN", dataclasses.replace(streams, mag_uT=mag_uT, compasses=None))
     result = replay(source, load_config(None, {"estimator.method": method}, env={}))
     return _run(result.pipeline, result.outputs, result.compass)
 

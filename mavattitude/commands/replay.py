@@ -15,6 +15,10 @@ summary.csv, the table also printed: per log its duration, samples, outputs, our
 roll / pitch / yaw RMS and p99 (degrees; at each of the autopilot's attitudes, ours interpolated to its
 time, as the service's cross-check pairs them), rejected inputs, the magnetic reference used (WMM release,
 place and date; the field measured from the compass; or the one given) and what was wrong with the file.
+Every magnetometer a log holds (a .bin's MAG instances; a .tlog's RAW_IMU, SCALED_IMU2, SCALED_IMU3) is
+judged by the compass monitor against the same IMU: the summary's compasses column ("0 ok; 1 turns unlike
+the gyro: turned?"), and compass, the one replayed and why: --mag, else the one the autopilot used where
+the log says (COMPASS_USE / COMPASS_USE2 / COMPASS_PRIMARY in PARM or PARAM_VALUE), else the most consistent.
 -j N replays N logs at a time in worker processes. Where a log holds the autopilot's own attitude, a
 PNG comparison plot is written beside its CSV (needs matplotlib: pip install mavattitude[plot]).
 
@@ -87,7 +91,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--imu", type=int, default=0, metavar="I", help="IMU instance of a .bin/.ulg (default 0)")
     parser.add_argument(
-        "--mag", type=int, default=0, metavar="I", help="magnetometer instance of a .bin/.ulg (default 0)"
+        "--mag",
+        type=int,
+        default=None,
+        metavar="I",
+        help="magnetometer instance (a .tlog: 0 RAW_IMU's, 1 SCALED_IMU2's, 2 SCALED_IMU3's); default: the one "
+        "the autopilot used where the log says (ArduPilot COMPASS_USE/_PRIMARY), else the most consistent",
     )
     parser.add_argument(
         "--message",
@@ -151,7 +160,7 @@ class Job:
     plot: Path | None
     config: Config
     imu: int
-    mag: int
+    mag: int | None
     table: bool  # print the comparison table (one log only)
 
 
@@ -261,6 +270,7 @@ def replay_log(job: Job) -> LogResult:
         result.note = f"{job.log}: {damage}: {read} {result.samples} samples{where} replayed, written to {job.csv}"
     if job.config.compass.enabled:
         _compass_columns(replayed.pipeline.compass.figures(), result)
+        _compasses_columns(replayed, job, result)
     if replayed.autopilot:
         _compare(replayed.output_array(), replayed.autopilot_array(), job, result)
     else:
@@ -309,6 +319,21 @@ def _compass_columns(figures: Any, result: LogResult) -> None:
         "compass_field_ratio": round(figures.first_field_ratio, 3),
         "compass_warnings": figures.warnings,
     }
+
+
+def _compasses_columns(replayed: Any, job: Job, result: LogResult) -> None:
+    """Which magnetometer was replayed and why, and every one's verdict (docs/vehicle.md); each one found off is
+    said once in the log."""
+    result.columns["compass"] = replayed.compass_used
+    if not replayed.compasses:
+        return
+    result.columns["compasses"] = "; ".join(f"{j.instance} {j.verdict()}" for j in replayed.compasses)
+    for judged in replayed.compasses:
+        warned = next((e for e in judged.events if e.inconsistent), None)
+        if warned is not None:
+            log.warning(
+                "%s: magnetometer %d: t=%.1f s: %s", job.log, judged.instance, warned.time_s, warned.figures.describe()
+            )
 
 
 def _report_cross_check(check: Any, events: list[Any], job: Job, result: LogResult) -> None:

@@ -222,6 +222,17 @@ class CompassFigures:
             text += f", {100.0 * self.mounting_share:.0f} % of that explained by a compass mounted otherwise"
         return text
 
+    def short(self) -> str:
+        """What was off, in a few words with the likely cause ("turns unlike the gyro: turned?"), for a summary cell."""
+        off = []
+        if abs(self.dip_deg - self.expected_dip_deg) > self.threshold_dip_deg:
+            off.append("dip off: mounted or calibrated wrongly?")
+        if abs(self.field_ratio - 1.0) > self.threshold_field:
+            off.append("|B| off: calibration, magnet?")
+        if self.turn_off:
+            off.append("turns unlike the gyro: turned?")
+        return ", ".join(off) or "off"
+
     @property
     def turn_off(self) -> bool:
         """The turn is off: its mismatch beyond its threshold, or another mounting explains it (named first)."""

@@ -24,7 +24,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from pymavlink import DFReader
 
 from mavattitude.errors import DataFileError
-from mavattitude.link.logstreams import LogStreams, struct_dtype
+from mavattitude.link.logstreams import Compasses, LogStreams, autopilot_compass, struct_dtype
 from mavattitude.sensors import dataflash_units as du
 
 OFFSET = "_offset"  # the column of a table holding each record's byte offset: no DataFlash field is named so
@@ -144,12 +144,17 @@ def _unindexed(df: Any, size: int) -> str | None:
     return None
 
 
-def read_dataflash(path: str | Path, imu_instance: int = 0, mag_instance: int = 0) -> LogStreams:
-    """The IMU (instance ``imu_instance``), magnetometer, ATT, POS and GPS velocity streams of a DataFlash log, SI."""
+def read_dataflash(path: str | Path, imu_instance: int = 0, mag_instance: int | None = None) -> LogStreams:
+    """The IMU (instance ``imu_instance``), magnetometer, ATT, POS and GPS velocity streams of a DataFlash log,
+    SI; the magnetometer ``mag_instance``, by default the one the autopilot used (its PARM records), else
+    instance 0, every instance in :attr:`LogStreams.compasses`."""
     path = Path(path)
     reader = _Reader(path)
     imu_name, imu_table = reader.instance("IMU", imu_instance)
-    mag_name, mag_table = reader.instance("MAG", mag_instance)
+    readings = _magnetometers(reader)
+    chosen = autopilot_compass(_parameters(reader), list(readings)) if mag_instance is None else None
+    used, why = (mag_instance, f"--mag {mag_instance}") if mag_instance is not None else chosen or (0, None)
+    mag_name, mag_table = reader.instance("MAG", used)
     empty3 = np.empty((0, 3))
     try:
         t, acc, gyr, wrap = (
@@ -165,6 +170,8 @@ def read_dataflash(path: str | Path, imu_instance: int = 0, mag_instance: int = 
     streams = LogStreams(t, acc, gyr, mag_t, mag, att_t, att_q, pos_t, positions, _date(reader), wrap, reader.damage)
     streams.check(str(path), imu_name, mag_name)
     streams.gps_t_s, streams.gps_velocity = gps_t, gps_velocity
+    if len(readings) > 1 and used in readings:
+        streams.compasses = Compasses(readings, used, why)
     return streams
 
 
@@ -196,6 +203,27 @@ def _positions(reader: _Reader) -> tuple[np.ndarray, np.ndarray]:
     t, rows = np.concatenate([f[0] for f in fixes]), np.concatenate([f[1] for f in fixes])
     order = np.argsort(t, kind="stable")
     return t[order], rows[order]
+
+
+def _magnetometers(reader: _Reader) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Every MAG instance with readings (an ``I`` column, or MAG, MAG2, MAG3 in old logs): times s, field µT."""
+    table = reader.table("MAG")
+    instances = sorted(set(table["I"].tolist())) if "I" in table else range(3)
+    out = {}
+    for k in instances:
+        found = reader.instance("MAG", k)[1]
+        if found and len(found["MagX"]):
+            out[k] = du.mag(found)
+    return out
+
+
+def _parameters(reader: _Reader) -> dict[str, float]:
+    """The PARM records' parameters, each at its last logged value."""
+    parm = reader.table("PARM")
+    if not parm:
+        return {}
+    names = [n.split(b"\0")[0].decode("ascii", "replace") for n in parm["Name"].tolist()]
+    return dict(zip(names, np.asarray(parm["Value"], dtype=float).tolist(), strict=True))
 
 
 def _date(reader: _Reader) -> Any:

@@ -40,18 +40,20 @@ class LogFormat:
     name: str
     magic: bytes | None  # the file starts so; None: recognised by ``suffix`` (a .tlog has no magic)
     suffix: str  # the usual name's suffix (lower case)
-    open: Callable[[Path, Config, int, int, Sequence[str], int | None], LogSource]
+    open: Callable[[Path, Config, int, int | None, Sequence[str], int | None], LogSource]
 
 
-def _stream_reader(read: Callable[[Path, int, int], LogStreams]) -> Callable[..., LogSource]:
+def _stream_reader(read: Callable[[Path, int, int | None], LogStreams]) -> Callable[..., LogSource]:
     """A reader of arrays (DataFlash, ULog) as the table's ``open``."""
     return lambda path, config, imu_instance, mag_instance, first_of, system_id: StreamSource(
         str(path), read(path, imu_instance, mag_instance)
     )
 
 
-def _tlog(path: Path, config: Config, imu: int, mag: int, first_of: Sequence[str], system_id: int | None) -> LogSource:
-    return TlogSource(path, MavlinkDecoder.from_config(config), first_of, system_id)
+def _tlog(
+    path: Path, config: Config, imu: int, mag: int | None, first_of: Sequence[str], system_id: int | None
+) -> LogSource:
+    return TlogSource(path, MavlinkDecoder.from_config(config), first_of, system_id, mag)
 
 
 #: Every log format read, in the order they are tried.
@@ -84,7 +86,7 @@ def open_log(
     path: str | Path,
     config: Config,
     imu_instance: int = 0,
-    mag_instance: int = 0,
+    mag_instance: int | None = None,
     *,
     first_of: Sequence[str] = (),
     system_id: int | None = None,
@@ -93,7 +95,9 @@ def open_log(
 
     ``first_of``: a telemetry log's IMU message is the first of these that the autopilot followed (the first
     autopilot HEARTBEAT's, from ``system_id`` if given) sent, rather than the config's
-    (:class:`~mavattitude.link.tlog.TlogSource`); other formats name theirs.
+    (:class:`~mavattitude.link.tlog.TlogSource`); other formats name theirs. ``mag_instance``: the compass
+    replayed; by default the one the autopilot used where the log says (ArduPilot's COMPASS_USE, _PRIMARY;
+    PX4's calibrated selection), every other one in the streams' ``compasses``.
     """
     path = Path(path)
     return detect_format(path).open(path, config, imu_instance, mag_instance, first_of, system_id)

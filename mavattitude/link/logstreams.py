@@ -19,8 +19,8 @@ from __future__ import annotations
 import datetime as dt
 import functools
 import re
-from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 import numpy as np
@@ -70,6 +70,32 @@ class Follower(Protocol):
         ...
 
 
+@dataclass(frozen=True)
+class Compasses:
+    """Every magnetometer a log holds, and which of them :class:`LogStreams` replays and why."""
+
+    readings: dict[int, tuple[Array, Array]]  # instance → (times s, field µT body frame), each in time order
+    used: int  # the instance in LogStreams.mag_t_s / mag_uT
+    #: why that one ("--mag 1", "the autopilot's: COMPASS_USE 1, COMPASS_USE2 0"); None: the log does not say
+    why: str | None = None
+
+
+def autopilot_compass(params: Mapping[str, float], instances: Sequence[int]) -> tuple[int, str] | None:
+    """The compass ArduPilot uses for heading, from its parameters, and the parameters that say so; ``None``
+    when none of them is in the log. Its primary (``COMPASS_PRIMARY``, 0-based, older firmware) if that one is
+    used, else the first instance whose ``COMPASS_USE``/``USE2``/``USE3`` is 1 (an absent one defaults to 1)."""
+    use_names = {k: f"COMPASS_USE{k + 1 if k else ''}" for k in instances}
+    said = [name for name in ("COMPASS_PRIMARY", *use_names.values()) if name in params]
+    if not said:
+        return None
+    why = "the autopilot's: " + ", ".join(f"{name} {params[name]:g}" for name in said)
+    used = [k for k in sorted(instances) if params.get(use_names[k], 1.0) != 0.0]
+    primary = int(params.get("COMPASS_PRIMARY", -1))
+    if primary in used:
+        return primary, why
+    return (used[0], why) if used else None
+
+
 @dataclass
 class LogStreams:
     """A log's sensor streams, SI units, on the vehicle clock (s); rows in time order within each stream."""
@@ -96,6 +122,16 @@ class LogStreams:
     #: in at (before the IMU sample at or after it), in time order
     gps_t_s: Array = field(default_factory=lambda: np.empty(0))
     gps_velocity: list[GpsVelocity] = field(default_factory=list)
+    compasses: Compasses | None = None  # every magnetometer, where the log holds several
+
+    def with_compass(self, instance: int, why: str | None) -> LogStreams:
+        """These streams with the magnetometer ``instance`` of :attr:`compasses` replayed (and ``why``)."""
+        assert self.compasses is not None
+        compasses = replace(self.compasses, used=instance, why=why)
+        if instance == self.compasses.used:  # its streams as they are (a caller may have changed them)
+            return replace(self, compasses=compasses)
+        mag_t, mag = self.compasses.readings[instance]
+        return replace(self, mag_t_s=mag_t, mag_uT=mag, imu_mag_index=None, compasses=compasses)
 
     def carried_mag(self) -> NDArray[np.int64]:
         """Which magnetometer row each IMU sample carries, -1 where none."""

@@ -35,7 +35,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
 from mavattitude.errors import DataFileError, SensorError
-from mavattitude.link.logstreams import Follower, LogStreams, struct_dtype
+from mavattitude.link.logstreams import Compasses, Follower, LogStreams, autopilot_compass, struct_dtype
 from mavattitude.link.mavlink2 import mavlink2
 from mavattitude.link.source import (
     ATTITUDE_MESSAGES,
@@ -53,6 +53,10 @@ from mavattitude.sensors import units
 
 log = logging.getLogger(__name__)
 
+#: the IMU messages that carry a compass, and whose (ArduPilot sends compass 1, 2, 3 in RAW_IMU, SCALED_IMU2, 3)
+COMPASS_INSTANCES = {"RAW_IMU": 0, "SCALED_IMU": 0, "SCALED_IMU2": 1, "SCALED_IMU3": 2}
+#: read beside the decoder's messages: every compass, and the parameters saying which one the autopilot uses
+COMPASS_TYPES = frozenset({*COMPASS_INSTANCES, "PARAM_VALUE"})
 CHUNK_MESSAGES = 4096  # messages per recv(): large enough to amortise the call, small enough for progress
 TIME_LEN = 8  # the record's receive time before each frame
 MAGIC_V1, MAGIC_V2 = 0xFE, 0xFD
@@ -198,9 +202,15 @@ class TlogSource:
     vehicle: Sender | None = None  # a ground station's log holds every system it heard: lock on as live
 
     def __init__(
-        self, path: str | Path, decoder: MavlinkDecoder, first_of: Sequence[str] = (), system_id: int | None = None
+        self,
+        path: str | Path,
+        decoder: MavlinkDecoder,
+        first_of: Sequence[str] = (),
+        system_id: int | None = None,
+        mag_instance: int | None = None,
     ) -> None:
         self.path = Path(path)
+        self.mag_instance = mag_instance  # the compass to replay (None: the autopilot's, else the message's own)
         self.name = str(path)
         self.decoder = decoder
         self.finished = False
@@ -222,12 +232,15 @@ class TlogSource:
         if skipped:
             self.damage = f"damaged: {skipped} byte(s) skipped, the first at byte {first_skip}"
         frames = _Frames(data, starts)
-        ids = {mavlink2.mavlink_map[i].msgname: i for i in frames.ids_of(self.decoder.types | set(first_of))}
+        ids = {
+            mavlink2.mavlink_map[i].msgname: i
+            for i in frames.ids_of(self.decoder.types | set(first_of) | COMPASS_TYPES)
+        }
         frames.keep(np.isin(frames.msgid, list(ids.values())))
         good = frames.crc_ok()
         if first_of:
             self.decoder = self._first_imu(frames, good, [ids[n] for n in first_of if n in ids], system_id)
-            ids = {name: i for name, i in ids.items() if name in self.decoder.types}
+            ids = {name: i for name, i in ids.items() if name in self.decoder.types | COMPASS_TYPES}
             wanted = np.isin(frames.msgid, list(ids.values()))
             frames.keep(wanted)
             good = good[wanted]
@@ -343,7 +356,29 @@ class TlogSource:
         )
         if "GPS_RAW_INT" in tables:
             streams.gps_t_s, streams.gps_velocity = _velocities(tables["GPS_RAW_INT"], imu_index, t)
-        return streams
+        return self._with_compasses(streams, tables)
+
+    def _with_compasses(self, streams: LogStreams, tables: dict[str, _Table]) -> LogStreams:
+        """``streams`` with every compass the vehicle sent (:data:`COMPASS_INSTANCES`) in its ``compasses``, and the
+        one replayed: ``mag_instance``, else the autopilot's (PARAM_VALUE), else the IMU message's own."""
+        own = COMPASS_INSTANCES.get(self.decoder.message)
+        readings = {own: (streams.mag_t_s, streams.mag_uT)} if own is not None and len(streams.mag_t_s) else {}
+        for name, instance in COMPASS_INSTANCES.items():
+            if name in tables and instance not in readings:
+                try:
+                    imu = units.decode_columns(name, tables[name].fields, self.decoder.profile)
+                except SensorError:
+                    continue  # a profile that does not read it: that compass is not judged
+                keep = imu.has_mag & ~imu.refused
+                if keep.any():
+                    readings[instance] = (imu.time_s[keep], imu.mag_uT[keep])
+        if own is None or own not in readings or len(readings) < 2:
+            return streams
+        streams.compasses = Compasses(readings, own)
+        if self.mag_instance is not None and self.mag_instance in readings:
+            return streams.with_compass(self.mag_instance, f"--mag {self.mag_instance}")
+        chosen = autopilot_compass(_parameters(tables.get("PARAM_VALUE")), list(readings))
+        return streams if chosen is None else streams.with_compass(*chosen)
 
     def _imu_columns(self, table: _Table, follower: Follower) -> units.ImuColumns | None:
         """The vehicle's IMU messages decoded; what cannot be is counted on ``follower``, as the dispatcher counts
@@ -429,6 +464,14 @@ def _velocities(
     return _at_next_sample(table.index[valid], imu_index, imu_t), [
         v for v, ok in zip(velocities, valid.tolist(), strict=True) if ok
     ]
+
+
+def _parameters(table: _Table | None) -> dict[str, float]:
+    """The PARAM_VALUE messages' parameters, each at its last value."""
+    if table is None:
+        return {}
+    names = [n.split(b"\0")[0].decode("ascii", "replace") for n in table.fields["param_id"].tolist()]
+    return dict(zip(names, np.asarray(table.fields["param_value"], dtype=float).tolist(), strict=True))
 
 
 def _utc_date(unix_s: float) -> dt.date:

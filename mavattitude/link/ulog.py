@@ -15,11 +15,14 @@ from typing import Any
 import numpy as np
 
 from mavattitude.errors import DataFileError
-from mavattitude.link.logstreams import LogStreams
+from mavattitude.link.logstreams import Compasses, LogStreams
 from mavattitude.sensors import ulog_units as uu
+from mavattitude.sensors.units import GAUSS_UT
 
 TOPICS = [
     "sensor_combined",
+    "sensor_mag",
+    "sensor_selection",
     "vehicle_magnetometer",
     "vehicle_attitude",
     "vehicle_gps_position",
@@ -43,11 +46,12 @@ def _topic(ulog: Any, name: str, instance: int = 0) -> dict[str, np.ndarray] | N
     return None
 
 
-def read_ulog(path: str | Path, imu_instance: int = 0, mag_instance: int = 0) -> LogStreams:
+def read_ulog(path: str | Path, imu_instance: int = 0, mag_instance: int | None = None) -> LogStreams:
     """The IMU, magnetometer (instance ``mag_instance``), attitude, position and GPS velocity streams of a ULog
     file, SI."""
     path = Path(path)
     ulog = _open(path)
+    mag_instance = mag_instance or 0
     empty3 = np.empty((0, 3))
     combined = _topic(ulog, "sensor_combined", imu_instance)
     vehicle_mag = _topic(ulog, "vehicle_magnetometer", mag_instance)
@@ -72,7 +76,42 @@ def read_ulog(path: str | Path, imu_instance: int = 0, mag_instance: int = 0) ->
     streams = LogStreams(t, acc, gyr, mag_t, mag, att_t, att_q, pos_t, positions, date, None, damage)
     streams.check(str(path), f"sensor_combined[{imu_instance}]", mag_name)
     streams.gps_t_s, streams.gps_velocity = gps_t, gps_velocity
+    streams.compasses = _compasses(ulog)
     return streams
+
+
+def _compasses(ulog: Any) -> Compasses | None:
+    """Every ``sensor_mag`` instance, its CAL_MAGn offsets and scales applied (the rotation not), where there are
+    several; the one PX4 selected (``sensor_selection``'s device, else ``CAL_MAG_PRIME``) is the replayed one,
+    whose calibrated field ``vehicle_magnetometer`` holds."""
+    params = ulog.initial_parameters
+    readings, devices = {}, {}
+    for data in ulog.data_list:
+        if data.name == "sensor_mag" and len(data.data["timestamp"]):
+            device = int(data.data["device_id"][-1])
+            devices[device] = data.multi_id
+            readings[data.multi_id] = (uu.times_s(data.data), _calibrated(data.data, device, params))
+    if len(readings) < 2:
+        return None
+    selection = _topic(ulog, "sensor_selection")
+    if selection is not None and int(selection["mag_device_id"][-1]) in devices:
+        device, said = int(selection["mag_device_id"][-1]), "sensor_selection's mag_device_id"
+    else:
+        device, said = int(params.get("CAL_MAG_PRIME", -1)), "CAL_MAG_PRIME"
+    if device not in devices:
+        return Compasses(readings, min(readings), "vehicle_magnetometer (the log does not say which sensor it is)")
+    return Compasses(readings, devices[device], f"the autopilot's: {said} {device} (its field: vehicle_magnetometer)")
+
+
+def _calibrated(topic: dict[str, np.ndarray], device: int, params: dict[str, Any]) -> np.ndarray:
+    """A ``sensor_mag`` instance's readings (µT) with the offsets and scales of the CAL_MAGn matching its device."""
+    raw = np.column_stack([topic["x"], topic["y"], topic["z"]]).astype(float)
+    slot = next((n for n in range(4) if params.get(f"CAL_MAG{n}_ID") == device), None)
+    if slot is not None:
+        offset = np.array([params.get(f"CAL_MAG{slot}_{a}OFF", 0.0) for a in "XYZ"])
+        scale = np.array([params.get(f"CAL_MAG{slot}_{a}SCALE", 1.0) for a in "XYZ"])
+        raw = (raw - offset) * scale
+    return raw * GAUSS_UT
 
 
 def _positions(ulog: Any) -> tuple[np.ndarray, np.ndarray, dt.date | None]:

@@ -11,7 +11,7 @@ encoded with the multipliers of pymavlink's DFReader.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,7 +32,7 @@ from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2
 
 HEADER = b"\xa3\x95"
 FMT_TYPE = 0x80
-_NUMPY = {"Q": "<u8", "I": "<u4", "i": "<i4", "B": "u1", "H": "<u2", "h": "<i2", "f": "<f4"}
+_NUMPY = {"Q": "<u8", "I": "<u4", "i": "<i4", "B": "u1", "H": "<u2", "h": "<i2", "f": "<f4", "16s": "S16"}
 
 #: Every layout written, as the ArduPilot of its era logged the records replay reads: (type, name, format
 #: characters, columns) of each, from ArduPilot's LogStructure.h of that release. ``4.1``: today's (TimeUS; IMU,
@@ -91,6 +91,8 @@ class _Format:
     def stored(self, column: str, values: Array) -> Array:
         """SI-ish ``values`` (DFReader's units, after its multipliers) as this column's logged integers or floats."""
         code = self.format[self.columns.index(column)]
+        if code == "N":  # a name: its bytes
+            return np.array([str(v).encode() for v in values], dtype="S16")
         mult = DFReader.FORMAT_TO_STRUCT[code][1]
         scaled = np.asarray(values, dtype=float) / (mult or 1.0)
         return scaled if code == "f" else np.round(scaled)
@@ -151,17 +153,32 @@ def _records(fmt: _Format, t_s: Array, columns: dict[str, Array], instance: int 
     return t_s, raw
 
 
-def write_dataflash(path: str | Path, log: SensorLog, layout: str = "4.1", instances: int = 1) -> Path:
+def write_dataflash(
+    path: str | Path,
+    log: SensorLog,
+    layout: str = "4.1",
+    instances: int = 1,
+    mags: Sequence[Array] = (),
+    parameters: Mapping[str, float] | None = None,
+) -> Path:
     """Write ``log`` as a DataFlash file in ``layout`` (:data:`LAYOUTS`); with ``instances`` > 1 every IMU and
     MAG row is logged again for instance 1, … (the copies scaled by 1 + instance/100, so a reader that takes
-    the wrong one is seen), and the positions by a second GPS receiver where the layout has one."""
+    the wrong one is seen), and the positions by a second GPS receiver where the layout has one. ``mags``:
+    instance k's magnetometer readings (µT, at ``log.mag_t_s``) instead of ``log.mag_uT``, for k below its
+    length; ``parameters``: PARM records (name → value) at the log's start, as the autopilot logs them."""
     formats = _formats(layout)
+    if parameters:
+        imu = formats["IMU"]
+        formats["PARM"] = _Format(150, "PARM", imu.format[0] + "Nf", (imu.columns[0], "Name", "Value"))
     parts: list[tuple[Array, NDArray]] = []
+    if parameters:
+        t0 = np.full(len(parameters), float(log.imu_t_s[0]))
+        parts.append(_records(formats["PARM"], t0, {"Name": list(parameters), "Value": list(parameters.values())}))
     for k in range(instances):
         gain = 1.0 + k / 100.0
         imu_cols = {**_split(du.GYR_FIELDS, log.gyr_radps * gain), **_split(du.ACC_FIELDS, log.acc_mps2 * gain)}
         parts.append(_records(_instance(formats, "IMU", k), log.imu_t_s, imu_cols, k))
-        mag_cols = _split(du.MAG_FIELDS, log.mag_uT * gain / du.MAG_SI)
+        mag_cols = _split(du.MAG_FIELDS, (mags[k] if k < len(mags) else log.mag_uT) * gain / du.MAG_SI)
         parts.append(_records(_instance(formats, "MAG", k), log.mag_t_s, mag_cols, k))
     if log.attitude_t_s is not None and log.attitude_rpy_rad is not None:
         deg = np.degrees(log.attitude_rpy_rad)

@@ -40,7 +40,8 @@ class _Misoriented:
 
     def streams_for(self, dispatcher) -> LogStreams:
         streams = self.source.streams_for(dispatcher)
-        return dataclasses.replace(streams, mag_uT=streams.mag_uT @ self.rotation.T)
+        # its one compass (not the log's second, good one, which replay would pick as the more consistent)
+        return dataclasses.replace(streams, mag_uT=streams.mag_uT @ self.rotation.T, compasses=None)
 
 
 def _replay(method: str, rotation: np.ndarray | None = None):

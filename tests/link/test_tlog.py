@@ -64,7 +64,8 @@ def test_first_of_reads_the_first_imu_message_the_followed_autopilot_sent(tmp_pa
     imus = ("RAW_IMU", "SCALED_IMU2", "HIGHRES_IMU")
     assert TlogSource(path, decoder, imus, system_id=1).decoder.message == "SCALED_IMU2"
     source = TlogSource(path, decoder, imus)  # locked onto system 1, the first autopilot HEARTBEAT
-    assert source.decoder.message == "SCALED_IMU2" and source.count == 2  # its HEARTBEAT and SCALED_IMU2
+    # its HEARTBEAT and SCALED_IMU2, and the RAW_IMU records: each carries a compass, judged beside the IMU's own
+    assert source.decoder.message == "SCALED_IMU2" and source.count == 4
     assert TlogSource(path, decoder, imus, system_id=2).decoder.message == "RAW_IMU"  # no lock: its own
     assert TlogSource(path, decoder, ("HIGHRES_IMU",)).decoder.message == "RAW_IMU"  # none: its own
 
