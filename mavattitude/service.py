@@ -474,11 +474,10 @@ class AttitudeService:
 
     def _emit(self, out: AttitudeOutput, t_rx: float) -> None:
         q, rates_radps = out.q.tolist(), out.rates_radps.tolist()  # floats once for both messages' fields
-        if not self.link.send_attitude_quaternion(units.time_boot_ms(out.time_s), q, rates_radps):
+        # NaN first: "unknown", as MAVLink says
+        covariance = out.covariance_or_nan().ravel().tolist() if self.config.output.covariance else None
+        if not self.link.send_attitude(out.time_s, q, rates_radps, covariance):
             return
-        if self.config.output.covariance:
-            covariance = out.covariance_or_nan().ravel().tolist()  # NaN first: "unknown", as MAVLink says
-            self.link.send_attitude_quaternion_cov(units.time_usec(out.time_s), q, rates_radps, covariance)
         latency_s = self.link.last_send_s - t_rx
         self.counters.emitted += 1
         if len(self._latencies_s) < MAX_LATENCY_SAMPLES:

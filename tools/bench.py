@@ -503,6 +503,85 @@ def bench_service(settings: Settings) -> list[Row]:
     ]
 
 
+EXPECTED_ROWS["live"] = [
+    "bare pymavlink receive loop, 200 Hz RAW_IMU in, CPU share of one core",
+    "service ign, 50 Hz out, CPU ÷ the bare loop's (alternated on the same stream)",
+    "service fused, 50 Hz out, CPU ÷ the bare loop's (alternated on the same stream)",
+]
+
+#: The floor of any pymavlink program on this stream: receive and decode every message (recv_match), with a
+#: HEARTBEAT and an interval request a second, as the service sends them.
+BARE_LOOP = """
+import sys, time
+from pymavlink import mavutil
+link = mavutil.mavlink_connection(sys.argv[1], source_system=1, source_component=191)
+next_s = 0.0
+while True:
+    now = time.monotonic()
+    if now >= next_s:
+        next_s = now + 1.0
+        link.mav.heartbeat_send(18, 8, 0, 0, 0)
+        link.mav.command_long_send(1, 1, 511, 0, 27, 5000, 0, 0, 0, 0, 0)
+    link.recv_match(blocking=True, timeout=0.05)
+"""
+LIVE_SETTLE_S = 2.0  # after the first outputs: imports and first allocations are not measured
+
+
+def _steady_cpu_share(pid: int, seconds: float) -> float:
+    time.sleep(LIVE_SETTLE_S)
+    cpu0, wall0 = _cpu_s(pid), time.monotonic()
+    time.sleep(seconds)
+    return (_cpu_s(pid) - cpu0) / (time.monotonic() - wall0)
+
+
+def _bare_loop_share(vehicle: Any, seconds: float) -> float:
+    proc = subprocess.Popen([sys.executable, "-c", BARE_LOOP, f"udpout:127.0.0.1:{vehicle.port}"])
+    try:
+        return _steady_cpu_share(proc.pid, seconds)
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def _service_share(vehicle: Any, method: str, seconds: float) -> float:
+    config = daemon.config_for(
+        vehicle,
+        link={"request_messages": False, "request_rate_hz": 200.0},
+        output={"stats_interval_s": 60.0},
+        estimator={"method": method},
+        crosscheck={"enabled": False},
+    )
+    with daemon.ServiceProcess(config) as service:
+        if not vehicle.wait_for_outputs(len(vehicle.attitude_log) + WARMUP_OUTPUTS, START_TIMEOUT_S):
+            raise RuntimeError(f"the service ({method}) sent no attitude:\n" + service.log_tail())
+        share = _steady_cpu_share(service.pid, seconds)
+        if service.stop() != 0:
+            raise RuntimeError("the service did not exit cleanly:\n" + service.log_tail())
+    return share
+
+
+@section("live")
+def bench_live(settings: Settings) -> list[Row]:
+    """The bare loop and the service in turn on one fake vehicle's RAW_IMU-only stream (200 Hz, no ATTITUDE),
+    ``rounds`` times: a slow spell of the shared machine falls on every program rather than on one."""
+    seconds, rounds = (2.0, 1) if settings.quick else (10.0, 2)
+    script = scenarios.slow_rotation(3600.0)
+    vehicle_cfg = vehicle_mod.VehicleConfig("udpin:127.0.0.1:0", stream_on_start=True, seed=SEED, attitude_rate_hz=0.0)
+    shares: dict[str, float] = {"bare": 0.0, "ign": 0.0, "fused": 0.0}
+    with vehicle_mod.FakeVehicle(script, scenarios.consumer_sensors(200.0), vehicle_cfg) as vehicle:
+        vehicle.set_rate(vehicle_cfg.message, 200.0)
+        for _ in range(rounds):
+            shares["bare"] += _bare_loop_share(vehicle, seconds) / rounds
+            for method in ("ign", "fused"):
+                shares[method] += _service_share(vehicle, method, seconds) / rounds
+    sec, names = "live", EXPECTED_ROWS["live"]
+    return [
+        _row(sec, names[0], 100.0 * shares["bare"], "%"),
+        _row(sec, names[1], shares["ign"] / shares["bare"], "×", 0.5),
+        _row(sec, names[2], shares["fused"] / shares["bare"], "×", 0.8),
+    ]
+
+
 EXPECTED_ROWS["soak"] = [
     "soak: simulated time at 200 Hz input",
     "soak: resident memory growth",

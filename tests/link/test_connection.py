@@ -81,6 +81,25 @@ def test_attitude_quaternion_fields(udp_pair):
     assert list(aq.repr_offset_q) == [0.0, 0.0, 0.0, 0.0]
 
 
+@pytest.mark.parametrize("covariance", [None, [1e-4, 0.0, 0.0, 0.0, 1e-4, 0.0, 0.0, 0.0, 4e-4]])
+def test_an_attitude_goes_out_in_one_datagram(udp_pair, covariance):
+    """ATTITUDE_QUATERNION and its COV in one datagram: one send, where two cost the CPU twice."""
+    link, peer = udp_pair
+    peer.send(peer.heartbeat())
+    recv_until(link, "HEARTBEAT")
+    sent = link.counters.sent
+    assert link.send_attitude(12.5, [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.1], covariance)
+    aq = peer.wait_for("ATTITUDE_QUATERNION")
+    datagram = peer.raw[-1]
+    frames = mavlink2.MAVLink(None).parse_buffer(datagram)
+    expected = ["ATTITUDE_QUATERNION"] + ([] if covariance is None else ["ATTITUDE_QUATERNION_COV"])
+    assert [m.get_type() for m in frames] == expected and link.counters.sent == sent + len(expected)
+    assert aq.time_boot_ms == 12_500
+    if covariance is not None:
+        assert frames[1].time_usec == 12_500_000
+        assert list(frames[1].covariance) == pytest.approx(covariance, rel=1e-6)  # float32 on the wire
+
+
 def test_set_message_interval_and_statustext(udp_pair):
     link, peer = udp_pair
     peer.send(peer.heartbeat())
