@@ -26,15 +26,21 @@ Each reading is compared at its own time: a reading held on a later tick (``mag_
 its age (``HISTORY_S`` of attitudes kept). What is left is a lag ``d`` common to the readings (a reading that
 is the mean over its interval; a slower stream's longer low-pass delay): the field moves by
 ``G = R (ω × B)`` per second of lag, so ``F_k − d G_k`` is the reading carried back by ``d``, and the window's
-residual ``Σ |ΔF − d ΔG|²`` is least at ``d = Σ ΔF·ΔG / Σ |ΔG|²``, taken within ``[0, MAX_LAG_S]``. The
+residual ``Σ |ΔF − d ΔG|²`` is least at ``d = Σ ΔF·ΔG / Σ |ΔG|²``, taken within ``[0, MAX_LAG_S]`` and no longer
+than a reading was seen held (its age: a reading that is the mean over its interval lags by half of it; a
+compass read at every tick, by nothing the ticks can show), so that it cannot absorb a slow turn's
+misorientation. The
 mismatch is that residual over ``Σ |B_k − B_j|²``. A lag turns the field about the rotation axis in
 proportion to the rate; a misorientation by a fixed rotation, which no lag undoes.
 
 The threshold is ``turn_allowance + k · (noise's share)``: ``Σ E|δΔF|² / Σ |B_k − B_j|²`` with, per step,
-the magnetometer's noise ``6 σ̄_mag²``; each end's reading time uncertain over its tick interval ``Δt``
-(uniform), ``|ω × B|² Δt² / 12``; and the gyroscope's rectangle rule over the step (the rate at a sample
-stands for the interval before it), ``|B|² (Δt/2)² |ω_k − ω_j|²``. The turn judged off counts once it has
-stayed off for ``PERSIST_S`` (several steps' spans of new evidence).
+the magnetometer's noise ``6 σ̄_mag²``; each end's held reading's time uncertain over its tick interval
+``Δt`` (uniform; an interpolated one is the stream's at the tick), ``|ω × B|² Δt² / 12``; and the gyroscope's
+rectangle rule over the step (the rate at a sample stands for the interval before it),
+``|B|² (Δt/2)² |ω_k − ω_j|²``. The turn judged off counts once it is still off ``PERSIST_S = TURN_SPAN_S +
+MAX_LAG_S`` after it first went off (not back under ``CLEAR_FRACTION`` meanwhile): by then a step that shares no
+reading with the first one off says so too (one late or bad reading sways only the steps within a span and a
+lag of it).
 
 A turn mostly about a misorientation's own axis shows it only in the small rest of the turn (a mirror or a
 rotation commutes with rotations about its axis), too small a share of the field's change for that ratio.
@@ -105,7 +111,7 @@ MIN_TURN_DEG = 5.0  # ... that turned the body by at least this much (else noise
 MAX_TURN_GAP_S = 0.1  # a longer gap between ticks restarts the gyroscope's integration
 HISTORY_S = 0.5  # attitudes kept to carry a held reading to its own time (the default input_timeout_s)
 MAX_LAG_S = 0.1  # the fitted lag of the readings behind their times is at most this (module docstring)
-PERSIST_S = 1.0  # the turn judged off for this long before it counts: several steps' spans of new evidence
+PERSIST_S = TURN_SPAN_S + MAX_LAG_S  # the turn judged off this long counts: by steps sharing no reading
 MIN_SECOND_AXIS_SHARE = 0.1  # a turn vouches for a compass when this share of it was about a second axis
 MIN_EXPLAINED_SHARE = 0.5  # another mounting must explain at least this share of the configured one's turn residual
 
@@ -300,6 +306,7 @@ class TurnCheck:
         # Q ⊗ B_j B_kᵀ) within window_s
         self._steps: deque[tuple] = deque()
         self.moved2 = self.changed2 = self.lagged = self.lag2 = self.timing2 = 0.0
+        self.held_s = 0.0  # the longest a reading was held (its age at a tick), s
         self._axes = [0.0] * 6  # Σ v vᵀ of the steps' turns (body frame): xx yy zz xy xz yz
         self._norms2 = 0.0  # Σ |B_j|² + |B_k|²
         self._products = np.zeros(81)  # Σ Q_jk ⊗ B_j B_kᵀ: every mounting's residual is linear in it
@@ -311,10 +318,10 @@ class TurnCheck:
 
     def lag_s(self) -> float:
         """The magnetometer's lag behind its readings' times that best explains the window's turns, within
-        ``[0, MAX_LAG_S]`` (module docstring)."""
+        ``[0, min(held, MAX_LAG_S)]`` (module docstring)."""
         if self.lag2 <= 0.0:
             return 0.0
-        return min(max(self.lagged / self.lag2, 0.0), MAX_LAG_S)
+        return min(max(self.lagged / self.lag2, 0.0), self.held_s, MAX_LAG_S)
 
     def residual2(self) -> float:
         """``Σ |ΔF − d ΔG|²`` at the fitted lag ``d``: what the turns leave unexplained, µT²."""
@@ -343,12 +350,13 @@ class TurnCheck:
             step = quat_from_rotvec_parts(gyr_radps[0] * dt, gyr_radps[1] * dt, gyr_radps[2] * dt)
             self._q = quat_normalize_parts(quat_multiply_parts(self._q, step))
         self._t = time_s
+        self.held_s = max(self.held_s, mag_age_s)
         history.append((time_s, self._q, gyr_radps))
         while history[0][0] < time_s - HISTORY_S:
             history.popleft()
         q_read, w_read = _attitude_at(history, time_s - mag_age_s)
         recent = self._recent
-        now = [time_s, q_read, mag_uT, w_read, None, dt]
+        now = [time_s, q_read, mag_uT, w_read, None, dt, dt if mag_age_s > 0.0 else 0.0]
         recent.append(now)
         while len(recent) > 1 and recent[1][0] <= time_s - TURN_SPAN_S:
             recent.popleft()
@@ -476,13 +484,13 @@ def _fixed(entry: list) -> tuple[Vec3, Vec3]:
 
 
 def _timing_variance(now: list, then: list) -> float:
-    """``E |δF|²`` of one step from what the samples cannot resolve in time (module docstring): each end's reading
-    time uncertain by its tick interval, ``|ω × B|² Δt² / 12``, and the gyroscope's rectangle rule over the
-    step, ``|B|² (Δt/2)² |ω_k − ω_j|²`` (µT²)."""
+    """``E |δF|²`` of one step from what the samples cannot resolve in time (module docstring): each end's held
+    reading's time uncertain over its tick interval, ``|ω × B|² Δt² / 12`` (an interpolated one is the stream's at
+    the tick), and the gyroscope's rectangle rule over the step, ``|B|² (Δt/2)² |ω_k − ω_j|²`` (µT²)."""
     total = 0.0
     for entry in (now, then):
         _, g = _fixed(entry)
-        total += _dot(g, g) * entry[5] * entry[5] / 12.0
+        total += _dot(g, g) * entry[6] * entry[6] / 12.0
     w1, w0, dt = now[3], then[3], max(now[5], then[5])
     dw = (w1[0] - w0[0], w1[1] - w0[1], w1[2] - w0[2])
     b = now[2]
@@ -757,13 +765,15 @@ class CompassMonitor:
         return max(self._dip_excess, self._field_excess, self._persistent_turn_excess(time_s))
 
     def _persistent_turn_excess(self, time_s: float) -> float:
-        """The turn's excess, held at 1 until it has been over 1 for ``PERSIST_S`` (module docstring)."""
-        if self._turn_excess <= 1.0:
+        """The turn's excess, held at 1 until it is over 1 ``PERSIST_S`` after it first went over, not having
+        fallen back under ``CLEAR_FRACTION`` (what clears a verdict) in between (module docstring)."""
+        if self._turn_excess < CLEAR_FRACTION:
             self._turn_off_since_s = math.nan
-            return self._turn_excess
-        if self._turn_off_since_s != self._turn_off_since_s:
+        elif self._turn_excess > 1.0 and self._turn_off_since_s != self._turn_off_since_s:
             self._turn_off_since_s = time_s
-        return self._turn_excess if time_s - self._turn_off_since_s >= PERSIST_S else 1.0
+        if self._turn_excess <= 1.0 or time_s - self._turn_off_since_s >= PERSIST_S:
+            return self._turn_excess
+        return 1.0
 
     def _judge(self, time_s: float) -> CompassEvent | None:
         excess = self._excess(time_s)
