@@ -351,7 +351,7 @@ class FusedEstimator:
         # The pipeline replaces its reference array when the field changes and never writes into it, so the
         # same object is the same field: the values are compared only when a new array arrives (rarely).
         elif mag_ref_ned_uT is not self._mag_ref and not np.array_equal(self._mag_ref, mag_ref_ned_uT):
-            self._filter.set_mag_ref(mag_ref_ned_uT)  # a new WMM field: the state kept (a restart re-inits from IGN)
+            self._filter.set_mag_ref(mag_ref_ned_uT)  # a new field: the state kept, turned with north (no restart)
         self._mag_ref = mag_ref_ned_uT
         estimates = self._filter.push(sample.time_s, sample.gyr_radps, sample.acc_mps2, sample.mag_uT, sample.mag_age_s)
         front = int(sample.flags) & ~_RESET  # the filter acts on a reset itself; no output says it

@@ -329,3 +329,21 @@ def test_without_a_position_one_by_one_and_at_once_measure_the_same_field(method
     # the measured dip: 60° with the noise of hundreds of quiet ticks (σ per raw sample ~0.6°)
     dip = np.degrees(np.arcsin(one.mag_ref_ned_uT[2] / np.linalg.norm(one.mag_ref_ned_uT)))
     assert dip == pytest.approx(60.0, abs=0.3) and one.frontend.expected_field_uT == pytest.approx(50.0, abs=0.3)
+
+
+def test_a_position_after_the_measured_field_turns_the_fused_heading_to_true_north_at_once():
+    """Measured field (magnetic north), then a position: the WMM's field, and the fused filter's heading turned by
+    the declination with it from the next output on (the state kept, no restart)."""
+    when, (lat, lon, alt) = dt.date(2026, 6, 1), (-35.36, 149.17, 584.0)  # CMAC: declination ≈ +12.8°
+    wmm = np.array(wmm_field_ned_uT(lat, lon, alt, when))
+    declination = np.arctan2(wmm[1], wmm[0])
+    p = AttitudePipeline(from_dict({"estimator": {"method": "fused"}, "reference": {"position_wait_s": 1.0}}))
+    samples = static_samples(n=1000, field_ned_uT=wmm)  # 5 s from 10 s
+    measured = run(p, samples[:600])
+    assert p.magref.measured
+    magnetic = quat_from_euler(np.radians(10.0), np.radians(-20.0), np.radians(135.0) - declination)
+    assert np.degrees(angle_between(measured[-1].q, magnetic)) < MAX_ERR_DEG
+    assert p.set_position(lat, lon, alt, when)
+    true = run(p, samples[600:])
+    assert np.degrees(angle_between(np.array([o.q for o in true]), Q_TRUE)).max() < MAX_ERR_DEG
+    assert p.estimator.counters()["restarts"] == 0

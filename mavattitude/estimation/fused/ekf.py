@@ -153,6 +153,12 @@ class ErrorStateFilter:
         self.p_tt, self.p_tb, self.p_bb = _joseph(tt, tb, bb, (kt0, kt1, kt2, kb0, kb1, kb2), v)
         self.dx = (d0 + kt0 * z, d1 + kt1 * z, d2 + kt2 * z, d3 + kb0 * z, d4 + kb1 * z, d5 + kb2 * z)
 
+    def turn_about_down(self, angle_rad: float) -> None:
+        """``q ← q_z(angle) ⊗ q``: the attitude turned about NED down (north moved, the body did not). ``P`` is of
+        body-frame errors, and the gyro-only ``q_gyro`` keeps a frame of its own: both unchanged."""
+        half = 0.5 * angle_rad
+        self.q = quat_normalize_parts(quat_multiply_parts((math.cos(half), 0.0, 0.0, math.sin(half)), self.q))
+
     def reset(self) -> None:
         """Move the estimated error state ``[δθ, δb]`` into the nominal ``q`` and ``b``."""
         dx = self.dx

@@ -197,7 +197,9 @@ class FusedFilter:
         return np.block([[tt, tb], [tb.T, bb]])
 
     def set_mag_ref(self, mag_ref: ArrayLike) -> None:
-        """A new NED field (e.g. WMM after a move): used from the next update on, the state kept.
+        """A new NED field (e.g. WMM after a move, or after a field measured from the compass): used from the next
+        update on, the state kept, the attitude turned about the vertical by the field's change of declination
+        (north moved, the body did not: magnetic north to true north at once, not over the heading updates).
 
         Its magnitude is a start value only (it is learnt from the data, see :mod:`.magnetic`)."""
         mag = np.asarray(mag_ref, dtype=float)
@@ -206,6 +208,9 @@ class FusedFilter:
         norms = float(np.linalg.norm(mag)), float(np.linalg.norm(self.acc_ref))
         if not all(math.isfinite(n) and n > 0.0 for n in norms):
             raise InputError(f"references must be finite and non-zero, got {mag_ref!r} and {self.acc_ref!r}")
+        if self._started:
+            before = self.mag_ref
+            self._ekf.turn_about_down(math.atan2(mag[1], mag[0]) - math.atan2(before[1], before[0]))
         self.mag_ref = mag
         self._v_acc: Vec3 = tuple(float(v) / norms[1] for v in self.acc_ref)  # type: ignore[assignment]
         self._acc_ref_up = self._v_acc == (0.0, 0.0, -1.0)
