@@ -184,8 +184,10 @@ def _gps_velocity(reader: _Reader) -> tuple[np.ndarray, list[Any]]:
 
 
 def _gps_tables(reader: _Reader) -> list[dict[str, np.ndarray]]:
-    """The GPS receivers' records: GPS (every instance, in new logs by its ``I`` column), and GPS2 in old ones."""
-    return [t for t in (reader.table("GPS"), reader.table("GPS2")) if t]
+    """The GPS receivers' records: GPS (every instance, in new logs by its ``I`` column), and GPS2 in old ones;
+    a GPS message of another layout (not ArduPilot's: no Status, Lat, Lng, Alt) is no position, not an error."""
+    tables = (reader.table("GPS"), reader.table("GPS2"))
+    return [t for t in tables if t and {"Status", *du.POS_FIELDS} <= t.keys()]
 
 
 def _positions(reader: _Reader) -> tuple[np.ndarray, np.ndarray]:

@@ -192,3 +192,16 @@ def test_a_telemetry_log_record_that_fails_its_crc_is_skipped_and_said(tmp_path)
 def test_the_format_table_has_a_row_for_each_log_suffix_the_commands_look_for():
     assert sorted(f.suffix for f in FORMATS) == sorted(LOG_SUFFIXES)  # replay DIR lists files by these
     assert [f.name for f in FORMATS if f.magic is None] == ["tlog"]  # the one format told by its name
+
+
+def test_a_gps_message_of_another_layout_is_no_position(tmp_path):
+    """A GPS message without ArduPilot's Status/Lat/Lng/Alt (PX4's old DataFlash: Fix, Lat, Lon) is read past."""
+    log = static_log(1.0, imu_rate_hz=50.0)
+    path = write_dataflash(tmp_path / "p.bin", log, layout="3.2")
+    data = path.read_bytes()
+    # the 3.2 GPS FMT record's columns renamed as PX4 named them: Status → Fix1.., Lng → Lon
+    renamed = data.replace(b"Status,TimeMS,Week,NSats,HDop,Lat,Lng,", b"Fix123,TimeMS,Week,NSats,HDop,Lat,Lon,", 1)
+    assert renamed != data
+    path.write_bytes(renamed)
+    s = read_dataflash(path)
+    assert len(s.position_t_s) == 0 and s.date is None and len(s.imu_t_s) == len(log.imu_t_s)
