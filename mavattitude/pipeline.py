@@ -57,7 +57,7 @@ from mavattitude.config import Config
 from mavattitude.errors import ConfigError, InputError, MavAttitudeError
 from mavattitude.estimation import METHODS, NoiseModel, solve
 from mavattitude.estimation.compass import CompassEvent, CompassMonitor, heading_uncertain
-from mavattitude.estimation.conventions import Array, Vec3, is_unit_quaternion_parts
+from mavattitude.estimation.conventions import Array, Vec3, is_unit_quaternion_parts, tilt_quat_parts
 from mavattitude.sensors.frontend import (
     BatchOutput,
     FrontEnd,
@@ -225,6 +225,9 @@ class SnapshotEstimator:
         if flags & _RESET:
             self._q0 = None  # after a gap the previous answer is no better a start than TRIAD
         noise = self._noise_for(sample.acc_std_scale, sample.mag_std_scale)
+        if sample.mag_uT is None:
+            self._q0 = None
+            return [tilt_output(sample, noise, flags)]
         heading_only = flags & _MAG_OFF
         method = HEADING_ONLY_METHOD if heading_only else self.method
         r = solve(sample.acc_mps2, sample.mag_uT, mag_ref_ned_uT, noise, method, q0=self._q0, **self.options)
@@ -254,6 +257,10 @@ _RESET, _NOT_CONVERGED, _HEADING_ONLY, _DISTURBED, _INCONSISTENT, _PER_SAMPLE = 
         SampleFlag.PER_SAMPLE,
     )
 )
+_NO_HEADING = int(SampleFlag.NO_HEADING)
+#: The reference handed to an estimator for a tick without a magnetometer reading before the field is known: a
+#: tick without one compares nothing with it (the fused filter takes the real field when it comes).
+NO_FIELD_NED_UT = np.array([1.0, 0.0, 0.0])
 #: What the fused method solves a tick of an input too slow to integrate with (``PER_SAMPLE``).
 SLOW_INPUT_METHOD = "ign"
 
@@ -287,6 +294,19 @@ def output_covariances(outputs: list[AttitudeOutput]) -> Array:
 
 def _heading_uncertain(result: Any, acc_mps2: Any) -> Callable[[], Array]:
     return lambda: heading_uncertain(result.covariance, acc_mps2)
+
+
+def tilt_output(sample: ProcessedSample, noise: NoiseModel, flags: int) -> AttitudeOutput:
+    """A tick without a magnetometer: roll and pitch from the accelerometer, yaw held at 0 and flagged
+    ``NO_HEADING``; its covariance the tilt's (the accelerometer's σ over |a| about each axis) with a heading
+    uniform over ±180° (:func:`~mavattitude.estimation.compass.heading_uncertain`)."""
+    acc = sample.acc_mps2
+    q = np.array(tilt_quat_parts(acc))
+    sigma_rad = max(noise.accel_std) / math.sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
+    tilt = np.eye(3) * sigma_rad**2
+    covariance = functools.partial(heading_uncertain, tilt, acc)
+    rates = np.array(sample.gyr_radps, dtype=float)
+    return AttitudeOutput(sample.time_s, q, rates, 0, True, flag_set(flags | _NO_HEADING), covariance)
 
 
 class FusedEstimator:
@@ -355,6 +375,8 @@ class FusedEstimator:
         self._mag_ref = mag_ref_ned_uT
         estimates = self._filter.push(sample.time_s, sample.gyr_radps, sample.acc_mps2, sample.mag_uT, sample.mag_age_s)
         front = int(sample.flags) & ~_RESET  # the filter acts on a reset itself; no output says it
+        if not self._filter.heading_known:
+            front |= _NO_HEADING
         return [
             AttitudeOutput(
                 e.time_s,
@@ -444,6 +466,7 @@ class AttitudePipeline:
         # effective ones (docs/vehicle.md)
         self.compass = CompassMonitor(config.compass, config.noise.accel_std_mps2, config.noise.mag_std_uT)
         self._compass_at_s = -math.inf  # vehicle time of the last tick the monitor took
+        self._compass_seen_s = math.nan  # vehicle time of the last tick with a magnetometer reading
         self.mag_ref_ned_uT: Array | None = None
         self.last_error: MavAttitudeError | None = None
         reference = config.reference
@@ -605,18 +628,34 @@ class AttitudePipeline:
     def _estimate(self, tick: ProcessedSample, pushed: Pushed, judge: bool = True) -> None:
         """The tick's outputs into ``pushed``; ``judge=False``: the compass monitor and the reference's
         measurement have taken it already (:meth:`push_batch`)."""
-        c = self.counters
-        if self.mag_ref_ned_uT is None and not (judge and self._measure_reference(tick)):
-            c.waiting += 1
-            return
         if tick.mag_uT is None:
-            if self.estimator.wants_filtered:
-                self._reject("no_mag", pushed)
-                return
-        elif judge and self.compass.settings.enabled:
+            self._without_compass(tick, pushed)
+            return
+        self._compass_seen_s = tick.time_s
+        if self.mag_ref_ned_uT is None and not (judge and self._measure_reference(tick)):
+            self.counters.waiting += 1
+            return
+        if judge and self.compass.settings.enabled:
             tick = self._judge_compass(tick, tick.mag_uT, pushed)
+        self._solve(tick, self.mag_ref_ned_uT, pushed)
+
+    def _without_compass(self, tick: ProcessedSample, pushed: Pushed) -> None:
+        """A tick without a magnetometer reading. The snapshot methods wait ``input_timeout_s`` for one (a log's
+        first compass reading comes after its first IMU samples; a dropout is held that long by the front end),
+        then give roll and pitch alone (:func:`tilt_output`), needing no field; the fused filter takes it as any
+        sample (it starts on roll and pitch alone after the same wait)."""
+        since_s = tick.time_s - self._compass_seen_s
+        if not since_s >= 0.0:  # the first tick, or the clock went back (a reboot)
+            self._compass_seen_s, since_s = tick.time_s, 0.0
+        if self.estimator.wants_filtered and since_s <= self.config.input.input_timeout_s:
+            self._reject("no_mag", pushed)
+            return
+        self._solve(tick, NO_FIELD_NED_UT if self.mag_ref_ned_uT is None else self.mag_ref_ned_uT, pushed)
+
+    def _solve(self, tick: ProcessedSample, mag_ref_ned_uT: Array, pushed: Pushed) -> None:
+        """The estimator's outputs for the tick into ``pushed``, those that pass the output check."""
         try:
-            outputs = self.estimator.estimate(tick, self.mag_ref_ned_uT)
+            outputs = self.estimator.estimate(tick, mag_ref_ned_uT)
         except MavAttitudeError as exc:
             self._reject(type(exc).__name__, pushed)
             self.last_error = exc

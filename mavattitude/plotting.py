@@ -50,3 +50,19 @@ def break_wraps(t: ArrayLike, angle_deg: ArrayLike, period_deg: float = 360.0) -
 def angle_series(t: ArrayLike, angle_deg: ArrayLike, max_points: int = MAX_POINTS) -> tuple[Array, Array]:
     """An angle ready to draw: enveloped, then its wraps broken."""
     return break_wraps(*envelope(t, angle_deg, max_points))
+
+
+def spans(changes: list[tuple[float, bool]], end_s: float) -> list[tuple[float, float]]:
+    """The intervals a verdict held, from its changes ``(time_s, on)`` in time order: from each turn on to the
+    next turn off, or to ``end_s`` when it never turned off."""
+    out: list[tuple[float, float]] = []
+    since: float | None = None
+    for time_s, on in changes:
+        if on and since is None:
+            since = time_s
+        elif not on and since is not None:
+            out.append((since, time_s))
+            since = None
+    if since is not None:
+        out.append((since, end_s))
+    return out

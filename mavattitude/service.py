@@ -62,6 +62,7 @@ from mavattitude.estimation import METHODS
 from mavattitude.estimation.compass import CompassEvent
 from mavattitude.estimation.crosscheck import CrossCheck
 from mavattitude.link import MavlinkLink, load_signing_key, message_id
+from mavattitude.link.logstreams import TILT_ONLY
 from mavattitude.link.requests import LOW_FRACTION, RateMonitor, StreamRequest
 from mavattitude.link.session import LinkSession
 from mavattitude.link.source import AutopilotAttitude, MavlinkDecoder, MavlinkSource, MessageSource, Sender
@@ -76,6 +77,7 @@ from mavattitude.reports import (
     rate_handling,
 )
 from mavattitude.sensors import units
+from mavattitude.sensors.frontend import SampleFlag
 from mavattitude.sensors.units import ImuSample
 from mavattitude.systemd_notify import SystemdNotifier, default_notifier
 
@@ -215,6 +217,7 @@ class AttitudeService:
         self._last_input: float | None = None
         self._input_lost = False
         self._per_sample = False  # the input too slow to filter, as last said (_say_rate_handling)
+        self._no_heading = SampleFlag.NONE  # our attitudes have no heading, as last said (_say_heading)
         self._attitude_sent = False
         self._rate = RateMonitor(config.link.request_rate_hz, RATE_WINDOW_S) if config.link.request_messages else None
         self._xcheck = CrossCheck(config.crosscheck) if config.crosscheck.enabled else None
@@ -445,12 +448,22 @@ class AttitudeService:
         outputs = pushed.outputs
         if self.pipeline.frontend.per_sample != self._per_sample:
             self._say_rate_handling()
+        if outputs and (outputs[-1].flags & SampleFlag.NO_HEADING) != self._no_heading:
+            self._say_heading(bool(outputs[-1].flags & SampleFlag.NO_HEADING))
         for out in outputs:
             self._emit(out, t_rx)
         if self._xcheck is not None and outputs:
             for out in outputs:
-                self._xcheck.add_ours(out.time_s, out.q)
+                self._xcheck.add_ours(out.time_s, out.q, not out.flags & SampleFlag.NO_HEADING)
             self._cross_check(self._xcheck)
+
+    def _say_heading(self, unknown: bool) -> None:
+        """Our attitudes lost or found their heading (no magnetometer reading): said once each way."""
+        self._no_heading = SampleFlag.NO_HEADING if unknown else SampleFlag.NONE
+        if unknown:
+            log.warning("no %s magnetometer reading: %s", self._input_name, TILT_ONLY)
+        else:
+            log.info("%s magnetometer readings: heading from the compass again", self._input_name)
 
     def _say_rate_handling(self) -> None:
         """The input crossed the rate below which it is too slow to filter: how it is processed now, once."""

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from mavattitude.estimation.conventions import quat_from_euler
-from mavattitude.plotting import MAX_POINTS, angle_series, break_wraps, envelope
+from mavattitude.plotting import MAX_POINTS, angle_series, break_wraps, envelope, spans
 
 
 def _wrapping_yaw(n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -45,9 +45,9 @@ def test_the_replay_figure_is_titled_decimated_and_shows_both_attitudes() -> Non
 
     t, yaw = _wrapping_yaw(250_000)
     q = quat_from_euler(np.zeros_like(t), np.zeros_like(t), np.radians(yaw))
-    ours = np.column_stack([t, q])
+    ours_deg = np.column_stack([np.zeros_like(t), np.zeros_like(t), yaw])
     diff = np.zeros((len(t), 4))
-    fig = comparison_figure("flight.tlog: mavattitude (ign) vs the autopilot's attitude", ours, t, q, diff)
+    fig = comparison_figure("flight.tlog: mavattitude (ign) vs the autopilot's attitude", t, ours_deg, t, q, diff)
     try:
         axes = fig.axes
         assert axes[0].get_title().startswith("flight.tlog: mavattitude (ign)")
@@ -57,5 +57,35 @@ def test_the_replay_figure_is_titled_decimated_and_shows_both_attitudes() -> Non
         ours_line, autopilot_line = axes[2].get_lines()
         assert ours_line.get_linewidth() > 2 * autopilot_line.get_linewidth()  # wide and pale under thin
         assert np.nanmax(np.abs(np.diff(autopilot_line.get_ydata()))) < 180.0
+    finally:
+        plt.close(fig)
+
+
+def test_a_verdict_is_shaded_from_its_warning_to_its_clearing_or_the_end() -> None:
+    changes = [(10.0, True), (14.0, False), (30.0, True)]
+    assert spans(changes, 60.0) == [(10.0, 14.0), (30.0, 60.0)]
+    assert spans([(5.0, False)], 60.0) == [] and spans([], 60.0) == []
+
+
+def test_the_replay_figure_marks_the_compass_and_cross_check_verdicts() -> None:
+    pytest.importorskip("matplotlib")
+    import matplotlib.pyplot as plt
+
+    from mavattitude.commands.replay import Verdicts, comparison_figure
+
+    t = np.arange(0.0, 60.0, 0.1)
+    q = quat_from_euler(np.zeros_like(t), np.zeros_like(t), np.zeros_like(t))
+    ours_deg = np.zeros((len(t), 3))
+    diff = np.zeros((len(t), 4))
+    verdicts = Verdicts(compass=[(20.0, True), (25.0, False)], crosscheck=[(40.0, True)], threshold_deg=5.0)
+    fig = comparison_figure("f.tlog", t, ours_deg, t, q, diff, verdicts)
+    try:
+        axes = fig.axes
+        labels = {text.get_text() for ax in axes if ax.get_legend() for text in ax.get_legend().get_texts()}
+        assert {"compass judged off", "cross-check warned", "cross-check threshold"} <= labels
+        shaded = [(p.get_x(), p.get_x() + p.get_width()) for p in axes[3].patches]
+        assert shaded == [(20.0, 25.0), (40.0, pytest.approx(t[-1]))]  # the warning never cleared: to the end
+        assert all(len(ax.patches) >= 1 for ax in axes[:3])  # the compass verdict on every panel
+        assert "compass judged off 1×, cross-check warned 1×" in axes[0].get_title()
     finally:
         plt.close(fig)

@@ -58,8 +58,10 @@ from mavattitude.commands._offline import (
 from mavattitude.config import DEFAULTS, Config
 from mavattitude.errors import DataFileError, MavAttitudeError
 from mavattitude.estimation import METHODS
+from mavattitude.estimation.conventions import euler_from_quat
 from mavattitude.files import LOG_SUFFIXES
 from mavattitude.reports import heading_lost, rate_handling
+from mavattitude.sensors.frontend import SampleFlag
 from mavattitude.sensors.magref import MIN_MEASURED_TICKS
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
 
@@ -272,7 +274,7 @@ def replay_log(job: Job) -> LogResult:
         _compass_columns(replayed.pipeline.compass.figures(), result)
         _compasses_columns(replayed, job, result)
     if replayed.autopilot:
-        _compare(replayed.output_array(), replayed.autopilot_array(), job, result)
+        _compare(replayed, job, result)
     else:
         log.info("%s holds no attitude from the autopilot: no comparison", job.log)
     return result
@@ -285,9 +287,20 @@ def _imu_name(source: Any, config: Config) -> str:
     return config.input.message if isinstance(source, TlogSource) else "IMU"
 
 
+def _heading(outputs: list[Any]) -> str:
+    """Where the outputs' heading came from: the magnetometer, or nowhere (roll and pitch only) for some or all."""
+    unknown = sum(bool(o.flags & SampleFlag.NO_HEADING) for o in outputs)
+    if not unknown:
+        return "magnetometer"
+    if unknown == len(outputs):
+        return "unknown: no magnetometer"
+    return f"unknown in {unknown} of {len(outputs)} outputs (no magnetometer reading)"
+
+
 def _fill(result: LogResult, replayed: Any, imu_name: str) -> None:
     pipeline = replayed.pipeline.counters
     frontend = pipeline.frontend
+    result.columns["heading"] = _heading(replayed.outputs)
     result.columns["rate_handling"] = rate_handling(
         replayed.pipeline.config, imu_name, replayed.input_rate_hz, frontend.per_sample, frontend.accepted
     )
@@ -364,7 +377,7 @@ def _check_found(path: str, message: str, result: Any) -> None:
         raise DataFileError(f"{path}: no autopilot HEARTBEAT (from link.vehicle_system_id, if set)")
     if result.counters.received == 0:
         raise DataFileError(f"{path}: no {message} from the autopilot (set input.message, or --message)")
-    if result.pipeline.waiting_for_reference:
+    if result.pipeline.waiting_for_reference and not result.outputs:  # without a compass no field is needed
         wait_s = result.pipeline.magref.position_wait_s
         raise DataFileError(
             f"{path}: reference.magnetic is auto, the log holds no position with a fix, and no field was measured "
@@ -404,11 +417,23 @@ def _write_summary(path: Path, results: list[LogResult]) -> None:
 def comparison_table(diff_deg: np.ndarray, check: Any) -> str:
     lines = [f"{'ours − autopilot (deg)':<24}{'mean':>9}{'rms':>9}{'p95 |.|':>9}{'max |.|':>9}"]
     for name, d in zip(("roll", "pitch", "yaw", "total angle"), diff_deg.T, strict=True):
+        d = d[np.isfinite(d)]  # yaw: none where ours has no heading
+        if not len(d):
+            lines.append(f"{name:<24}{'(ours has no heading: no magnetometer)':>36}")
+            continue
         a = np.abs(d)
         lines.append(f"{name:<24}{d.mean():9.3f}{np.sqrt(np.mean(d**2)):9.3f}{np.percentile(a, 95):9.3f}{a.max():9.3f}")
     compared = f"{len(diff_deg)} autopilot attitudes compared with ours (interpolated to their times)"
     lines.append(f"{compared}: {_pairing(check)}")
     return "\n".join(lines)
+
+
+def _rms_p99(diff_deg: np.ndarray) -> tuple[float, float]:
+    """RMS and 99th percentile of |d| over the finite values (NaN when none: a yaw without a heading)."""
+    d = diff_deg[np.isfinite(diff_deg)]
+    if not len(d):
+        return math.nan, math.nan
+    return float(np.sqrt(np.mean(d**2))), float(np.percentile(np.abs(d), 99.0))
 
 
 def _pairing(check: Any) -> str:
@@ -423,15 +448,18 @@ def _reasons(unpaired: Any) -> str:
     return ", ".join(f"{k} {v}" for k, v in sorted(unpaired.items()) if k != "outside" and v)
 
 
-def _compare(ours: np.ndarray, autopilot: np.ndarray, job: Job, result: LogResult) -> None:
-    """Ours (rows ``t_s, qw, qx, qy, qz``) against the autopilot's attitude (the same rows), paired as the
-    service's cross-check pairs them (:mod:`mavattitude.estimation.crosscheck`): at each autopilot attitude's
-    time, ours interpolated between the two outputs around it. The summary's RMS and p99 of ours minus theirs,
-    the table, the plot, and the cross-check's own figures and warnings when it is enabled."""
+def _compare(replayed: Any, job: Job, result: LogResult) -> None:
+    """Ours against the autopilot's attitude, paired as the service's cross-check pairs them
+    (:mod:`mavattitude.estimation.crosscheck`): at each autopilot attitude's time, ours interpolated between the
+    two outputs around it. The summary's RMS and p99 of ours minus theirs (yaw where ours has a heading), the
+    table, the plot with the compass's and the cross-check's verdicts, and the cross-check's own figures and
+    warnings when it is enabled."""
     from mavattitude.estimation.crosscheck import cross_check_log
 
+    ours, autopilot = replayed.output_array(), replayed.autopilot_array()
+    heading = np.array([not o.flags & SampleFlag.NO_HEADING for o in replayed.outputs], dtype=bool)
     check, pairs, events = cross_check_log(
-        ours[:, 0], ours[:, 1:5], autopilot[:, 0], autopilot[:, 1:5], job.config.crosscheck
+        ours[:, 0], ours[:, 1:5], autopilot[:, 0], autopilot[:, 1:5], job.config.crosscheck, heading
     )
     if job.config.crosscheck.enabled:
         _report_cross_check(check, events, job, result)
@@ -448,33 +476,61 @@ def _compare(ours: np.ndarray, autopilot: np.ndarray, job: Job, result: LogResul
     t = np.array([d.time_s for d in pairs])
     diff = np.array([(d.roll_deg, d.pitch_deg, d.yaw_deg, d.total_deg) for d in pairs])
     q_ref = autopilot[np.searchsorted(autopilot[:, 0], t), 1:5]
-    result.rms_deg = tuple(float(v) for v in np.sqrt(np.mean(diff[:, :3] ** 2, axis=0)))  # type: ignore[assignment]
-    result.p99_deg = tuple(float(v) for v in np.percentile(np.abs(diff[:, :3]), 99.0, axis=0))  # type: ignore[assignment]
+    stats = [_rms_p99(diff[:, i]) for i in range(3)]
+    result.rms_deg = tuple(rms for rms, _ in stats)  # type: ignore[assignment]
+    result.p99_deg = tuple(p99 for _, p99 in stats)  # type: ignore[assignment]
     if job.table:
         method = job.config.estimator.method
         note = SNAPSHOT_NOTE.format(method=method) + "\n" if METHODS[method].snapshot else ""
         sys.stdout.write(comparison_table(diff, check) + "\n" + note)
     if job.plot is None:
         return
+    verdicts = Verdicts(
+        compass=[(e.time_s, e.inconsistent) for e in replayed.compass],
+        crosscheck=[(e.time_s, e.disagree) for e in events],
+        threshold_deg=job.config.crosscheck.threshold_deg if job.config.crosscheck.enabled else None,
+    )
+    ours_deg = np.degrees(euler_from_quat(ours[:, 1:5]))
+    ours_deg[~heading, 2] = np.nan  # no heading: no yaw drawn
     try:
         title = f"{job.log.name}: mavattitude ({job.config.estimator.method}) vs the autopilot's attitude"
-        _plot(job.plot, title, ours, t, q_ref, diff)
+        _save(comparison_figure(title, ours[:, 0], ours_deg, t, q_ref, diff, verdicts), job.plot)
     except ImportError:
         log.warning("matplotlib is not installed (pip install mavattitude[plot]): no plot written")
         return
     log.info("wrote the comparison plot %s", job.plot)
 
 
-def _plot(path: Path, title: str, ours: np.ndarray, t: np.ndarray, q_ref: np.ndarray, diff: np.ndarray) -> None:
+@dataclass(frozen=True)
+class Verdicts:
+    """What a comparison plot marks: the compass monitor's and the cross-check's verdict changes, ``(time_s,
+    off)`` each in time order (off: the compass judged off, the cross-check warning), and the cross-check's
+    threshold (None: the cross-check is off)."""
+
+    compass: list[tuple[float, bool]] = field(default_factory=list)
+    crosscheck: list[tuple[float, bool]] = field(default_factory=list)
+    threshold_deg: float | None = None
+
+
+def _save(fig: Any, path: Path) -> None:
     import matplotlib.pyplot as plt
 
-    fig = comparison_figure(title, ours, t, q_ref, diff)
     fig.savefig(path, dpi=100)
     plt.close(fig)
 
 
-def comparison_figure(title: str, ours: np.ndarray, t: np.ndarray, q_ref: np.ndarray, diff: np.ndarray) -> Any:
-    """Roll, pitch, yaw of ours (rows ``t_s, qw, qx, qy, qz``) and the autopilot's, and the angle between.
+def comparison_figure(
+    title: str,
+    ours_t: np.ndarray,
+    ours_deg: np.ndarray,
+    t: np.ndarray,
+    q_ref: np.ndarray,
+    diff: np.ndarray,
+    verdicts: Verdicts | None = None,
+) -> Any:
+    """Roll, pitch, yaw of ours (``ours_deg`` at ``ours_t``; a yaw NaN where there is no heading) and the
+    autopilot's (``q_ref`` at ``t``), the angle between (``diff[:, 3]``), and the verdicts: shaded where the
+    compass was judged off (every panel) and where the cross-check warned (with its threshold on the last panel).
 
     Each line is enveloped to a few thousand points (a long log's 250 000 were a solid band) with its yaw
     wraps broken; ours is drawn wide and pale under the autopilot's thin line, so both show where they agree.
@@ -484,23 +540,32 @@ def comparison_figure(title: str, ours: np.ndarray, t: np.ndarray, q_ref: np.nda
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from mavattitude.estimation.conventions import euler_from_quat
-    from mavattitude.plotting import angle_series, envelope
+    from mavattitude.plotting import angle_series, envelope, spans
 
+    verdicts = verdicts or Verdicts()
     ref_deg = np.degrees(euler_from_quat(q_ref))
-    ours_deg = np.degrees(euler_from_quat(ours[:, 1:5]))
     fig, axes = plt.subplots(4, 1, sharex=True, figsize=(11, 9))
     for i, name in enumerate(("roll", "pitch", "yaw")):
-        axes[i].plot(*angle_series(ours[:, 0], ours_deg[:, i]), lw=2.5, alpha=0.45, color="C0", label="mavattitude")
+        axes[i].plot(*angle_series(ours_t, ours_deg[:, i]), lw=2.5, alpha=0.45, color="C0", label="mavattitude")
         axes[i].plot(*angle_series(t, ref_deg[:, i]), lw=0.7, color="k", label="autopilot ATTITUDE")
         axes[i].set_ylabel(f"{name} (deg)")
-        axes[i].grid(True, lw=0.3)
-    axes[0].legend(loc="upper right", fontsize=8)
-    axes[3].plot(*envelope(t, diff[:, 3]), lw=0.7, color="C3")
+    axes[3].plot(*envelope(t, diff[:, 3]), lw=0.7, color="C3", label="angle between")
     axes[3].set_ylabel("angle between (deg)")
-    axes[3].grid(True, lw=0.3)
     axes[3].set_xlabel("vehicle time (s)")
+    end_s = float(max(ours_t[-1], t[-1]))
+    compass, warned = spans(verdicts.compass, end_s), spans(verdicts.crosscheck, end_s)
+    for ax in axes:
+        ax.grid(True, lw=0.3)
+        for k, (a, b) in enumerate(compass):
+            ax.axvspan(a, b, color="C1", alpha=0.2, lw=0, label="compass judged off" if k == 0 else None)
+    for k, (a, b) in enumerate(warned):
+        axes[3].axvspan(a, b, color="C3", alpha=0.15, lw=0, label="cross-check warned" if k == 0 else None)
+    if verdicts.threshold_deg is not None:
+        axes[3].axhline(verdicts.threshold_deg, color="C3", lw=0.8, ls="--", label="cross-check threshold")
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[3].legend(loc="upper right", fontsize=8)
     rms = np.sqrt(np.mean(diff[:, 3] ** 2))
-    axes[0].set_title(f"{title}\nangle between: {rms:.2f}° RMS over {len(t)} outputs", fontsize=10)
+    said = f"compass judged off {len(compass)}×, cross-check warned {len(warned)}×"
+    axes[0].set_title(f"{title}\nangle between: {rms:.2f}° RMS over {len(t)} comparisons; {said}", fontsize=10)
     fig.tight_layout()
     return fig

@@ -245,6 +245,14 @@ def quat_from_euler_parts(roll_rad: float, pitch_rad: float, yaw_rad: float) -> 
     return _quat_from_half_angles(math.cos(hr), math.sin(hr), math.cos(hp), math.sin(hp), math.cos(hy), math.sin(hy))
 
 
+def tilt_quat_parts(acc: tuple) -> tuple[float, float, float, float]:
+    """The attitude with the roll and pitch the specific force ``acc`` (body FRD, at rest ``(0, 0, −g)``) shows
+    and yaw 0: ``f = −g R(q)ᵀ e_D = g (sin θ, −sin φ cos θ, −cos φ cos θ)``, so ``φ = atan2(−f_y, −f_z)``,
+    ``θ = atan2(f_x, √(f_y² + f_z²))``. What the accelerometer alone knows; the heading is not in it."""
+    fx, fy, fz = float(acc[0]), float(acc[1]), float(acc[2])
+    return quat_from_euler_parts(math.atan2(-fy, -fz), math.atan2(fx, math.hypot(fy, fz)), 0.0)
+
+
 def _euler_terms(w: Any, x: Any, y: Any, z: Any) -> tuple:
     """What ZYX Euler angles take the atan2 / asin / atan2 of: roll's two terms, pitch's sine, yaw's two
     (one formula for arrays and plain floats)."""

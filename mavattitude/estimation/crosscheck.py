@@ -34,7 +34,14 @@ import numpy as np
 
 from mavattitude.fields import described, ranged
 
-from .conventions import Quat, angle_between_parts, euler_from_quat_parts, gap_limit_s, wrap_deg
+from .conventions import (
+    Quat,
+    angle_between_parts,
+    euler_from_quat_parts,
+    gap_limit_s,
+    quat_from_euler_parts,
+    wrap_deg,
+)
 
 CLEAR_FRACTION = 0.8
 KEEP_S = 5.0  # our outputs kept for pairing, s of vehicle time
@@ -73,9 +80,13 @@ class CrossCheckEvent:
     total_deg: float
 
 
-def difference(time_s: float, ours: Quat, theirs: Quat) -> Difference:
-    """Ours minus theirs (quaternions ``[w, x, y, z]`` body → NED) in degrees."""
+def difference(time_s: float, ours: Quat, theirs: Quat, heading: bool = True) -> Difference:
+    """Ours minus theirs (quaternions ``[w, x, y, z]`` body → NED) in degrees. ``heading`` false: ours has none
+    (no magnetometer, yaw held at 0): the yaw difference is NaN and the total the tilt's alone (ours turned to
+    their yaw)."""
     (r1, p1, y1), (r2, p2, y2) = euler_from_quat_parts(ours), euler_from_quat_parts(theirs)
+    if not heading:
+        ours, y1 = quat_from_euler_parts(r1, p1, y2), math.nan
     total = math.degrees(angle_between_parts(ours, theirs))
     roll, pitch, yaw = (wrap_deg(math.degrees(a - b)) for a, b in ((r1, r2), (p1, p2), (y1, y2)))
     return Difference(time_s, roll, pitch, yaw, total)
@@ -104,6 +115,7 @@ class CrossCheck:
         self.settings = settings
         self._times: deque[float] = deque()
         self._quats: deque[Quat] = deque()
+        self._headings: deque[bool] = deque()  # whether each of ours has a heading (a magnetometer)
         # autopilot attitudes ahead of our outputs (bounded: while we output nothing, the oldest go)
         self._waiting: deque[tuple[float, Quat]] = deque()
         self._first_s = math.inf  # our first output since the start or our last reset
@@ -131,19 +143,23 @@ class CrossCheck:
         inside = self.pairs + self.missed
         return self.pairs / inside if inside else math.nan
 
-    def add_ours(self, time_s: float, q: Iterable[float]) -> None:
+    def add_ours(self, time_s: float, q: Iterable[float], heading: bool = True) -> None:
+        """One of our attitudes; ``heading`` false: it has none (roll and pitch only)."""
         if self._times and time_s <= self._times[-1]:  # our clock went back (a reboot): start over
             self._times.clear()
             self._quats.clear()
+            self._headings.clear()
             self._resets += 1
             self._first_s = time_s
         if not self._times:
             self._first_s = min(self._first_s, time_s)
         self._times.append(time_s)
         self._quats.append(_quat(q))
+        self._headings.append(heading)
         while self._times[0] < time_s - KEEP_S:
             self._times.popleft()
             self._quats.popleft()
+            self._headings.popleft()
 
     def add_autopilot(self, time_s: float, q: Iterable[float]) -> None:
         if len(self._waiting) == MAX_WAITING:  # the oldest goes
@@ -167,7 +183,7 @@ class CrossCheck:
             if isinstance(ours, str):
                 self.unpaired[ours] += 1
                 continue
-            d = difference(t, ours, theirs)
+            d = difference(t, ours[0], theirs, ours[1])
             diffs.append(d)
             self.last = d
             self.pairs += 1
@@ -177,19 +193,20 @@ class CrossCheck:
                 events.append(event)
         return diffs, events
 
-    def _ours_at(self, t: float) -> Quat | str:
-        """Ours at ``t`` (within our newest output's time), or why there is none."""
-        times = self._times
+    def _ours_at(self, t: float) -> tuple[Quat, bool] | str:
+        """Ours at ``t`` (within our newest output's time) and whether it has a heading, or why there is none."""
+        times, headings = self._times, self._headings
         i = bisect.bisect_left(times, t)
         if times[i] == t:
-            return self._quats[i]
+            return self._quats[i], headings[i]
         if i == 0:
             if t >= self._first_s:
                 return "late"
             return "reset" if self._resets else "outside"
         if times[i] - times[i - 1] > self.settings.max_gap_s and times[i] - times[i - 1] > self._gap_limit_s():
             return "gap"
-        return interpolate(times[i - 1], self._quats[i - 1], times[i], self._quats[i], t)
+        q = interpolate(times[i - 1], self._quats[i - 1], times[i], self._quats[i], t)
+        return q, headings[i - 1] and headings[i]
 
     def _gap_limit_s(self) -> float:
         """The longest interval between our outputs that is bridged: their usual interval decides (a 2 Hz stream)."""
@@ -214,10 +231,17 @@ class CrossCheck:
 
 
 def cross_check_log(
-    ours_t_s: np.ndarray, ours_q: np.ndarray, theirs_t_s: np.ndarray, theirs_q: np.ndarray, settings: CrossCheckSettings
+    ours_t_s: np.ndarray,
+    ours_q: np.ndarray,
+    theirs_t_s: np.ndarray,
+    theirs_q: np.ndarray,
+    settings: CrossCheckSettings,
+    ours_heading: np.ndarray | None = None,
 ) -> tuple[CrossCheck, list[Difference], list[CrossCheckEvent]]:
-    """The live cross-check over a whole log: both attitude series fed in vehicle-time order, as they arrive."""
+    """The live cross-check over a whole log: both attitude series fed in vehicle-time order, as they arrive
+    (``ours_heading``: which of ours have a heading; default all)."""
     check = CrossCheck(settings)
+    heading = [True] * len(ours_t_s) if ours_heading is None else ours_heading.tolist()
     diffs: list[Difference] = []
     events: list[CrossCheckEvent] = []
     j = 0
@@ -225,7 +249,7 @@ def cross_check_log(
     for t, q in zip(theirs_t_s.tolist(), theirs_q, strict=True):
         # ours up to the first at or past its time, as live: an attitude is paired once ours reach past it
         while j < len(ours) and (j == 0 or ours[j - 1] < t):
-            check.add_ours(ours[j], ours_q[j])
+            check.add_ours(ours[j], ours_q[j], heading[j])
             j += 1
         check.add_autopilot(t, q)
         d, e = check.update()

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import datetime as dt
 import functools
+import logging
 import re
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -30,6 +31,11 @@ from mavattitude.errors import DataFileError
 from mavattitude.estimation.conventions import Array
 from mavattitude.link.source import AutopilotAttitude, PositionFix, Received, Sender
 from mavattitude.sensors.units import GpsVelocity, ImuSample, Position
+
+log = logging.getLogger(__name__)
+
+#: What a vehicle without a magnetometer gets, said once where that is found (a log, the live stream).
+TILT_ONLY = "roll and pitch from the accelerometer (and the gyroscope with fused), heading unknown (yaw NaN)"
 
 #: The sender of every item from a log the autopilot wrote itself (DataFlash, ULog): it holds one vehicle.
 LOG_VEHICLE: Sender = (1, 1)
@@ -140,13 +146,16 @@ class LogStreams:
         return mag_for_imu(self.imu_t_s, self.mag_t_s, self.mag_uT)
 
     def check(self, path: str, imu: str, mag: str) -> None:
-        """What replay cannot do without, as one :class:`DataFileError` naming the file and the record."""
+        """What replay cannot do without, as one :class:`DataFileError` naming the file and the record: an IMU.
+        Without a magnetometer (no records, or all reading zero: then dropped) roll and pitch are still there,
+        said in one line."""
         if len(self.imu_t_s) == 0:
             raise DataFileError(f"{path}: no {imu} records{self._damage_note()}")
-        if len(self.mag_t_s) == 0:
-            raise DataFileError(f"{path}: no {mag} records (no magnetometer){self._damage_note()}")
-        if not np.any(self.mag_uT):
-            raise DataFileError(f"{path}: {mag} reads zero in all {len(self.mag_t_s)} records: no magnetometer")
+        if len(self.mag_t_s) and np.any(self.mag_uT):
+            return
+        why = f"{mag} reads zero in all {len(self.mag_t_s)} records" if len(self.mag_t_s) else f"no {mag} records"
+        log.warning("%s: %s: no magnetometer: %s", path, why, TILT_ONLY)
+        self.mag_t_s, self.mag_uT = np.empty(0), np.empty((0, 3))
 
     def _damage_note(self) -> str:
         return f" ({self.damage})" if self.damage else ""

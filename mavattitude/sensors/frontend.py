@@ -101,6 +101,7 @@ class SampleFlag(IntFlag):
     MAG_DISTURBED = 128  # set by the fused filter: it rejected or down-weighted this magnetometer update
     MAG_HEADING_ONLY = 256  # set by the estimator: the magnetometer set heading only (TRIAD, accelerometer first)
     PER_SAMPLE = 512  # the input is too slow to filter: this tick is one input sample, unfiltered
+    NO_HEADING = 1024  # set by the estimator: no magnetometer, roll and pitch only (yaw held at 0, unknown)
 
 
 @dataclass(frozen=True)
@@ -845,6 +846,9 @@ def _held_repeats(
     each run of equal consecutive readings keeps its first row, then every row more than ``hold_s`` after
     the last one it kept."""
     rows = np.flatnonzero(taken)
+    held = np.zeros(len(t), dtype=bool)
+    if not len(rows):  # no reading at all (a message whose magnetometer reads zero): nothing to hold
+        return held
     m, tr, same = mag[rows], t[rows], np.zeros(len(rows), dtype=bool)
     same[1:] = repeats[rows[1:]] & (epoch[rows[1:]] == epoch[rows[:-1]]) & (m[1:] == m[:-1]).all(axis=1)
     starts = np.flatnonzero(~same)
@@ -852,7 +856,6 @@ def _held_repeats(
     for a, b in zip(starts.tolist(), stops.tolist(), strict=True):
         if tr[b - 1] - tr[a] > hold_s:  # a run longer than the hold (a constant field at rest): taken again
             _retake(tr, a, b, hold_s, same)
-    held = np.zeros(len(t), dtype=bool)
     held[rows[same]] = True
     return held
 

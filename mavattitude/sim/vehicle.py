@@ -200,6 +200,7 @@ class FakeVehicle:
         # Records (appended by the receive thread, read under self._cond).
         self.attitude_log: list[tuple[float, float, tuple[float, float, float, float], _Epoch, int]] = []
         self.statustexts: list[str] = []
+        self.attitudes_sent_s: list[float] = []  # vehicle time of each ATTITUDE sent (appended by the sender)
         self.thread_errors: list[str] = []
         self.commands: list[Any] = []
         self.received: Counter[tuple[int, int, str]] = Counter()  # (system, component, type)
@@ -489,11 +490,9 @@ class FakeVehicle:
         truth = self.script.sample([now_s])
         roll, pitch, yaw = euler_from_quat(truth.q[0]) + np.radians(self.config.attitude_error_deg)
         yaw = (yaw + np.pi) % (2 * np.pi) - np.pi  # the error may carry yaw past ±180°
-        self.send(
-            mavlink2.MAVLink_attitude_message(
-                time_boot_ms(max(0.0, self.vehicle_time(now_s))), roll, pitch, yaw, *map(float, truth.gyr_radps[0])
-            )
-        )
+        stamp_ms = time_boot_ms(max(0.0, self.vehicle_time(now_s)))
+        self.send(mavlink2.MAVLink_attitude_message(stamp_ms, roll, pitch, yaw, *map(float, truth.gyr_radps[0])))
+        self.attitudes_sent_s.append(stamp_ms / 1000.0)
 
     # --- receiving --------------------------------------------------------------------------------------
 

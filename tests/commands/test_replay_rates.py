@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from mavattitude.cli import main
-from mavattitude.sim.logwriter import SensorLog, static_log, write_tlog
+from mavattitude.sim.logwriter import SensorLog, static_log, write_dataflash, write_tlog
 from tests.shared import shared_path
 
 CONFIG = Path(__file__).resolve().parents[2] / "configs" / "ardupilot.yaml"
@@ -88,3 +88,43 @@ def test_the_shared_low_rate_logs_are_processed_per_sample_and_compared_at_their
         assert "attitude per sample, no filtering" in row["rate_handling"]
         assert float(row["compared_pct"]) >= MIN_SHARE_PCT
     assert int(sitl["compared"]) > 700 and int(sub["compared"]) > 6000  # 4 Hz over 185 s, 20 Hz over 313 s
+
+
+def tilted_without_compass(kind: str) -> SensorLog:
+    """static_log's vehicle held at 10° of roll, still, with no GPS: ``kind`` "none" has no magnetometer
+    records, "zero" has them all reading zero (an autopilot that logs a compass it does not have)."""
+    log = static_log(20.0, imu_rate_hz=50.0)
+    roll = np.radians(10.0)
+    log.acc_mps2 = np.tile([0.0, -9.80665 * np.sin(roll), -9.80665 * np.cos(roll)], (len(log.imu_t_s), 1))
+    log.attitude_rpy_rad[:, 0] = roll
+    log.position_t_s = log.position = None
+    if kind == "none":
+        log.mag_t_s, log.mag_uT = np.empty(0), np.empty((0, 3))
+    else:
+        log.mag_uT = np.zeros_like(log.mag_uT)
+    return log
+
+
+@pytest.mark.parametrize("method", ["ign", "fused"])
+def test_a_log_without_a_compass_gives_roll_and_pitch_with_the_heading_unknown(tmp_path, method):
+    """Never a refusal of a log that has an IMU: no MAG records, MAG all zero (.bin), RAW_IMU's magnetometer all
+    zero (.tlog), no GPS either (reference.magnetic auto: no field is needed for roll and pitch)."""
+    logs = [
+        write_dataflash(tmp_path / "none.bin", tilted_without_compass("none")),
+        write_dataflash(tmp_path / "zero.bin", tilted_without_compass("zero")),
+        write_tlog(tmp_path / "zero.tlog", tilted_without_compass("zero")),
+    ]
+    out = tmp_path / "out"
+    main(["replay", *map(str, logs), "-o", str(out), "--config", str(CONFIG), "--method", method, "--no-plot"])
+    with (out / "summary.csv").open(encoding="utf-8") as f:
+        rows = list(csv.DictReader(f))
+    for log, row in zip(logs, rows, strict=True):
+        assert row["status"] == "ok" and row["heading"] == "unknown: no magnetometer", row
+        # the first input_timeout_s (0.5 s) waits for a compass reading: 25 of the 1000 samples
+        assert int(row["outputs"]) >= 950 and float(row["compared_pct"]) == 100.0
+        assert row["yaw_rms_deg"] == "nan" and row["not_compared"] == ""
+        # still and noise-free: the accelerometer's roll, to RAW_IMU's milli-g integers (0.5 mG of 985: 0.03°)
+        assert float(row["roll_p99_deg"]) < 0.05 and float(row["pitch_p99_deg"]) < 0.05
+        written = np.genfromtxt(out / f"{log.name}.csv", delimiter=",", names=True)  # two logs named zero
+        assert np.all(np.isnan(written["yaw_deg"])) and np.allclose(written["roll_deg"], 10.0, atol=0.05)
+        assert np.all(written["cov_zz_rad2"] > 1.0)  # a heading uniform over ±180°: (π/√3)² = 3.3 rad²

@@ -124,3 +124,18 @@ def test_no_flip_flop_around_the_threshold():
     spans = [(5.0, 6.0)] + [(5.0 + 2 * k, between if k % 2 else 6.0) for k in range(1, 10)]
     events = _run(spans, s)
     assert [e.disagree for e in events] == [True]
+
+
+def test_ours_without_a_heading_is_compared_on_the_tilt_alone():
+    """No magnetometer: ours holds yaw 0; the yaw difference is unknown (NaN) and the total is the tilt's."""
+    ours = tuple(quat_from_euler(np.radians(12.0), np.radians(-3.0), 0.0).tolist())
+    theirs = tuple(quat_from_euler(np.radians(10.0), np.radians(-3.0), np.radians(140.0)).tolist())
+    d = difference(0.0, ours, theirs, heading=False)
+    assert np.isnan(d.yaw_deg) and d.roll_deg == pytest.approx(2.0, abs=1e-9)
+    assert d.total_deg == pytest.approx(2.0, abs=1e-6)  # not the 140° of yaw
+    check = CrossCheck(CrossCheckSettings())
+    check.add_ours(0.0, ours, heading=False)
+    check.add_ours(0.02, ours)
+    check.add_autopilot(0.01, theirs)
+    (between,), _ = check.update()
+    assert np.isnan(between.yaw_deg)  # interpolated from one without a heading: none

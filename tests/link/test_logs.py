@@ -126,16 +126,24 @@ def test_a_record_of_an_undeclared_type_ends_the_readable_part(tmp_path):
 
 def test_what_a_log_lacks_is_one_error_naming_the_file(tmp_path):
     log = static_log(1.0)
+    with pytest.raises(DataFileError, match=r"IMU\[I=3\]"):
+        read_dataflash(write_dataflash(tmp_path / "one.bin", log), imu_instance=3)
+
+
+def test_a_log_without_a_magnetometer_is_read_and_said_in_one_line(tmp_path, caplog):
+    """No MAG records, or MAG reading zero in all: the IMU is there (roll and pitch), the compass is not."""
+    log = static_log(1.0)
     no_mag = write_dataflash(
         tmp_path / "nomag.bin", dataclasses.replace(log, mag_t_s=np.empty(0), mag_uT=np.empty((0, 3)))
     )
-    with pytest.raises(DataFileError, match=r"nomag\.bin: no MAG\[I=0\] records \(no magnetometer\)"):
-        read_dataflash(no_mag)
     zero = write_dataflash(tmp_path / "zero.bin", dataclasses.replace(log, mag_uT=np.zeros_like(log.mag_uT)))
-    with pytest.raises(DataFileError, match=r"zero\.bin: MAG\[I=0\] reads zero in all 10 records"):
-        read_dataflash(zero)
-    with pytest.raises(DataFileError, match=r"IMU\[I=3\]"):
-        read_dataflash(write_dataflash(tmp_path / "one.bin", log), imu_instance=3)
+    for path in (no_mag, zero):
+        s = read_dataflash(path)
+        assert len(s.imu_t_s) == len(log.imu_t_s) and len(s.mag_t_s) == 0 and (s.carried_mag() == -1).all()
+    said = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert [m.split(": ", 1)[0] for m in said] == [str(no_mag), str(zero)]
+    assert "no MAG[I=0] records: no magnetometer: roll and pitch" in said[0]
+    assert "MAG[I=0] reads zero in all 10 records: no magnetometer" in said[1]
 
 
 def test_unknown_formats_are_named_with_their_first_bytes(tmp_path):

@@ -33,7 +33,11 @@ nothing else, so a wrong or disturbed field can never move roll and pitch. ``σ_
 ``(τ_m |ω × m|)²``: the field error of a sample-time skew ``τ_m`` between gyro and magnetometer in a turn.
 
 Start-up and gaps: the first sample with both vectors initialises ``q`` from IGN and ``P_θθ`` from its
-covariance, ``P_bb = σ_b0² I``; a gap longer than ``max_gap_s`` restarts from IGN, keeping the bias.
+covariance, ``P_bb = σ_b0² I``; a gap longer than ``max_gap_s`` restarts from IGN, keeping the bias. With no
+magnetometer reading for ``max_gap_s`` from the first sample (a vehicle without a compass), it starts on roll
+and pitch alone (:func:`~mavattitude.estimation.conventions.tilt_quat_parts`, yaw 0, ``P_θθ`` the tilt's σ
+with a heading uniform over ±180°): the gyro and the tilt updates carry roll and pitch, and the heading stays
+unknown (:attr:`FusedFilter.heading_known` false) until a reading comes, which restarts it from IGN.
 
 Schedule and output: update ``k`` is due at the start time plus ``k`` update periods and output tick ``k`` at
 the start time plus ``k`` output periods (a count, not a running sum of periods, whose rounding would put
@@ -54,6 +58,7 @@ from numpy.typing import ArrayLike
 
 from mavattitude.errors import InputError
 from mavattitude.estimation import NoiseModel, solve
+from mavattitude.estimation.compass import HEADING_UNKNOWN_STD_RAD
 from mavattitude.estimation.conventions import (
     ACC_REF_NED,
     Array,
@@ -62,6 +67,7 @@ from mavattitude.estimation.conventions import (
     clip_unit,
     rotate_ned_to_body_parts,
     rotation_matrix_parts,
+    tilt_quat_parts,
 )
 from mavattitude.estimation.velocity import GpsVelocity
 
@@ -141,6 +147,8 @@ class FusedFilter:
         self.acc_ref = np.asarray(acc_ref, dtype=float)
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
         self._started = False
+        self.heading_known = False  # a magnetometer reading started it: its yaw is a heading, not 0 held
+        self._first_s = math.nan  # the first sample's time, while no magnetometer reading has come
         self._update_period_s = 1.0 / s.update_rate_hz
         self._output_period_s = 1.0 / output_rate_hz
         self._max_gap_s = max_gap_s
@@ -239,7 +247,7 @@ class FusedFilter:
         gx, gy, gz = gyr = (float(gyr_radps[0]), float(gyr_radps[1]), float(gyr_radps[2]))
         if not math.isfinite(gx + gy + gz + time_s):
             raise InputError(f"non-finite gyro sample or time at t={time_s!r}")
-        if not self._started:
+        if not self._started or (mag_uT is not None and not self.heading_known):
             return self._start(time_s, gyr, acc_mps2, mag_uT)
         dt = time_s - self._t_last
         if dt <= 0.0:
@@ -419,18 +427,26 @@ class FusedFilter:
 
     # --- start-up and output ------------------------------------------------------------------------
     def _start(self, time_s: float, gyr: Vec3, acc: ArrayLike, mag: ArrayLike | None) -> list[FusedEstimate]:
-        """(Re)initialise from IGN on a sample with both vectors; a restart keeps the bias and its covariance."""
+        """(Re)initialise from IGN on a sample with both vectors (a restart keeps the bias and its covariance), or
+        on roll and pitch alone after ``max_gap_s`` without a magnetometer reading (module docstring)."""
         if mag is None:
-            self._started = False
-            return []
-        r = solve(acc, mag, self.mag_ref, self._noise, acc_ref=self.acc_ref)
-        q: Quat = tuple(float(v) for v in r.q)  # type: ignore[assignment]
-        p_tt = tuple(r.covariance.ravel().tolist())
+            if not self._first_s <= time_s:  # the first sample (or the clock went back)
+                self._first_s = time_s
+            if self.heading_known or time_s - self._first_s <= self._max_gap_s:
+                self._started = False
+                return []
+            q, p_tt = self._tilt_start(acc)
+        else:
+            r = solve(acc, mag, self.mag_ref, self._noise, acc_ref=self.acc_ref)
+            q = tuple(float(v) for v in r.q)  # type: ignore[assignment]
+            p_tt = tuple(r.covariance.ravel().tolist())
         if self._started:
             self._ekf.start(q, p_tt)  # type: ignore[arg-type]
         else:
             self._ekf.start(q, p_tt, symmetric((0.0,) * 9, self.settings.gyro_bias_init_radps**2))  # type: ignore[arg-type]
+        if mag is not None and not (self._started and self.heading_known):  # the field learnt anew
             self._mag.start(self._mag.corrected((float(mag[0]), float(mag[1]), float(mag[2]))))
+            self.heading_known = True
         self._started = True
         self._prefilters.reset()
         if self._gps is not None:
@@ -442,6 +458,14 @@ class FusedFilter:
         self._next_update_s = time_s + self._update_period_s
         self._ticks = 0
         return self._outputs(time_s)
+
+    def _tilt_start(self, acc: ArrayLike) -> tuple[Quat, tuple[float, ...]]:
+        """Roll and pitch from the accelerometer, yaw 0; ``P_θθ``: the tilt's σ (σ_a / |a|) with the heading
+        uniform over ±180° about the body's vertical."""
+        a = (float(acc[0]), float(acc[1]), float(acc[2]))
+        norm2 = a[0] * a[0] + a[1] * a[1] + a[2] * a[2]
+        p = np.eye(3) * self._noise.accel_std[0] ** 2 / norm2 + HEADING_UNKNOWN_STD_RAD**2 * np.outer(a, a) / norm2
+        return tilt_quat_parts(a), tuple(p.ravel().tolist())
 
     def _outputs(self, time_s: float) -> list[FusedEstimate]:
         """Estimates for every output tick up to ``time_s`` (within 1 µs), the attitude carried back to the tick."""
