@@ -532,12 +532,16 @@ class AttitudePipeline:
         self.frontend.set_expected_field_uT(intensity_uT)
         self.compass.set_reference(tuple(ref.tolist()), intensity_uT, measured)
 
-    def push(self, sample: ImuSample) -> Pushed:
-        """What one input sample completes (see :class:`Pushed`)."""
+    def push(self, sample: ImuSample, attitudes: bool = True) -> Pushed:
+        """What one input sample completes (see :class:`Pushed`); ``attitudes=False``: the compass monitor's
+        verdicts alone, no estimator (how the vehicle's other magnetometers are judged)."""
         pushed = Pushed()
         for tick in self.frontend.push(sample):
             self.counters.ticks += 1
-            self._estimate(tick, pushed)
+            if attitudes:
+                self._estimate(tick, pushed)
+            elif tick.mag_uT is not None and self.mag_ref_ned_uT is not None and self.compass.settings.enabled:
+                self._judge_compass(tick, tick.mag_uT, pushed)
         return pushed
 
     def set_velocity(self, velocity: GpsVelocity) -> None:

@@ -55,6 +55,7 @@ from typing import Any
 import numpy as np
 
 from mavattitude import __version__, alive
+from mavattitude.compasses import OtherCompasses
 from mavattitude.config import Config
 from mavattitude.dispatch import Dispatcher
 from mavattitude.errors import DegenerateGeometryError
@@ -221,6 +222,7 @@ class AttitudeService:
         self._attitude_sent = False
         self._rate = RateMonitor(config.link.request_rate_hz, RATE_WINDOW_S) if config.link.request_messages else None
         self._xcheck = CrossCheck(config.crosscheck) if config.crosscheck.enabled else None
+        self.other_compasses = OtherCompasses(config)
         self._published_s: float | None = None  # vehicle time of the last difference published
         now = time.monotonic()
         self.session = LinkSession(
@@ -373,6 +375,7 @@ class AttitudeService:
 
     def on_message(self, msg: Any, t_rx: float) -> None:
         self.session.on_message(msg, time.monotonic())
+        self.other_compasses.reading(msg)
 
     def on_autopilot_attitude(self, attitude: AutopilotAttitude, t_rx: float) -> None:
         if self._xcheck is not None:
@@ -434,6 +437,8 @@ class AttitudeService:
 
     def on_input(self, sample: ImuSample, t_rx: float) -> None:
         self._last_input = t_rx
+        for instance, event in self.other_compasses.push(sample, self.pipeline):
+            self._on_compass(event, instance)
         if self._rate is not None:
             self._rate.count(t_rx)
         if self._input_lost:
@@ -472,12 +477,17 @@ class AttitudeService:
         slow = int(frontend.per_sample)
         log.info("%s", rate_handling(self.config, self._input_name, frontend.rate_hz, slow, slow))
 
-    def _on_compass(self, event: CompassEvent) -> None:
-        """The compass verdict changed: said once each way (the monitor's hysteresis keeps it from flapping)."""
+    def _on_compass(self, event: CompassEvent, instance: int | None = None) -> None:
+        """The compass verdict changed: said once each way (the monitor's hysteresis keeps it from flapping).
+        ``instance``: another of the vehicle's magnetometers than ``input.message``'s, named from 1 as the
+        autopilot numbers them (``compass 2 turns unlike the gyro: check mount, cal``)."""
         level, words = compass_event_words(event)
+        text = compass_statustext(event.figures)
+        if instance is not None:
+            words, text = f"compass {instance + 1}: {words}", f"compass {instance + 1}{text.removeprefix('compass')}"
         log.log(level, "%s", words)
         if event.inconsistent:
-            self._statustext("compass", compass_statustext(event.figures), "warning", log_it=False)
+            self._statustext("compass" if instance is None else f"compass{instance}", text, "warning", log_it=False)
 
     def on_reject(self, reason: str, exc: BaseException) -> None:
         if reason != "internal_error":

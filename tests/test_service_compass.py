@@ -8,10 +8,13 @@ import numpy as np
 import pytest
 
 from mavattitude.estimation.conventions import rotate_ned_to_body
+from mavattitude.link.mavlink2 import mavlink2
 from mavattitude.reports import compass_statustext
+from mavattitude.sensors import units
 from tests.test_dispatch import Peer, memory_service, sent, serve  # noqa: F401 (memory_service: a fixture)
-from tests.test_service import Q_TRUE, mag_ned_uT
+from tests.test_service import G_NED_MPS2, GYRO_RADPS, Q_TRUE, mag_ned_uT
 
+ACC = rotate_ned_to_body(Q_TRUE, G_NED_MPS2)
 UPSIDE_DOWN = rotate_ned_to_body(Q_TRUE, mag_ned_uT()) * np.array([1.0, 1.0, -1.0])
 
 
@@ -45,3 +48,28 @@ def test_a_good_compass_is_not_reported(memory_service, caplog):  # noqa: F811
     assert not any("compass" in m.text for m in sent(link, "STATUSTEXT"))
     # RAW_IMU quantisation (1 mgauss of 500, 1 mG of 1000) moves the dip by < 0.2°
     assert service.pipeline.compass.figures().dip_deg == pytest.approx(60.0, abs=0.5)
+
+
+def _scaled_imu2(vehicle: Peer, mag_uT: np.ndarray) -> bytes:
+    """A SCALED_IMU2 carrying the vehicle's second compass (the IMU fields as RAW_IMU's, at the last sample's time)."""
+    sample = units.ImuSample(vehicle.time_s, tuple(ACC), GYRO_RADPS, tuple(mag_uT))
+    fields = units.encode(sample, units.PROFILES["ardupilot"], "SCALED_IMU2")
+    return vehicle.pack(mavlink2.MAVLink_scaled_imu2_message(**fields))
+
+
+def test_a_second_compass_upside_down_is_named_and_the_first_one_is_not(memory_service, caplog):  # noqa: F811
+    # RAW_IMU carries compass 1 (good), SCALED_IMU2 compass 2 (upside down): each judged on the same IMU samples
+    service, link = memory_service
+    caplog.set_level(logging.INFO, logger="mavattitude.service")
+    vehicle = Peer()
+    messages = [vehicle.heartbeat()]
+    for _ in range(1000):  # 5 s at 200 Hz
+        messages += [vehicle.raw_imu(), _scaled_imu2(vehicle, UPSIDE_DOWN)]
+    link.deliver(*messages)
+    serve(service, link)
+    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING and "compass" in r.getMessage()]
+    assert len(warnings) == 1 and warnings[0].startswith("compass 2: compass dip")
+    texts = [m.text for m in sent(link, "STATUSTEXT") if "compass" in m.text]
+    assert len(texts) == 1 and texts[0].startswith("compass 2 dip") and len(texts[0]) <= 50
+    assert service.pipeline.compass.warnings == 0  # compass 1, the one replayed, is not warned about
+    assert service.other_compasses.judges[1].compass.warnings == 1

@@ -53,10 +53,8 @@ from mavattitude.sensors import units
 
 log = logging.getLogger(__name__)
 
-#: the IMU messages that carry a compass, and whose (ArduPilot sends compass 1, 2, 3 in RAW_IMU, SCALED_IMU2, 3)
-COMPASS_INSTANCES = {"RAW_IMU": 0, "SCALED_IMU": 0, "SCALED_IMU2": 1, "SCALED_IMU3": 2}
 #: read beside the decoder's messages: every compass, and the parameters saying which one the autopilot uses
-COMPASS_TYPES = frozenset({*COMPASS_INSTANCES, "PARAM_VALUE"})
+COMPASS_TYPES = frozenset({*units.COMPASS_INSTANCES, "PARAM_VALUE"})
 CHUNK_MESSAGES = 4096  # messages per recv(): large enough to amortise the call, small enough for progress
 TIME_LEN = 8  # the record's receive time before each frame
 MAGIC_V1, MAGIC_V2 = 0xFE, 0xFD
@@ -359,11 +357,12 @@ class TlogSource:
         return self._with_compasses(streams, tables)
 
     def _with_compasses(self, streams: LogStreams, tables: dict[str, _Table]) -> LogStreams:
-        """``streams`` with every compass the vehicle sent (:data:`COMPASS_INSTANCES`) in its ``compasses``, and the
-        one replayed: ``mag_instance``, else the autopilot's (PARAM_VALUE), else the IMU message's own."""
-        own = COMPASS_INSTANCES.get(self.decoder.message)
+        """``streams`` with every compass the vehicle sent (:data:`~mavattitude.sensors.units.COMPASS_INSTANCES`)
+        in its ``compasses``, and the one replayed: ``mag_instance``, else the autopilot's (PARAM_VALUE), else the
+        IMU message's own."""
+        own = units.COMPASS_INSTANCES.get(self.decoder.message)
         readings = {own: (streams.mag_t_s, streams.mag_uT)} if own is not None and len(streams.mag_t_s) else {}
-        for name, instance in COMPASS_INSTANCES.items():
+        for name, instance in units.COMPASS_INSTANCES.items():
             if name in tables and instance not in readings:
                 try:
                     imu = units.decode_columns(name, tables[name].fields, self.decoder.profile)
