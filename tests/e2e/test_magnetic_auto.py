@@ -79,8 +79,9 @@ def test_without_a_gps_fix_the_field_is_measured_then_a_fix_switches_to_the_mode
         assert line is not None and "dip 63.0°, 48.0 µT" in line, svc.log_tail()
         wait_outputs(v, 75)
         _, first_s, _ = v.outputs_since(0)
-        # the wait is vehicle time from the first IMU tick (script time 0 here); the ticks are 50 Hz
-        assert 5.0 <= first_s[0] < 5.1
+        # the wait is vehicle time from the first IMU tick the service takes: script time 0 (the next 50 Hz tick
+        # 0.02 s on), or a little later on a machine so loaded that the first datagrams were dropped (0.5 s)
+        assert 5.0 <= first_s[0] < 5.5
         assert counter(svc, "positions") == 0
         measured = v.score()
         v.set_gps_fix(True)
