@@ -239,6 +239,12 @@ class NoiseConfig:
         default=(0.05, 0.05, 0.05), metadata=_meta(_per_axis_std, "accelerometer σ per axis, m/s²")
     )
     mag_std_uT: Vec3 = field(default=(0.5, 0.5, 0.5), metadata=_meta(_per_axis_std, "magnetometer σ per axis, µT"))
+    rest_s: float = field(
+        default=10.0,
+        metadata=_meta(
+            _number(0.0, 3600.0), "still this long in all, the σ measured at rest replace these, s (0: never)"
+        ),
+    )
 
 
 _ANGLES: dict[str, Check] = {

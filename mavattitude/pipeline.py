@@ -58,6 +58,7 @@ from mavattitude.errors import ConfigError, InputError, MavAttitudeError
 from mavattitude.estimation import METHODS, NoiseModel, solve
 from mavattitude.estimation.compass import CompassEvent, CompassMonitor, heading_uncertain
 from mavattitude.estimation.conventions import Array, Vec3, is_unit_quaternion_parts, tilt_quat_parts
+from mavattitude.estimation.restnoise import RestNoise
 from mavattitude.sensors.frontend import (
     BatchOutput,
     FrontEnd,
@@ -200,12 +201,38 @@ class SnapshotEstimator:
         self.noise = _noise_model(config)
         self._scaled: dict[tuple[float, float], NoiseModel] = {(1.0, 1.0): self.noise}
         self._q0: Array | None = None
+        rest_s = config.noise.rest_s
+        self.rest_noise = RestNoise(rest_s) if rest_s > 0.0 else None
+        self._measured_said = False
 
     def reset(self) -> None:
         self._q0 = None
 
     def counters(self) -> dict[str, float]:
-        return {}
+        """With the noise measured at rest: the still time seen (s) and whether its σ are the ones in use."""
+        rest = self.rest_noise
+        if rest is None:
+            return {}
+        return {"noise_rest_s": round(rest.still_s, 1), "noise_measured": int(rest.measured is not None)}
+
+    def _measure_noise(self, rest: RestNoise, sample: ProcessedSample) -> None:
+        """The tick into the rest-noise measurement; its σ replace the config's once the vehicle has been still
+        long enough (:mod:`mavattitude.estimation.restnoise`), said once in the log (then at debug level)."""
+        if not rest.add(sample.time_s, sample.acc_mps2, sample.mag_uT, sample.gyr_radps):
+            return
+        self.noise = rest.measured  # type: ignore[assignment]
+        self._scaled = {(1.0, 1.0): self.noise}
+        log.log(
+            logging.DEBUG if self._measured_said else logging.INFO,
+            "t=%.1f s: noise measured at rest over %.0f s, in use instead of the config's: accel σ %s m/s², "
+            "mag σ %s µT, gyro bias %s rad/s",
+            sample.time_s,
+            rest.still_s,
+            _axes(self.noise.accel_std),
+            _axes(self.noise.mag_std),
+            _axes(rest.gyro_bias_radps or ()),
+        )
+        self._measured_said = True
 
     def velocity(self, velocity: GpsVelocity) -> None:
         """A snapshot has no time to difference a velocity over: unused."""
@@ -224,6 +251,8 @@ class SnapshotEstimator:
         flags = int(sample.flags)  # plain int bits: IntFlag arithmetic costs a microsecond per operation
         if flags & _RESET:
             self._q0 = None  # after a gap the previous answer is no better a start than TRIAD
+        if self.rest_noise is not None:
+            self._measure_noise(self.rest_noise, sample)
         noise = self._noise_for(sample.acc_std_scale, sample.mag_std_scale)
         if sample.mag_uT is None:
             self._q0 = None
@@ -241,6 +270,10 @@ class SnapshotEstimator:
         else:
             covariance = _SolutionCovariance(r)
         return [AttitudeOutput(sample.time_s, r.q, rates, r.iterations, r.converged, flag_set(flags), covariance)]
+
+
+def _axes(values: Any) -> str:
+    return "(" + ", ".join(f"{v:.3g}" for v in values) + ")"
 
 
 #: Tick flags under which the magnetometer sets heading only: its |B| is off, or the compass is judged off.

@@ -313,13 +313,13 @@ def _fill(result: LogResult, replayed: Any, imu_name: str) -> None:
         + sum(pipeline.frontend.rejected.values())
         + sum(pipeline.rejected.values())
     )
-    # The fused filter's own counters and learnt offset (nothing for the snapshot methods).
-    fused = pipeline.estimator()
-    result.columns |= {f"fused.{k}": round(v, 2) if isinstance(v, float) else v for k, v in fused.items()}
-    if fused:
-        updates = fused["updates"]
-        result.columns["heading_from_compass"] = round(1.0 - fused["tilt_only_updates"] / updates, 3) if updates else ""
-        lost = heading_lost(fused)
+    # The estimator's own counters: the fused filter's and its learnt offset, a snapshot's noise measured at rest.
+    own, prefix = pipeline.estimator(), pipeline.estimator_prefix
+    result.columns |= {f"{prefix}.{k}": round(v, 2) if isinstance(v, float) else v for k, v in own.items()}
+    if "tilt_only_updates" in own:  # the fused filter's compass
+        updates = own["updates"]
+        result.columns["heading_from_compass"] = round(1.0 - own["tilt_only_updates"] / updates, 3) if updates else ""
+        lost = heading_lost(own)
         if lost:
             log.warning("%s: %s", result.log, lost)
 
