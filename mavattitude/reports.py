@@ -182,7 +182,9 @@ def compass_summary(f: CompassFigures) -> str:
     )
 
 
-#: A share of slow samples said as "all" (a slow stream's first sample, before its pace is known, is not)
+#: A share of slow samples said as "all", and its complement said as none: a stream's first sample comes
+#: before its pace is known (a slow one's is not slow yet; a log's first interval may be long, 0.16 s before a
+#: 200 Hz stream, which makes its second sample alone "slow")
 MOSTLY = 0.99
 
 
@@ -192,7 +194,7 @@ def rate_handling(config: Config, message: str, rate_hz: float, per_sample: int,
     the low-pass cutoff; :func:`~mavattitude.sensors.frontend.slow_interval_s`)."""
     head = f"{message} at {rate_hz:.1f} Hz"
     integrates = METHODS[config.estimator.method].needs_gyro
-    if per_sample:
+    if per_sample > (1.0 - MOSTLY) * samples:
         what = "one attitude per sample, no filtering"
         if integrates:
             what = f"too slow to integrate the gyro: one {SLOW_INPUT_METHOD.upper()} attitude per sample, no filtering"

@@ -218,7 +218,7 @@ class AttitudeService:
         self._last_input: float | None = None
         self._input_lost = False
         self._per_sample = False  # the input too slow to filter, as last said (_say_rate_handling)
-        self._no_heading = SampleFlag.NONE  # our attitudes have no heading, as last said (_say_heading)
+        self._no_heading = SampleFlag.NONE  # our attitudes have no heading, as last said (_say_tilt_only)
         self._attitude_sent = False
         self._rate = RateMonitor(config.link.request_rate_hz, RATE_WINDOW_S) if config.link.request_messages else None
         self._xcheck = CrossCheck(config.crosscheck) if config.crosscheck.enabled else None
@@ -454,7 +454,7 @@ class AttitudeService:
         if self.pipeline.frontend.per_sample != self._per_sample:
             self._say_rate_handling()
         if outputs and (outputs[-1].flags & SampleFlag.NO_HEADING) != self._no_heading:
-            self._say_heading(bool(outputs[-1].flags & SampleFlag.NO_HEADING))
+            self._say_tilt_only(bool(outputs[-1].flags & SampleFlag.NO_HEADING))
         for out in outputs:
             self._emit(out, t_rx)
         if self._xcheck is not None and outputs:
@@ -462,8 +462,8 @@ class AttitudeService:
                 self._xcheck.add_ours(out.time_s, out.q, not out.flags & SampleFlag.NO_HEADING)
             self._cross_check(self._xcheck)
 
-    def _say_heading(self, unknown: bool) -> None:
-        """Our attitudes lost or found their heading (no magnetometer reading): said once each way."""
+    def _say_tilt_only(self, unknown: bool) -> None:
+        """Our attitudes lost or found their heading (no magnetometer reading at all): said once each way."""
         self._no_heading = SampleFlag.NO_HEADING if unknown else SampleFlag.NONE
         if unknown:
             log.warning("no %s magnetometer reading: %s", self._input_name, TILT_ONLY)
