@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import re
 
 import numpy as np
 import pytest
@@ -302,3 +303,30 @@ def test_rows_at_once_are_update_then_suspect_one_by_one(flip):
     assert repr(rows.figures()) == repr(one.figures())  # NaN figures compare equal as text
     good = np.array_equal(flip, np.eye(3))  # both paths: vouched for, never suspect; or warned, then suspect
     assert (one.confirmed, one.warnings, any(suspect)) == ((True, 0, False) if good else (False, 1, True))
+
+
+def test_against_a_field_measured_from_the_compass_a_change_is_judged_not_the_compass_itself():
+    """Without a position the reference is the compass's own field at the start (docs/vehicle.md): an upside-down
+    compass measured so is taken as it is (its dip is the reference); a field that changes later is found."""
+    from mavattitude.reports import compass_statustext
+
+    upside_down = np.array([1.0, -1.0, -1.0])  # turned 180° about x: level, it reads the dip −58°
+    m = CompassMonitor(CompassSettings(), *SIGMAS)
+    m.set_reference(field_from_angles(0.0, -58.0, 50.0), 50.0, measured=True)  # as measured without a position
+    events = []
+    for i in range(1000):  # 10 s level and still at headings all round, then |B| 30 % stronger (a magnet)
+        acc, mag = _body(quat_from_euler(0.0, 0.0, math.radians(7.0 * i)))
+        gain = 1.0 if i < 500 else 1.3
+        event = m.update(0.02 * i, acc, tuple(gain * upside_down * mag), STILL)
+        events += [] if event is None else [(i, event)]
+    assert [(i >= 500, e.inconsistent) for i, e in events] == [(True, True)]  # nothing before the change
+    f = events[0][1].figures
+    assert re.fullmatch(
+        r"compass dip -58° vs measured at the start -58°, \|B\| 1\d\d % of the measured at the start", f.describe()
+    )
+    assert re.fullmatch(r"compass \|B\| 1\d\d% of start: check calibration", compass_statustext(f))
+    assert m.figures().field_ratio == pytest.approx(1.3, abs=1e-9)  # the window now all after the change
+    model = _monitor()  # the same compass against the model's field (+58°): found upside down at once
+    level = [_body(quat_from_euler(0.0, 0.0, math.radians(7.0 * i))) for i in range(100)]
+    verdicts = [model.update(0.02 * i, acc, tuple(upside_down * mag), STILL) for i, (acc, mag) in enumerate(level)]
+    assert [e.inconsistent for e in verdicts if e is not None] == [True]
