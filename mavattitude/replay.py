@@ -150,7 +150,14 @@ def replay(
     c = result.counters
     counters = DispatchCounters(c.rejected["decode"], c.ignored, dict(c.rejected))  # what reading the log counted
     result = Replayed([], [], counters, AttitudePipeline(config), None)
-    return _replay_items(StreamSource(source.name, streams), result, progress)
+    undecided = streams.compasses is not None and streams.compasses.why is None
+    others = _judge_compasses(streams, result.pipeline, -math.inf) if undecided else []  # each on its own field
+    streams = _chosen_compass(streams, others, result)
+    result = _replay_items(StreamSource(source.name, streams), result, progress)
+    if not undecided:  # the others on the reference the replay ended with
+        others = _judge_compasses(streams, result.pipeline, -math.inf)
+    _collect_compasses(streams, others, result)
+    return result
 
 
 def _dispatcher(source: MessageSource, sink: Any, result: Replayed) -> Dispatcher:
@@ -215,9 +222,7 @@ def _replay_arrays(s: LogStreams, result: Replayed, vehicle: Sender) -> Replayed
         *_batch_arrays(s), s.time_wrap_s, reference_after_s, s.mag_repeats, (s.gps_t_s, s.gps_velocity)
     )
     result.outputs, result.compass = pushed.outputs, pushed.compass
-    if s.compasses is not None:
-        used = JudgedCompass(s.compasses.used, pushed.compass, pipeline.compass)
-        result.compasses = sorted([*(j for j in others if j.instance != used.instance), used], key=_instance)
+    _collect_compasses(s, others, result)
     counters.received += len(s.imu_t_s)
     if len(s.imu_t_s):
         result.first_sample_s, result.last_sample_s = float(s.imu_t_s[0]), float(s.imu_t_s[-1])
@@ -227,6 +232,13 @@ def _replay_arrays(s: LogStreams, result: Replayed, vehicle: Sender) -> Replayed
     ]
     counters.autopilot_attitudes = len(result.autopilot)
     return result
+
+
+def _collect_compasses(s: LogStreams, others: list[JudgedCompass], result: Replayed) -> None:
+    """:attr:`Replayed.compasses`: the replayed magnetometer as the pipeline judged it, and the others."""
+    if s.compasses is not None:
+        used = JudgedCompass(s.compasses.used, result.compass, result.pipeline.compass)
+        result.compasses = sorted([*(j for j in others if j.instance != used.instance), used], key=_instance)
 
 
 def _instance(judged: JudgedCompass) -> int:

@@ -99,3 +99,15 @@ def test_a_px4_logs_magnetometers_are_listed_with_the_one_px4_selected():
         == "1: the autopilot's: sensor_selection's mag_device_id 592905 (its field: vehicle_magnetometer)"
     )
     assert [j.instance for j in result.compasses] == [0, 1]
+
+
+@pytest.mark.parametrize(
+    ("name", "verdicts"),
+    [("twocompass.tlog", {0: "ok", 1: "turns unlike the gyro: turned?"}), ("nogps.BIN", {0: "ok", 1: "ok", 2: "ok"})],
+)
+def test_with_the_example_config_every_compass_is_judged_on_the_reference_the_replay_has(name, verdicts):
+    # reference.magnetic auto: twocompass.tlog's first position comes after the field is measured (the samples
+    # go one by one, measured field then WMM), nogps has none (the field measured from the compass)
+    config = load_config(Path(__file__).parents[2] / "configs" / "ardupilot.yaml", {}, env={})
+    result = replay(open_log(shared_path("data", "ardupilot-sitl", name), config), config)
+    assert _verdicts(result) == verdicts and result.compass_used.startswith("0: the autopilot's: COMPASS_USE 1")
