@@ -190,7 +190,9 @@ class ReferenceTracker:
         self._first_s = math.nan  # vehicle time of the first tick while waiting
         self._quiet = [0, 0.0, 0.0]  # quiet ticks while waiting: count, Σ dip (deg), Σ |B| (µT)
         self.reference = setting.fixed_field()
-        self.used: list[ReferenceField] = [] if self.reference.waiting else [self.reference]  # in order
+        # what describe() says: the first reference's label and the latest's, and how many came between
+        self._labels: list[str] = [] if self.reference.waiting else [self.reference.label]
+        self._between = 0
 
     @property
     def waiting(self) -> bool:
@@ -202,14 +204,20 @@ class ReferenceTracker:
         return self.reference.source == "measured"
 
     def describe(self) -> str:
-        """Which references were used, in order (``none`` before any): for the replay summary."""
-        labels = list(dict.fromkeys(r.label for r in self.used)) or [WAITING.label]
-        more = f" (+{len(labels) - 2} more WMM look-ups)" if len(labels) > 2 else ""
-        return "; then ".join([labels[0], labels[-1]][: len(labels)]) + more
+        """Which references were used, the first and the last (``none`` before any): for the replay summary."""
+        more = f" (+{self._between} more WMM look-ups)" if self._between else ""
+        return "; then ".join(self._labels or [WAITING.label]) + more
 
     def _use(self, reference: ReferenceField) -> None:
         self.reference = reference
-        self.used.append(reference)
+        labels = self._labels
+        if labels and labels[-1] == reference.label:
+            return
+        if len(labels) == 2:
+            self._between += 1
+            labels[1] = reference.label
+        else:
+            labels.append(reference.label)
 
     def observe(self, time_s: float, dip_deg: float, field_uT: float) -> bool:
         """A tick while waiting for a position (``auto``): its dip and |B| when the vehicle is quiet (NaN

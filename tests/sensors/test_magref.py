@@ -173,3 +173,11 @@ def test_the_vehicles_date_arriving_after_the_first_position_replaces_the_clocks
     assert ref.reference.field_ned_uT == pytest.approx(wmm_field_ned_uT(47.0, 8.0, 500.0, later))
     assert ref.update_position(47.0, 8.0, 500.0, later) is False  # nothing new: no new reference
     assert ref.update_position(47.0, 8.0, 500.0) is False  # a fix without a date keeps the vehicle's
+
+
+def test_the_summary_names_the_first_and_the_last_reference_and_counts_those_between():
+    ref = ReferenceTracker(MagneticReference("auto"), recompute_distance_km=5.0)
+    for lat in (47.0, 47.1, 47.2, 47.2, 47.3):  # 11 km steps: a new look-up each, but for the repeated place
+        ref.update_position(lat, 8.0, 500.0, DATE)
+    first, last = (f"WMM2025 at {lat:.4f}°, 8.0000° on {DATE}" for lat in (47.0, 47.3))
+    assert ref.describe() == f"{first}; then {last} (+2 more WMM look-ups)"
