@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 
 from mavattitude.cli import main
+from mavattitude.estimation.conventions import quat_from_euler, rotate_ned_to_body
+from mavattitude.sensors.magref import field_from_angles
 from mavattitude.sim.logwriter import SensorLog, static_log, write_dataflash, write_tlog
 from tests.shared import shared_path
 
@@ -128,3 +130,20 @@ def test_a_log_without_a_compass_gives_roll_and_pitch_with_the_heading_unknown(t
         written = np.genfromtxt(out / f"{log.name}.csv", delimiter=",", names=True)  # two logs named zero
         assert np.all(np.isnan(written["yaw_deg"])) and np.allclose(written["roll_deg"], 10.0, atol=0.05)
         assert np.all(written["cov_zz_rad2"] > 1.0)  # a heading uniform over ±180°: (π/√3)² = 3.3 rad²
+
+
+def test_a_vehicle_upside_down_differs_from_its_autopilot_by_degrees_not_by_a_turn(tmp_path):
+    """Ours at roll +179.5°, the autopilot's at −179.7° (the other side of ±180°): 0.8° apart in the summary,
+    not 359.2°."""
+    log = static_log(5.0, imu_rate_hz=50.0)
+    q = quat_from_euler(np.radians(179.5), 0.0, 0.0)
+    field = field_from_angles(0.0, 63.5, 48.0)  # static_log's field
+    log.acc_mps2 = np.tile(rotate_ned_to_body(q, [0.0, 0.0, -9.80665]), (len(log.imu_t_s), 1))
+    log.mag_uT = np.tile(rotate_ned_to_body(q, field), (len(log.mag_t_s), 1))
+    log.gyr_radps = np.zeros_like(log.gyr_radps)
+    log.attitude_rpy_rad = np.tile([np.radians(-179.7), 0.0, 0.0], (len(log.attitude_t_s), 1))
+    row = replay_dir(tmp_path, write_dataflash(tmp_path / "inverted.bin", log), *REF)
+    # noise-free: ours is the truth to the logged rounding (float32 acceleration, ATT's float32 degrees: 1e-5°)
+    assert float(row["roll_p99_deg"]) == pytest.approx(0.8, abs=0.01)
+    assert float(row["roll_rms_deg"]) == pytest.approx(0.8, abs=0.01)
+    assert float(row["yaw_p99_deg"]) < 0.2  # MAG's integer milligauss: 0.05 µT of 21 µT horizontal, 0.15°
