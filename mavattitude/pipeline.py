@@ -132,7 +132,8 @@ class Pushed:
 
 @dataclass
 class PipelineCounters:
-    """What the pipeline did, for the service's periodic log line and the offline summaries."""
+    """What the pipeline did, for the service's counters line and the offline summary
+    (:mod:`mavattitude.reports`)."""
 
     frontend: FrontEndCounters
     ticks: int = 0  # front-end outputs handed to the estimator
@@ -147,19 +148,6 @@ class PipelineCounters:
     @property
     def mean_iterations(self) -> float:
         return self.iterations / self.emitted if self.emitted else math.nan
-
-    def summary(self) -> str:
-        rejected = ", ".join(f"{k}: {v}" for k, v in sorted(self.rejected.items()))
-        return (
-            f"received={self.frontend.received} emitted={self.emitted} "
-            f"rejected={{{rejected}}} input_rejected={{{_fmt(self.frontend.rejected)}}} "
-            f"mean_iterations={self.mean_iterations:.2f} not_converged={self.not_converged}"
-            + "".join(f" {k}={v:.3g}" if isinstance(v, float) else f" {k}={v}" for k, v in self.estimator().items())
-        )
-
-
-def _fmt(counter: Counter[str]) -> str:
-    return ", ".join(f"{k}: {v}" for k, v in sorted(counter.items()))
 
 
 class Estimator(Protocol):

@@ -2,7 +2,8 @@
 cross-check's words.
 
 - :class:`ServiceCounters` and :func:`counters_line`: the ``key=value`` line the service logs every
-  ``stats_interval_s`` (and at the end), which the e2e tests and an operator read;
+  ``stats_interval_s`` (and at the end), which the e2e tests and an operator read; :func:`pipeline_summary`:
+  the pipeline's part of it, the line ``solve`` and ``replay`` log for each input;
 - :func:`compass_event_words`, :func:`compass_warning`, :func:`compass_statustext`: a change of the compass
   monitor's verdict in the log and in STATUSTEXT's 50 characters, live and in an offline summary alike;
   :func:`compass_summary`: its figures over a log as one line;
@@ -15,6 +16,7 @@ from __future__ import annotations
 import logging
 import math
 from collections import Counter
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -206,3 +208,17 @@ def rate_handling(config: Config, message: str, rate_hz: float, per_sample: int,
     if not config.filter.enabled:
         return f"{head}: one attitude per sample (filter.enabled is false)"
     return f"{head}: {config.filter.cutoff_hz:g} Hz low-pass, {config.filter.output_rate_hz:g} Hz output"
+
+
+def pipeline_summary(counters: Any) -> str:
+    """The pipeline's counters as one line (an offline run's): samples in and out, refusals by reason."""
+    return (
+        f"received={counters.frontend.received} emitted={counters.emitted} "
+        f"rejected={{{_by_reason(counters.rejected)}}} input_rejected={{{_by_reason(counters.frontend.rejected)}}} "
+        f"mean_iterations={counters.mean_iterations:.2f} not_converged={counters.not_converged}"
+        + "".join(f" {k}={v:.3g}" if isinstance(v, float) else f" {k}={v}" for k, v in counters.estimator().items())
+    )
+
+
+def _by_reason(counter: Mapping[str, int]) -> str:
+    return ", ".join(f"{k}: {v}" for k, v in sorted(counter.items()))

@@ -203,9 +203,11 @@ class Progress:
 def summarise(pipeline: AttitudePipeline, n_in: int, source: str, compass: list[CompassEvent]) -> None:
     """Log the counters, the compass verdict's changes (``compass``) and its figures; nothing solved at all is a
     failure, not an empty success."""
+    from mavattitude.reports import pipeline_summary
+
     counters = pipeline.counters
     logger = logging.getLogger("mavattitude")
-    logger.info("%s: %d samples in; %s", source, n_in, counters.summary())
+    logger.info("%s: %d samples in; %s", source, n_in, pipeline_summary(counters))
     if pipeline.config.compass.enabled:
         summarise_compass(pipeline, compass, source, logger)
     if counters.emitted == 0:

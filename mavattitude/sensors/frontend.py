@@ -168,18 +168,6 @@ class FrontEndCounters:
             else:
                 setattr(self, f.name, mine + theirs)
 
-    def summary(self) -> str:
-        """One log-friendly line."""
-        parts = [f"received={self.received}", f"accepted={self.accepted}", f"emitted={self.emitted}"]
-        for name, counter in (
-            ("rejected", self.rejected),
-            ("mag_rejected", self.mag_rejected),
-            ("flagged", self.flagged),
-        ):
-            parts.append(f"{name}={{{', '.join(f'{k}: {v}' for k, v in sorted(counter.items()))}}}")
-        parts += [f"gap_resets={self.gap_resets}", f"reboots={self.reboots}", f"redesigns={self.redesigns}"]
-        return " ".join(parts)
-
 
 def first_tick(t_s: float, rate_hz: float) -> int:
     """The smallest ``k`` with ``k / rate_hz >= t_s``."""
