@@ -335,10 +335,6 @@ class TurnCheck:
             return math.inf if self.moved2 > 0.0 else math.nan
         return self.residual2() / self.changed2
 
-    def timing_share(self) -> float:
-        """The share of the field's change that the readings' timing leaves unresolved (module docstring)."""
-        return self.timing2 / self.changed2 if self.changed2 > 0.0 else math.nan
-
     def update(self, time_s: float, mag_uT: Vec3, gyr_radps: Vec3, mag_age_s: float = 0.0) -> None:
         history = self._history
         if self._t is None or not 0.0 < time_s - self._t <= MAX_TURN_GAP_S:
@@ -354,7 +350,7 @@ class TurnCheck:
         history.append((time_s, self._q, gyr_radps))
         while history[0][0] < time_s - HISTORY_S:
             history.popleft()
-        q_read, w_read = _attitude_at(history, time_s - mag_age_s)
+        q_read, w_read = _attitude_at(history, time_s - mag_age_s) if mag_age_s > 0.0 else (self._q, gyr_radps)
         recent = self._recent
         now = [time_s, q_read, mag_uT, w_read, None, dt, dt if mag_age_s > 0.0 else 0.0]
         recent.append(now)
@@ -561,6 +557,7 @@ class CompassMonitor:
         self.settings = settings
         self._max_rate_radps = math.radians(settings.max_rate_dps)
         self._sigmas = (accel_std_mps2, mag_std_uT)
+        self._mag_sigma2 = rms_sigma(mag_std_uT) ** 2  # σ̄_mag², every judgement's
         self._window: deque[tuple[float, float, float | None]] = deque()  # (t, dip, |B| or None)
         self._win = _Stats()
         self._first = _Stats()
@@ -602,14 +599,12 @@ class CompassMonitor:
         """``turn_allowance`` plus k times the share of the field's change that its noise explains."""
         if not self._turn.changed2:
             return math.nan
-        sigma = rms_sigma(self._sigmas[1])
-        noise_share = self._turn.steps * 6.0 * sigma * sigma / self._turn.changed2 + self._turn.timing_share()
+        noise_share = (self._turn.steps * 6.0 * self._mag_sigma2 + self._turn.timing2) / self._turn.changed2
         return self.settings.turn_allowance + NOISE_SIGMAS * noise_share
 
     def _mounting_threshold_uT2(self) -> float:
         """``4 k² σ̄²``: what noise alone lets another mounting gain on the configured one (module docstring)."""
-        sigma = rms_sigma(self._sigmas[1])
-        return 4.0 * NOISE_SIGMAS * NOISE_SIGMAS * sigma * sigma
+        return 4.0 * NOISE_SIGMAS * NOISE_SIGMAS * self._mag_sigma2
 
     def set_reference(self, field_ned_uT: Vec3, intensity_uT: float | None, measured: bool = False) -> None:
         """The field to hold the dip and |B| against; ``measured``: the compass's own at the start (no position),
