@@ -277,6 +277,7 @@ class _Stream:
         "cutoff_hz",
         "fs_hz",
         "intervals",
+        "slow",
         "slow_count",
         "slow_interval_s",
         "t_last",
@@ -284,6 +285,7 @@ class _Stream:
         "timeout_s",
         "times",
         "tolerance",
+        "window",
         "x1",
         "x2",
         "x_last",
@@ -303,35 +305,28 @@ class _Stream:
         self.slow_interval_s = slow_interval_s
         self.times: deque[float] = deque(maxlen=window + 1)
         # the stream's rhythm: its last intervals across gaps (within one boot), and how many are slow
+        self.window = window
         self.intervals: deque[float] = deque(maxlen=window)
-        self.slow_count = 0
-        self.restart()
+        self.reboot()
 
     def reboot(self) -> None:
         """The vehicle rebooted: the stream and its rhythm start over."""
         self.intervals.clear()
-        self.slow_count = 0
+        self.slow_count = 0  # of the intervals, those longer than slow_interval_s (:func:`slow_interval_s`)
+        self.slow = False  # most of them are: the stream is too slow to filter
         self.restart()
-
-    @property
-    def slow(self) -> bool:
-        """Most of the last intervals longer than ``slow_interval_s`` (:func:`slow_interval_s`)."""
-        return 2 * self.slow_count > len(self.intervals)
 
     @property
     def gap_limit_s(self) -> float:
         """The longest interval that is no gap now (:func:`~mavattitude.estimation.conventions.gap_limit_s`)."""
         return gap_limit_s(self.timeout_s, _median(self.intervals))
 
-    def _take_interval(self, dt: float) -> bool:
-        """Whether ``dt`` since the last sample is a gap (against the intervals before it); then it joins them."""
-        gap = dt > self.timeout_s and dt > self.gap_limit_s
-        intervals = self.intervals
-        if len(intervals) == intervals.maxlen:
-            self.slow_count -= intervals[0] > self.slow_interval_s
-        intervals.append(dt)
-        self.slow_count += dt > self.slow_interval_s
-        return gap
+    def _beyond(self, dt: float) -> int:
+        """An interval longer than ``timeout_s``: ``GAP`` when longer than :attr:`gap_limit_s` too, ``STARTED``
+        when no pace is known yet (a stream's first interval starts it anew, uncounted), else ``CONTINUED``."""
+        if dt <= self.gap_limit_s:
+            return CONTINUED
+        return GAP if self.intervals else STARTED
 
     def restart(self) -> None:
         self.times.clear()
@@ -352,12 +347,24 @@ class _Stream:
     def push(self, t: float, x: Sequence[float]) -> tuple[int, bool]:
         """Filter one sample; returns (CONTINUED | STARTED | GAP, re-designed)."""
         t_last = self.t_last
-        known = bool(self.intervals)  # the pace: the first interval of a stream is not a gap, only a new start
-        if t_last is None or self._take_interval(t - t_last):
+        if t_last is None:
+            status = STARTED
+        else:  # the interval against the ones before it, then among them (inline: this runs per sample)
+            dt = t - t_last
+            status = self._beyond(dt) if dt > self.timeout_s else CONTINUED
+            intervals, slow_s = self.intervals, self.slow_interval_s
+            if len(intervals) == self.window and intervals[0] > slow_s:  # the oldest leaves the window
+                self.slow_count -= 1
+            if dt > slow_s:
+                self.slow_count += 1
+            intervals.append(dt)
+            if self.slow_count or self.slow:  # a fast stream's common case: nothing slow in the window
+                self.slow = 2 * self.slow_count > len(intervals)
+        if status != CONTINUED:
             self.restart()
             self.times.append(t)
             self.t_last, self.y_last, self.x_last = t, x, x
-            return GAP if t_last is not None and known else STARTED, False
+            return status, False
         times = self.times
         times.append(t)
         self.t_prev, self.y_prev, self.t_last = t_last, self.y_last, t
@@ -462,13 +469,13 @@ class FrontEnd:
                 c.mag_gap_resets += status == GAP
                 c.redesigns += redesigned
         a, g = _apply(self._acc, acc), _apply(self._gyr, gyr)
-        limit_s = self._imu.gap_limit_s
         status, redesigned = self._imu.push(t, (*a, *g))
         c.redesigns += redesigned
         slow = self._imu.slow
         if status != CONTINUED or slow != self.per_sample:
             if status == GAP:
                 c.gap_resets += 1
+                limit_s = self._imu.gap_limit_s  # (the gap among the intervals now: the median barely moves)
                 log.warning("input gap longer than %.3g s before %.3f s: filter restarted", limit_s, t)
             self._pending_reset = True
             self._next_k = first_tick(t, s.output_rate_hz)
@@ -568,7 +575,10 @@ class FrontEnd:
         m = self._mag
         if m.t_last is None:
             return None, _NO_MAG, 0.0
-        last, prev = (m.x_last, m.x_prev) if raw else (m.y_last, m.y_prev)
+        if raw:
+            last, prev = m.x_last, m.x_prev
+        else:
+            last, prev = m.y_last, m.y_prev
         if m.t_last >= tk:
             if m.t_prev is not None and m.t_prev < tk:
                 return _vec(_lerp(m.t_prev, prev, m.t_last, last, tk)), 0, 0.0
