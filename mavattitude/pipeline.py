@@ -487,7 +487,8 @@ class AttitudePipeline:
         # effective ones (docs/vehicle.md)
         self.compass = CompassMonitor(config.compass, config.noise.accel_std_mps2, config.noise.mag_std_uT)
         self._compass_at_s = -math.inf  # vehicle time of the last tick the monitor took
-        self._compass_seen_s = math.nan  # vehicle time of the last tick with a magnetometer reading
+        self._compass_seen_s = math.nan  # vehicle time of the last tick with a magnetometer reading (or the first)
+        self.compass_seen = False  # a tick had a magnetometer reading
         self.mag_ref_ned_uT: Array | None = None
         self.last_error: MavAttitudeError | None = None
         reference = config.reference
@@ -656,7 +657,7 @@ class AttitudePipeline:
         if tick.mag_uT is None:
             self._without_compass(tick, pushed)
             return
-        self._compass_seen_s = tick.time_s
+        self._compass_seen_s, self.compass_seen = tick.time_s, True
         if self.mag_ref_ned_uT is None and not (judge and self._measure_reference(tick)):
             self.counters.waiting += 1
             return

@@ -152,7 +152,10 @@ def summarise_compass(
     for event in events:
         level, words = compass_event_words(event)
         logger.log(level, "%s: t=%.1f s: %s", source, event.time_s, words)
-    logger.info("%s: %s", source, compass_summary(pipeline.compass.figures()))
+    if pipeline.compass_seen:
+        logger.info("%s: %s", source, compass_summary(pipeline.compass.figures()))
+    else:
+        logger.info("%s: compass: no magnetometer reading: nothing to judge", source)
 
 
 class Progress:

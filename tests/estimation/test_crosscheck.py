@@ -8,6 +8,8 @@ import pytest
 from mavattitude.estimation.conventions import quat_from_euler
 from mavattitude.estimation.crosscheck import (
     CLEAR_FRACTION,
+    KEEP_S,
+    MAX_WAITING,
     CrossCheck,
     CrossCheckSettings,
     cross_check_log,
@@ -139,3 +141,19 @@ def test_ours_without_a_heading_is_compared_on_the_tilt_alone():
     check.add_autopilot(0.01, theirs)
     (between,), _ = check.update()
     assert np.isnan(between.yaw_deg)  # interpolated from one without a heading: none
+
+
+def test_an_attitude_that_waited_past_our_kept_outputs_is_late_and_too_many_waiting_overflow():
+    q = tuple(truth(np.array([0.0]))[0].tolist())
+    late = CrossCheck(CrossCheckSettings())
+    late.add_ours(0.0, q)
+    late.add_ours(0.02, q)
+    late.add_autopilot(0.01, q)
+    late.add_ours(KEEP_S + 1.0, q)  # ours ran on past KEEP_S before the autopilot's attitude was paired
+    late.update()
+    assert late.unpaired == {"late": 1} and late.missed == 1
+    full = CrossCheck(CrossCheckSettings())
+    full.add_ours(0.0, q)
+    for k in range(MAX_WAITING + 3):  # ahead of ours, more than can wait
+        full.add_autopilot(1.0 + 0.01 * k, q)
+    assert full.unpaired == {"overflow": 3}
