@@ -22,8 +22,8 @@ front end). Printed, as Markdown tables (docs/vehicle.md):
 
 Every misorientation of :data:`TURNS`: the axis flips, the 90° turns, and a 45° turn about z.
 ``--flights`` prints instead the good-compass warnings of every SITL flight in ``../shared/data/ardupilot-sitl``
-(.BIN and .tlog, each method, with ``configs/ardupilot.yaml`` and with the simulator's true field given; a flight
-without a position says why it is not replayed with the config's ``auto`` reference).
+(.BIN and .tlog, each method, with ``configs/ardupilot.yaml`` and with the simulator's true field given), and of
+simulated hard flights at the same rates with a good compass and one turned 45° (the warnings it should give).
 
 The target: every cell ≤ 1° and warned within 10 s (of the first turn,
 for a compass turned about the vertical or mirrored in a vertical plane: only a turn shows those);
@@ -39,6 +39,7 @@ import argparse
 import dataclasses
 import functools
 import math
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -51,6 +52,7 @@ from mavattitude.link.logs import open_log
 from mavattitude.link.logstreams import LogStreams, StreamSource
 from mavattitude.pipeline import AttitudePipeline
 from mavattitude.replay import replay
+from mavattitude.sim.logwriter import manoeuvring_log, write_dataflash, write_tlog
 from mavattitude.sim.scoring import tilt_error
 from mavattitude.validation.frames import MISORIENTATIONS
 from mavattitude.validation.loaders import Recording, load_recording
@@ -67,6 +69,7 @@ SITL_FIRST_TURN_S = 59.0  # vehicle time of the SITL flight's first turn (its RE
 _C45 = 0.5**0.5
 TURNS = {**MISORIENTATIONS, "yaw-45": np.array([[_C45, -_C45, 0.0], [_C45, _C45, 0.0], [0.0, 0.0, 1.0]])}
 SITL_FLIGHTS = ("flightA", "nogps", "lowrate", "twocompass")
+SIM_SEEDS, SIM_SECONDS = (0, 1, 2), 120.0  # the simulated flights of --flights
 TRUE_FIELD = {"declination_deg": 12.8, "inclination_deg": -65.77}  # the SITL's at CMAC (its README)
 BROAD = ("01", "03", "04", "06", "08", "10", "12", "15", "21", "24", "26", "28", "29", "31", "33", "34", "36")
 
@@ -185,13 +188,28 @@ def flights_table(methods: Sequence[str]) -> None:
                     cells = flight_warnings(SITL_DIR / f"{flight}.{ext}", method, true_field)
                     reference = "true field" if true_field else "example config"
                     print(f"| {flight}.{ext} | {method} | {reference} | {cells} |", flush=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        for seed in SIM_SEEDS:
+            for turn in ("none", "yaw-45"):
+                for ext, path in _simulated(Path(tmp), seed, TURNS.get(turn)):
+                    for method in methods:
+                        name = f"simulated {seed}, compass turned {turn}, .{ext}"
+                        print(f"| {name} | {method} | the WMM | {flight_warnings(path, method, False)} |", flush=True)
+
+
+def _simulated(folder: Path, seed: int, turn: np.ndarray | None) -> list[tuple[str, Path]]:
+    """A simulated hard flight (mavattitude.sim.logwriter.manoeuvring_log: 200°/s yaw swings, tilts to 30°) as
+    a .BIN (25 Hz IMU, 10 Hz averaged compass) and a .tlog (50 Hz RAW_IMU repeating it)."""
+    bin_log = write_dataflash(folder / "sim.bin", manoeuvring_log(SIM_SECONDS, mag_turn=turn, seed=seed))
+    tlog = write_tlog(folder / "sim.tlog", manoeuvring_log(SIM_SECONDS, imu_rate_hz=50.0, mag_turn=turn, seed=seed))
+    return [("BIN", bin_log), ("tlog", tlog)]
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--recordings", nargs="+", default=[*BROAD, "sitl", "px4"], help="BROAD trials, sitl, px4")
     parser.add_argument("--methods", nargs="+", default=["ign", "fused"], choices=["ign", "fused", "cgn", "ml"])
-    parser.add_argument("--flights", action="store_true", help="only the good-compass warnings of the SITL flights")
+    parser.add_argument("--flights", action="store_true", help="only the warnings of the SITL and simulated flights")
     args = parser.parse_args()
     if args.flights:
         flights_table(args.methods)
