@@ -119,6 +119,7 @@ class CrossCheck:
         # autopilot attitudes ahead of our outputs (bounded: while we output nothing, the oldest go)
         self._waiting: deque[tuple[float, Quat]] = deque()
         self._first_s = math.inf  # our first output since the start or our last reset
+        self._dropped_s = -math.inf  # the newest of ours forgotten (KEEP_S behind the newest)
         self._resets = 0
         self.last: Difference | None = None
         self.pairs = 0
@@ -150,14 +151,14 @@ class CrossCheck:
             self._quats.clear()
             self._headings.clear()
             self._resets += 1
-            self._first_s = time_s
+            self._first_s, self._dropped_s = time_s, -math.inf
         if not self._times:
             self._first_s = min(self._first_s, time_s)
         self._times.append(time_s)
         self._quats.append(_quat(q))
         self._headings.append(heading)
         while self._times[0] < time_s - KEEP_S:
-            self._times.popleft()
+            self._dropped_s = self._times.popleft()
             self._quats.popleft()
             self._headings.popleft()
 
@@ -200,19 +201,26 @@ class CrossCheck:
         if times[i] == t:
             return self._quats[i], headings[i]
         if i == 0:
-            if t >= self._first_s:
-                return "late"
-            return "reset" if self._resets else "outside"
-        if times[i] - times[i - 1] > self.settings.max_gap_s and times[i] - times[i - 1] > self._gap_limit_s():
+            if t < self._first_s:
+                return "reset" if self._resets else "outside"
+            if t < self._dropped_s or not self._gap(self._dropped_s, times[0]):
+                return "late"  # ours around it were there, but forgotten before it came
+            return "gap"
+        if self._gap(times[i - 1], times[i]):
             return "gap"
         q = interpolate(times[i - 1], self._quats[i - 1], times[i], self._quats[i], t)
         return q, headings[i - 1] and headings[i]
+
+    def _gap(self, before_s: float, after_s: float) -> bool:
+        """Whether two of ours are too far apart to interpolate between."""
+        dt = after_s - before_s
+        return dt > self.settings.max_gap_s and dt > self._gap_limit_s()
 
     def _gap_limit_s(self) -> float:
         """The longest interval between our outputs that is bridged: their usual interval decides (a 2 Hz stream)."""
         times = self._times
         intervals = sorted(b - a for a, b in zip(times, list(times)[1:], strict=False))
-        return gap_limit_s(self.settings.max_gap_s, intervals[len(intervals) // 2])
+        return gap_limit_s(self.settings.max_gap_s, intervals[len(intervals) // 2] if intervals else math.nan)
 
     def _judge(self, d: Difference) -> CrossCheckEvent | None:
         s = self.settings

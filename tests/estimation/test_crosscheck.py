@@ -157,3 +157,13 @@ def test_an_attitude_that_waited_past_our_kept_outputs_is_late_and_too_many_wait
     for k in range(MAX_WAITING + 3):  # ahead of ours, more than can wait
         full.add_autopilot(1.0 + 0.01 * k, q)
     assert full.unpaired == {"overflow": 3}
+
+
+def test_a_hole_in_our_outputs_longer_than_kept_is_a_gap_not_late():
+    """Ours stop for 10 s (the solver refused those ticks): the autopilot's attitudes in the hole are gaps, though
+    ours before it were forgotten (KEEP_S) by the time ours after it came."""
+    ours_t = np.concatenate([np.arange(0.0, 10.0, 0.02), np.arange(20.0, 30.0, 0.02)])
+    theirs_t = np.arange(0.05, 29.9, 0.1)
+    check, _, _ = cross_check_log(ours_t, truth(ours_t), theirs_t, truth(theirs_t), CrossCheckSettings())
+    in_hole = int(np.count_nonzero((theirs_t > ours_t[499]) & (theirs_t < 20.0)))
+    assert check.unpaired == {"gap": in_hole} and check.pairs == len(theirs_t) - in_hole
