@@ -4,6 +4,8 @@ Usage::
 
     .venv/bin/python tools/tune_fused.py [--trials 04 08 ...] [--set name=value ...]   # one configuration
     .venv/bin/python tools/tune_fused.py --loco [--tune name ...] [--set ...]          # leave one category out
+    .venv/bin/python tools/tune_fused.py --loro [--tune name ...] [--set ...]          # leave one motion out
+    .venv/bin/python tools/tune_fused.py --references [--set ...]                       # reference variants
     .venv/bin/python tools/tune_fused.py --sim [--set ...]                              # the maneuvering flight
 
 Training set: the 17 BROAD trials in ``../shared/data/broad`` (01 03 04 06 08 10 12 15 21 24 26 28 29 31 33
@@ -23,6 +25,19 @@ score the held-out category with the result. A category that only scores well wh
 what the held-back trials would expose. Without ``--tune`` the tuned set is the accelerometer and
 magnetometer weights. Long: run it under ``nice -n 10``; ``--jobs 2`` scores a configuration's trials in
 two processes (the scores are shared between the folds either way).
+
+``--loro``: the same with the training set split by recording rather than by category: every recording of a
+motion (BROAD's file name less its number and its letter A/B/C/D: 01 and 03 are both "undisturbed slow rotation",
+10 and 12 "undisturbed slow translation", 28, 29 and 31 "disturbed stationary magnet") is held out together, so a
+fold never tunes on a sibling of what it is scored on (13 folds).
+
+``--references``: the table with the magnetic reference taken as the validation takes it (the opening rest), from
+the last rest window instead, with its dip off by ±3° and its strength off by ±8 %; then a row per variant:
+geometric mean and worst of fused/VQF, losses to imufusion, the geometric mean against the first row's.
+
+``--field``: per trial, the measured field turned into NED by the true attitude over the movement phase against
+the reference: its heading (mean, RMS), strength ratio and dip difference, beside the filter's heading error
+(ground-truth analysis: why heading differs from recording to recording).
 
 ``--misoriented`` runs each trial with its magnetometer's axes flipped or turned by 90° and prints the RMS
 roll/pitch difference from the good-compass run (the target: ≤ 1°: the field sets heading only).
@@ -48,6 +63,7 @@ import dataclasses
 import functools
 import math
 import multiprocessing
+import re
 import time
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
@@ -79,10 +95,49 @@ CATEGORIES = {
 DEFAULT_TUNED = ("accel_lowpass_s", "accel_lag_gain", "accel_norm_gain", "mag_std_uT", "gyro_scale_fraction")
 
 
+#: The reference field's variants the figures must survive: as the validation takes it (the opening rest), from
+#: the last rest window instead, the dip off by ±3°, the strength off by ±8 %.
+REFERENCES = ("first rest", "last rest", "inclination +3°", "inclination -3°", "strength +8%", "strength -8%")
+
+
 @functools.cache
-def recording(trial: str) -> Recording:
+def recording(trial: str, reference: str = REFERENCES[0]) -> Recording:
+    """The trial, its magnetic reference one of :data:`REFERENCES`."""
     (path,) = DATA_DIR.glob(f"{trial}_*.csv.gz")
-    return load_recording(path)
+    rec = load_recording(path)
+    if reference == REFERENCES[0]:
+        return rec
+    field = _last_rest_field(rec) if reference == "last rest" else rec.reference.field_ned_uT
+    strength, dip = float(np.linalg.norm(field)), math.atan2(field[2], field[0])
+    kind, _, amount = reference.partition(" ")
+    if kind == "inclination":
+        dip += math.radians(float(amount.rstrip("°")))
+    elif kind == "strength":
+        strength *= 1.0 + float(amount.rstrip("%")) / 100.0
+    changed = strength * np.array([math.cos(dip), 0.0, math.sin(dip)])
+    return dataclasses.replace(rec, reference=dataclasses.replace(rec.reference, field_ned_uT=changed))
+
+
+def _last_rest_field(rec: Recording) -> np.ndarray:
+    """The field as the opening rest gives it (strength, dip against the measured down; declination 0), from the
+    recording's last rest window instead (:func:`mavattitude.validation.frames.rest_reference`'s rule)."""
+    edges = np.flatnonzero(np.diff(np.r_[0, rec.rest.astype(int), 0]))
+    start, stop = edges[-2], edges[-1]
+    down, field = -rec.acc_mps2[start:stop].mean(axis=0), rec.mag_uT[start:stop].mean(axis=0)
+    strength = float(np.linalg.norm(field))
+    dip = math.asin(float(field @ down) / (strength * float(np.linalg.norm(down))))
+    return strength * np.array([math.cos(dip), 0.0, math.sin(dip)])
+
+
+def recording_groups(trials: Iterable[str]) -> dict[str, tuple[str, ...]]:
+    """The trials by motion, from BROAD's file names: a name less its number and its recording letter (A, B, C,
+    D) is the motion, so every sibling recording of a motion is kept out together (01 and 03, 10 and 12, …)."""
+    groups: dict[str, list[str]] = {}
+    for trial in trials:
+        (path,) = DATA_DIR.glob(f"{trial}_*.csv.gz")
+        motion = re.sub(r"_[A-D]$", "", path.name.removesuffix(".csv.gz").split("_", 1)[1])
+        groups.setdefault(motion.replace("_", " "), []).append(trial)
+    return {motion: tuple(members) for motion, members in groups.items()}
 
 
 def imufusion_with_bias(rec: Recording, gain: float = 0.1) -> np.ndarray:
@@ -130,9 +185,11 @@ def run_fused(rec: Recording, settings: FusedSettings) -> tuple[np.ndarray, Fuse
     return q, f, (time.process_time() - start) / len(t) * 1e6
 
 
-def score(trial: str, settings: FusedSettings) -> tuple[float, float, float, FusedFilter, float]:
+def score(
+    trial: str, settings: FusedSettings, reference: str = REFERENCES[0]
+) -> tuple[float, float, float, FusedFilter, float]:
     """``(total, heading, inclination)`` movement RMS (degrees), the filter, µs per sample."""
-    rec = recording(trial)
+    rec = recording(trial, reference)
     q, f, cost_us = run_fused(rec, settings)
     m = score_broad(q, rec.truth_q, rec.movement, rec.rest).movement
     return m.total_deg, m.heading_deg, m.inclination_deg, f, cost_us
@@ -172,19 +229,20 @@ def geomean(values: Iterable[float]) -> float:
 Row = Callable[[str], tuple[float, float, float, str]]
 
 
-def filter_row(settings: FusedSettings) -> Row:
+def filter_row(settings: FusedSettings, reference: str = REFERENCES[0]) -> Row:
     """A table row from the filter itself, scored at every input sample: the figures and its counters."""
 
     def row(trial: str) -> tuple[float, float, float, str]:
-        total, heading, incl, f, cost_us = score(trial, settings)
+        total, heading, incl, f, cost_us = score(trial, settings, reference)
         counters = " ".join(f"{k}={v}" for k, v in f.counters.items() if v)
         return total, heading, incl, f"{cost_us:.1f}µs {counters}"
 
     return row
 
 
-def table(trials: Sequence[str], row: Row, note: str = "counters") -> None:
-    """The per-trial table (``row(trial)``: total, heading, inclination, a note) and the summary line."""
+def table(trials: Sequence[str], row: Row, note: str = "counters") -> tuple[float, float, int]:
+    """The per-trial table (``row(trial)``: total, heading, inclination, a note) and the summary line; the
+    summary's figures: geometric mean and worst of fused/VQF, trials worse than imufusion."""
     print(f"{'trial':6}{'fused':>7}{'head':>7}{'incl':>7}{'VQF':>7}{'imuf':>7}{'f/VQF':>7}{'f/imuf':>7}  {note}")
     r_vqf, losses = [], []
     for trial in trials:
@@ -202,6 +260,19 @@ def table(trials: Sequence[str], row: Row, note: str = "counters") -> None:
         f"fused/VQF geometric mean {geomean(r_vqf):.3f} (target ≤ 0.95), worst {max(r_vqf):.2f} (≤ 1.25); "
         f"worse than imufusion on {len(losses)} of {len(trials)} {' '.join(losses)}"
     )
+    return geomean(r_vqf), max(r_vqf), len(losses)
+
+
+def reference_robustness(trials: Sequence[str], settings: FusedSettings) -> None:
+    """The table under each reference variant (:data:`REFERENCES`), then one summary row per variant."""
+    rows = []
+    for reference in REFERENCES:
+        print(f"- reference: {reference}", flush=True)
+        rows.append((reference, *table(trials, filter_row(settings, reference))))
+    first = rows[0][1]
+    print(f"{'reference':18}{'geomean':>9}{'worst':>7}{'losses':>8}{'vs first':>10}")
+    for reference, mean, worst, losses in rows:
+        print(f"{reference:18}{mean:9.3f}{worst:7.2f}{losses:8d}{mean / first - 1.0:+10.1%}")
 
 
 def cost(trials: Sequence[str], settings: FusedSettings) -> float:
@@ -234,11 +305,11 @@ def coordinate_descent(
     return best
 
 
-def leave_one_category_out(base: FusedSettings, names: Sequence[str]) -> None:
-    """Tune without each category, score on it; and the full-set tuning for comparison."""
+def leave_groups_out(groups: dict[str, tuple[str, ...]], base: FusedSettings, names: Sequence[str]) -> None:
+    """Tune without each group (a category, or every recording of a motion), score on it."""
     print(f"tuned parameters: {' '.join(names)}; start: the given configuration")
     held_out: dict[str, float] = {}
-    for category, trials in CATEGORIES.items():
+    for category, trials in groups.items():
         train = [t for t in TRAINING if t not in trials]
         print(f"- without {category}:", flush=True)
         tuned = coordinate_descent(train, base, names)
@@ -250,9 +321,32 @@ def leave_one_category_out(base: FusedSettings, names: Sequence[str]) -> None:
             f"{geomean(at_base.values()):.3f}); tuned: " + " ".join(f"{n}={getattr(tuned, n):.4g}" for n in names),
             flush=True,
         )
-    print(
-        f"leave-one-category-out: geometric mean {geomean(held_out.values()):.3f}, worst {max(held_out.values()):.2f}"
-    )
+    print(f"held out: geometric mean {geomean(held_out.values()):.3f}, worst {max(held_out.values()):.2f}")
+    print("  " + " ".join(f"{t} {r:.2f}" for t, r in sorted(held_out.items())))
+
+
+def field_in_motion(trials: Sequence[str], settings: FusedSettings) -> None:
+    """Why heading differs between recordings: the measured field turned into NED by the *true* attitude over
+    the movement phase, against the reference (from the opening rest): its heading (mean and RMS about the
+    reference's north), strength and dip; beside the filter's own heading error. Analysis of the ground truth
+    only, never inside the filter."""
+    from mavattitude.estimation.conventions import rotate_body_to_ned
+
+    print(f"{'trial':6}{'field heading mean':>20}{'rms':>6}{'|B| ratio':>11}{'dip diff':>10}{'fused heading':>15}")
+    for trial in trials:
+        rec = recording(trial)
+        keep = rec.movement & np.all(np.isfinite(rec.truth_q), axis=1)
+        field = rotate_body_to_ned(rec.truth_q[keep], rec.mag_uT[keep])
+        ref = rec.reference.field_ned_uT
+        heading = np.degrees(np.arctan2(field[:, 1], field[:, 0]))
+        strength = np.linalg.norm(field, axis=1)
+        dip = np.degrees(np.arcsin(field[:, 2] / strength)) - math.degrees(math.asin(ref[2] / np.linalg.norm(ref)))
+        fused_heading = score(trial, settings)[1]
+        print(
+            f"{trial:6}{heading.mean():20.2f}{np.sqrt(np.mean(heading**2)):6.2f}"
+            f"{strength.mean() / np.linalg.norm(ref):11.3f}{dip.mean():10.2f}{fused_heading:15.2f}",
+            flush=True,
+        )
 
 
 def misoriented(trials: Sequence[str], settings: FusedSettings) -> None:
@@ -338,6 +432,15 @@ def main() -> int:
     parser.add_argument("--trials", nargs="+", default=list(TRAINING), help="BROAD trial numbers (training set)")
     parser.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE", help="FusedSettings overrides")
     parser.add_argument("--loco", action="store_true", help="leave-one-category-out tuning and scores")
+    parser.add_argument(
+        "--loro", action="store_true", help="leave-one-motion-out: every recording (A, B, C, D) of a motion held out"
+    )
+    parser.add_argument(
+        "--references", action="store_true", help="the table under each reference-field variant, and their summary"
+    )
+    parser.add_argument(
+        "--field", action="store_true", help="the field in the motion volume (by the truth) against the reference"
+    )
     parser.add_argument("--descend", action="store_true", help="coordinate descent of --tune on --trials")
     parser.add_argument("--jobs", type=int, default=1, help="processes for --loco and --descend (nice them)")
     parser.add_argument("--tune", nargs="+", default=list(DEFAULT_TUNED), help="parameters --loco tunes")
@@ -358,7 +461,13 @@ def main() -> int:
     if unknown:
         parser.error(f"not in the training set: {' '.join(unknown)} (the others are kept back for scoring)")
     if args.loco:
-        leave_one_category_out(settings, args.tune)
+        leave_groups_out(CATEGORIES, settings, args.tune)
+    elif args.loro:
+        leave_groups_out(recording_groups(TRAINING), settings, args.tune)
+    elif args.references:
+        reference_robustness(args.trials, settings)
+    elif args.field:
+        field_in_motion(args.trials, settings)
     elif args.descend:
         tuned = coordinate_descent(args.trials, settings, args.tune)
         print("tuned: " + " ".join(f"{n}={getattr(tuned, n):.4g}" for n in args.tune))

@@ -5,8 +5,11 @@ Disturbance measure — field magnitude and dip against the reference, the dip m
 
     d = max(| |m| − |m_ref| | / (τ_n |m_ref|),  |δ(m, q) − δ_ref| / (τ_δ + 3 √tr P_θθ))
 
-``|m_ref|`` is the magnitude as calibrated on the vehicle, learnt (a running mean) over the first
-``mag_reference_s`` of clean field from start-up. ``d ≥ 1``: disturbed, the magnetometer updates nothing.
+``|m_ref|`` and ``δ_ref`` are the magnitude and dip as this magnetometer measures them here, learnt (running
+means, from the reference's) over the first ``mag_reference_s`` of clean field from start-up: the reference
+sets the heading (its horizontal direction), the data the field the checks compare with, so a reference off
+by 8 % in strength or 3° in dip (a model, another rest spot) changes nothing. ``d ≥ 1``: disturbed, the
+magnetometer updates nothing.
 ``d < 1``: ``σ_m'² = σ_m² (1 + (d/d₀)⁶) ρ``, with the recovery factor after a disturbance that lasted
 ``T_c``: ``ρ = 1 + (ρ₀ − 1) min(1, T_c/T_r) max(0, 1 − t_clean/T_r)``. The sixth power keeps the weight
 flat near the reference, where ``d`` is calibration residue and noise (BROAD's clean field: ``d`` ≲ 0.45),
@@ -106,6 +109,7 @@ class MagneticChecks:
             return relearned
         self._field_n += 1.0
         self.norm_ref += (norm - self.norm_ref) / self._field_n
+        self.dip_ref += (dip - self.dip_ref) / self._field_n
         return relearned
 
     def sigma2_factor(self, d: float, time_s: float) -> float:

@@ -50,7 +50,7 @@ class FusedSettings:
         10.0, "τ_δ: dip off its reference by this much is a disturbance, deg", hi=90.0
     )
     mag_reference_s: float = ranged(
-        20.0, "τ_ref: ‖B‖ is learnt over this much clean field from the start, s", lo_open=True
+        20.0, "τ_ref: ‖B‖ and the dip are learnt over this much clean field from the start, s", lo_open=True
     )
     mag_relearn_s: float = ranged(
         60.0, "T_new: a field disturbed this long without a break is adopted (it sets heading only), s", lo_open=True
