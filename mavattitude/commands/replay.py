@@ -13,14 +13,20 @@ One log and OUT ending in .csv (or .csv.gz): the attitude is written there. Seve
 directory of them: OUT is a directory, with one CSV per log (the columns of `mavattitude solve`), and
 summary.csv, the table also printed: per log its duration, samples, outputs, ours-minus-autopilot
 roll / pitch / yaw RMS and p99 (degrees; at each of the autopilot's attitudes, ours interpolated to its
-time, as the service's cross-check pairs them), rejected inputs, the magnetic reference used (WMM release,
-place and date; the field measured from the compass; or the one given) and what was wrong with the file.
+time, as the service's cross-check pairs them; differences wrapped to ±180°), how many of the autopilot's
+attitudes inside our output span were compared (compared, compared_pct) and why the others were not
+(not_compared: gap, reset, late, overflow), rejected inputs, the rate handling (an IMU slower than twice the
+low-pass cutoff, 20 Hz, gives one unfiltered attitude per sample; --method fused then solves them with IGN:
+too slow to integrate), the heading's source (a log without a magnetometer, or one reading zero, gives roll
+and pitch with the yaw NaN), the magnetic reference used (WMM release, place and date; the field measured
+from the compass; or the one given) and what was wrong with the file.
 Every magnetometer a log holds (a .bin's MAG instances; a .tlog's RAW_IMU, SCALED_IMU2, SCALED_IMU3) is
 judged by the compass monitor against the same IMU: the summary's compasses column ("0 ok; 1 turns unlike
 the gyro: turned?"), and compass, the one replayed and why: --mag, else the one the autopilot used where
 the log says (COMPASS_USE / COMPASS_USE2 / COMPASS_PRIMARY in PARM or PARAM_VALUE), else the most consistent.
 -j N replays N logs at a time in worker processes. Where a log holds the autopilot's own attitude, a
-PNG comparison plot is written beside its CSV (needs matplotlib: pip install mavattitude[plot]).
+PNG comparison plot is written beside its CSV (needs matplotlib: pip install mavattitude[plot]), shaded where
+the compass was judged off and where the cross-check warned.
 
 The snapshot methods (ign, the default) see only the accelerometer and magnetometer: during
 accelerations they take specific force for gravity, so their roll and pitch differ from a gyro-aided
