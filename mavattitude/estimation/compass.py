@@ -132,10 +132,16 @@ def measured_dip_deg(acc_mps2: Vec3, mag_uT: Vec3) -> float:
 
 
 def measured_dip_deg_rows(acc_mps2: Array, mag_uT: Array) -> Array:
-    """:func:`measured_dip_deg` of each row, by it (a row costs a microsecond: the ticks of a log, not its
-    samples, and ``asin`` must be :mod:`math`'s anyway, numpy's differing in the last bit)."""
-    pairs = zip(acc_mps2.tolist(), mag_uT.tolist(), strict=True)
-    return np.fromiter((measured_dip_deg(a, m) for a, m in pairs), float, len(acc_mps2))
+    """:func:`measured_dip_deg` of each row, the same operations in the same order (``asin`` by :mod:`math`:
+    numpy's vectorised one differs in the last bit)."""
+    dot = -(acc_mps2[:, 0] * mag_uT[:, 0] + acc_mps2[:, 1] * mag_uT[:, 1] + acc_mps2[:, 2] * mag_uT[:, 2])
+    norms = _norm_rows(acc_mps2) * _norm_rows(mag_uT)
+    with np.errstate(divide="ignore", invalid="ignore"):  # a zero vector's row: NaN below
+        ratio = dot / norms
+    ratio = np.where(ratio < 1.0, ratio, 1.0)  # clip_unit's comparisons: NaN becomes 1, as there
+    ratio = np.where(ratio > -1.0, ratio, -1.0)
+    ratio = np.where(norms == 0.0, np.nan, ratio)  # no direction, no dip, as there
+    return np.degrees(np.fromiter(map(math.asin, ratio.tolist()), float, len(ratio)))
 
 
 def _norm_rows(v: Array) -> Array:
