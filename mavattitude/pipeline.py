@@ -333,7 +333,7 @@ def tilt_output(sample: ProcessedSample, noise: NoiseModel, flags: int) -> Attit
 class FusedEstimator:
     """The gyro-aided filter (:class:`~mavattitude.estimation.fused.FusedFilter`), set by ``estimator.fused``.
 
-    A tick of an input too slow to filter (``PER_SAMPLE``: slower than twice the low-pass cutoff, 20 Hz) is too
+    A tick of an input too slow to filter (``PER_SAMPLE``: about twice the low-pass cutoff, 20 Hz or slower) is too
     slow to integrate too: the gyro's samples are snapshots of a rate that changes faster than they come (a 2 Hz
     RAW_IMU in a turn reaching 60°/s steps 30° between two, at angular accelerations of 100°/s² and more, so
     the rate held over a step is wrong by tens of degrees), so such a tick is solved from its accelerometer and

@@ -27,6 +27,7 @@ from mavattitude.estimation.compass import CompassEvent, CompassFigures
 from mavattitude.estimation.crosscheck import CrossCheck
 from mavattitude.link.session import RequestCounters
 from mavattitude.pipeline import SLOW_INPUT_METHOD
+from mavattitude.sensors.frontend import SLOW_PACE
 
 
 @dataclass
@@ -192,15 +193,15 @@ MOSTLY = 0.99
 
 def rate_handling(config: Config, message: str, rate_hz: float, per_sample: int, samples: int) -> str:
     """How the input was processed at its rate, one line (the service's log, replay's ``rate_handling``):
-    ``per_sample`` of the accepted ``samples`` gave one attitude each, unfiltered (the input slower than twice
-    the low-pass cutoff; :func:`~mavattitude.sensors.frontend.slow_interval_s`)."""
+    ``per_sample`` of the accepted ``samples`` gave one attitude each, unfiltered (the input slower than about
+    twice the low-pass cutoff; :func:`~mavattitude.sensors.frontend.pace_intervals_s`)."""
     head = f"{message} at {rate_hz:.1f} Hz"
     integrates = METHODS[config.estimator.method].needs_gyro
     if per_sample > (1.0 - MOSTLY) * samples:
         what = "one attitude per sample, no filtering"
         if integrates:
             what = f"too slow to integrate the gyro: one {SLOW_INPUT_METHOD.upper()} attitude per sample, no filtering"
-        below = f"below {2 * config.filter.cutoff_hz:g} Hz"
+        below = f"below {SLOW_PACE * config.filter.cutoff_hz:g} Hz"
         share = "" if per_sample >= MOSTLY * samples else f" ({per_sample} of {samples} samples, {below})"
         return f"{head}: {what}{share}"
     if integrates:

@@ -16,7 +16,7 @@ roll / pitch / yaw RMS and p99 (degrees; at each of the autopilot's attitudes, o
 time, as the service's cross-check pairs them; differences wrapped to ±180°), how many of the autopilot's
 attitudes inside our output span were compared (compared, compared_pct) and why the others were not
 (not_compared: gap, reset, late, overflow), rejected inputs, the rate handling (an IMU slower than twice the
-low-pass cutoff, 20 Hz, gives one unfiltered attitude per sample; --method fused then solves them with IGN:
+low-pass cutoff, 20 Hz or slower, gives one unfiltered attitude per sample; --method fused then solves them with IGN:
 too slow to integrate), the heading's source (a log without a magnetometer, or one reading zero, gives roll
 and pitch with the yaw NaN), the magnetic reference used (WMM release, place and date; the field measured
 from the compass; or the one given) and what was wrong with the file.

@@ -48,7 +48,8 @@ A gap is an interval longer than ``input_timeout_s`` *and* than
 :data:`~mavattitude.estimation.conventions.GAP_INTERVALS` (2.5) of the median of the intervals before it, so a
 2 Hz stream's 0.5 s steps are its pace, not gaps (a stream's first interval, its pace unknown, starts the
 stream anew without counting a gap). When most of the IMU's last intervals are longer than
-:func:`slow_interval_s` (the input slower than twice the low-pass cutoff: 20 Hz), the input is too slow to
+:func:`pace_intervals_s` (the input slower than 2.2 times the low-pass cutoff: 22 Hz, so a 20 Hz stream with
+its jitter; fast again above 25 Hz, between the two it stays what it was), the input is too slow to
 filter: each accepted sample is one tick at its own time, its values unfiltered (the magnetometer the newest
 unfiltered reading), flagged ``PER_SAMPLE``; the filters keep running underneath, so when the pace rises again
 the 50 Hz ticks start afresh on the grid (``RESET``), as after a gap.
@@ -204,12 +205,23 @@ def dead_floors2(settings: FrontEndSettings, expected_field_uT: float | None) ->
 CONTINUED, STARTED, GAP = 0, 1, 2
 
 
-def slow_interval_s(settings: FrontEndSettings) -> float:
-    """An input interval longer than this makes the stream too slow to filter: below twice the low-pass cutoff
-    (20 Hz for 10 Hz), the sampling has already folded whatever lies above the cutoff into the band the filter
-    keeps, so it would only delay the signal, and 50 Hz ticks would be interpolated between samples further
-    apart than the motion they should show (a multirotor's attitude moves at up to the same ~10 Hz)."""
-    return 1.0 / (2.0 * settings.cutoff_hz)
+#: The input's pace against the low-pass cutoff ``f_c``: slower than ``SLOW_PACE · f_c`` it turns too slow to
+#: filter, faster than ``FAST_PACE · f_c`` it is filtered again, and between the two it keeps what it was: a
+#: 20 Hz stream (its intervals 50 ms ± a few) is slow for sure, a DataFlash log's 25 Hz IMU filtered for sure,
+#: and neither flips at every other sample as a single threshold at 20 Hz would make it.
+SLOW_PACE, FAST_PACE = 2.2, 2.5
+#: Intervals the window needs before the pace between the two holds: fewer are no pace to keep (a log's first
+#: interval, 0.16 s before a 200 Hz stream's second, would make it slow until most of 32 are short)
+STICKY_INTERVALS = 8
+
+
+def pace_intervals_s(settings: FrontEndSettings) -> tuple[float, float]:
+    """``(slow, fast)``: when most of a stream's last intervals are longer than ``slow`` it is too slow to
+    filter, until most are no longer than ``fast`` (:data:`SLOW_PACE`, :data:`FAST_PACE`). Below about twice the
+    low-pass cutoff the sampling has already folded whatever lies above the cutoff into the band the filter
+    keeps, so the filter would only delay the signal, and 50 Hz ticks would be interpolated between samples
+    further apart than the motion they should show (a multirotor's attitude moves at up to the same ~10 Hz)."""
+    return 1.0 / (SLOW_PACE * settings.cutoff_hz), 1.0 / (FAST_PACE * settings.cutoff_hz)
 
 
 def median_rate_hz(time_s: Array) -> float:
@@ -275,16 +287,18 @@ class _Stream:
     __slots__ = (
         "coef",
         "cutoff_hz",
+        "fast_s",
         "fs_hz",
         "intervals",
         "slow",
         "slow_count",
-        "slow_interval_s",
+        "slow_s",
         "t_last",
         "t_prev",
         "timeout_s",
         "times",
         "tolerance",
+        "unfast_count",
         "window",
         "x1",
         "x2",
@@ -297,12 +311,12 @@ class _Stream:
     )
 
     def __init__(
-        self, cutoff_hz: float | None, timeout_s: float, window: int, tolerance: float, slow_interval_s: float
+        self, cutoff_hz: float | None, timeout_s: float, window: int, tolerance: float, pace_s: tuple[float, float]
     ) -> None:
         self.cutoff_hz = cutoff_hz
         self.timeout_s = timeout_s
         self.tolerance = tolerance
-        self.slow_interval_s = slow_interval_s
+        self.slow_s, self.fast_s = pace_s
         self.times: deque[float] = deque(maxlen=window + 1)
         # the stream's rhythm: its last intervals across gaps (within one boot), and how many are slow
         self.window = window
@@ -312,8 +326,9 @@ class _Stream:
     def reboot(self) -> None:
         """The vehicle rebooted: the stream and its rhythm start over."""
         self.intervals.clear()
-        self.slow_count = 0  # of the intervals, those longer than slow_interval_s (:func:`slow_interval_s`)
-        self.slow = False  # most of them are: the stream is too slow to filter
+        # of the intervals, those longer than slow_s and than fast_s (:func:`pace_intervals_s`)
+        self.slow_count = self.unfast_count = 0
+        self.slow = False  # the stream is too slow to filter
         self.restart()
 
     @property
@@ -352,14 +367,18 @@ class _Stream:
         else:  # the interval against the ones before it, then among them (inline: this runs per sample)
             dt = t - t_last
             status = self._beyond(dt) if dt > self.timeout_s else CONTINUED
-            intervals, slow_s = self.intervals, self.slow_interval_s
-            if len(intervals) == self.window and intervals[0] > slow_s:  # the oldest leaves the window
-                self.slow_count -= 1
-            if dt > slow_s:
-                self.slow_count += 1
+            intervals, fast_s = self.intervals, self.fast_s
+            if len(intervals) == self.window and intervals[0] > fast_s:  # the oldest leaves the window
+                self.unfast_count -= 1
+                self.slow_count -= intervals[0] > self.slow_s
+            if dt > fast_s:
+                self.unfast_count += 1
+                self.slow_count += dt > self.slow_s
             intervals.append(dt)
-            if self.slow_count or self.slow:  # a fast stream's common case: nothing slow in the window
-                self.slow = 2 * self.slow_count > len(intervals)
+            if self.unfast_count or self.slow:  # a fast stream's common case: nothing slow in the window
+                n = len(intervals)
+                stays = self.slow and n >= STICKY_INTERVALS
+                self.slow = 2 * (self.unfast_count if stays else self.slow_count) > n
         if status != CONTINUED:
             self.restart()
             self.times.append(t)
@@ -416,9 +435,9 @@ class FrontEnd:
         self._mag_cal = _affine_rows(*affines["mag"])
         cutoff = s.cutoff_hz if s.filter_enabled else None
         self._clock = VehicleClock(s.reorder_window_s)
-        slow = slow_interval_s(s)
-        self._imu = _Stream(cutoff, s.input_timeout_s, s.rate_window, s.rate_tolerance, slow)
-        self._mag = _Stream(cutoff, s.input_timeout_s, s.rate_window, s.rate_tolerance, slow)
+        pace = pace_intervals_s(s)
+        self._imu = _Stream(cutoff, s.input_timeout_s, s.rate_window, s.rate_tolerance, pace)
+        self._mag = _Stream(cutoff, s.input_timeout_s, s.rate_window, s.rate_tolerance, pace)
         self.per_sample = False  # the input is slow: one tick per sample, unfiltered (the module docstring)
         self._mag_taken: Vec3 | None = None  # the last magnetometer reading taken, as received
         self._repeat_hold_s = repeat_hold_s(s)
@@ -896,14 +915,27 @@ def _batch_gap_limit_s(d: Array, i: int, timeout_s: float, window: int) -> float
 
 
 def _slow_rows(t: Array, s: FrontEndSettings) -> NDArray[np.bool_]:
-    """Per sample, :attr:`_Stream.slow` after it: most of the (up to) ``rate_window`` intervals up to it slow."""
+    """Per sample, :attr:`_Stream.slow` after it: it turns slow where most of the (up to) ``rate_window``
+    intervals up to it are longer than the slow interval, and stays so while most are longer than the fast one,
+    of at least :data:`STICKY_INTERVALS` (:func:`pace_intervals_s`). So a sample is slow when it turns, or when
+    it may stay and the one before was slow: in each run of samples that turn or may stay, from the first that
+    turns to the run's end."""
     slow = np.zeros(len(t), dtype=bool)
     if len(t) < 2:
         return slow
-    long = np.concatenate([[0], np.cumsum(np.diff(t) > slow_interval_s(s))])  # slow intervals up to each sample
     i = np.arange(1, len(t))
     first = np.maximum(i - s.rate_window, 0)
-    slow[1:] = 2 * (long[i] - long[first]) > i - first
+    turns, stays = np.zeros(len(t), dtype=bool), np.zeros(len(t), dtype=bool)
+    for most, interval_s in ((turns, pace_intervals_s(s)[0]), (stays, pace_intervals_s(s)[1])):
+        long = np.concatenate([[0], np.cumsum(np.diff(t) > interval_s)])  # long intervals up to each sample
+        most[1:] = 2 * (long[i] - long[first]) > i - first
+    stays[1:] &= i - first >= STICKY_INTERVALS
+    allowed = (turns | stays).view(np.int8)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], allowed, [0]])))
+    for a, b in zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True):  # each run where it may be slow
+        turned = np.flatnonzero(turns[a:b])
+        if len(turned):
+            slow[a + turned[0] : b] = True
     return slow
 
 
