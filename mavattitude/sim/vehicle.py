@@ -7,6 +7,7 @@ It behaves like an autopilot on a companion-computer link:
   :func:`mavattitude.sensors.units.encode` (the project's only MAVLink unit conversion); without a GPS
   fix (``gps_fix``, or :meth:`FakeVehicle.set_gps_fix`) latitude, longitude and altitude 0, as ArduPilot
   sends it with no GPS;
+- GPS_RAW_INT when asked for: the script's true ground speed and course, a 3D fix (none without ``gps_fix``);
 - ATTITUDE (10 Hz by default, ``attitude_rate_hz``), as an autopilot's own estimate: the truth, turned
   by ``attitude_error_deg`` (roll, pitch, yaw) to play an autopilot that is off, so a log recorded from
   it gives ``replay`` and the service's cross-check something to compare with;
@@ -54,6 +55,7 @@ from mavattitude.sensors.units import (
     encode_position,
     get_profile,
     time_boot_ms,
+    time_usec,
 )
 from mavattitude.sim.scoring import Comparison, Score, compare, score
 from mavattitude.sim.sensors import SensorModel
@@ -65,6 +67,8 @@ _IMU_MESSAGE_IDS = frozenset(message_id(name) for name in MESSAGES)
 _MSG_GLOBAL_POSITION_INT = mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT
 _MSG_ATTITUDE = mavlink2.MAVLINK_MSG_ID_ATTITUDE
 _MSG_SYSTEM_TIME = mavlink2.MAVLINK_MSG_ID_SYSTEM_TIME
+_MSG_GPS_RAW_INT = mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT
+_GPS_SATELLITES = 12
 _AUTOPILOT = {"px4": mavlink2.MAV_AUTOPILOT_PX4}
 _POSITION_RATE_HZ = 2.0
 _HEARTBEAT_PERIOD_S = 1.0
@@ -192,6 +196,7 @@ class FakeVehicle:
         self._telemetry: dict[int, Callable[[float], None]] = {
             _MSG_GLOBAL_POSITION_INT: self._send_position,
             _MSG_ATTITUDE: self._send_attitude,
+            _MSG_GPS_RAW_INT: self._send_gps_raw,
         }
         if config.gps_unix_s is not None:
             self._telemetry[_MSG_SYSTEM_TIME] = self._send_system_time
@@ -478,6 +483,23 @@ class FakeVehicle:
                 0,
                 *(int(np.clip(v, -32768, 32767)) for v in vel_cms),
                 65535,
+            )
+        )
+
+    def _send_gps_raw(self, now_s: float) -> None:
+        """GPS_RAW_INT when asked for: the script's true ground speed and course (cm/s, cdeg), a 3D fix with 12
+        satellites (none without ``gps_fix``), stamped with the vehicle time since boot, as ArduPilot does."""
+        vn, ve, _ = self.script.sample([now_s]).vel_ned_mps[0].tolist()
+        speed_cms = min(round(math.hypot(vn, ve) * 100.0), 65534)
+        cog_cdeg = round(math.degrees(math.atan2(ve, vn)) * 100.0) % 36000
+        cfg = self.config
+        home = encode_position(Position(cfg.home_lat_deg, cfg.home_lon_deg, cfg.home_alt_m))
+        fix, position, satellites = (3, home, _GPS_SATELLITES) if self._gps_fix else (0, (0, 0, 0), 0)
+        vehicle_us = time_usec(max(0.0, self.vehicle_time(now_s)))
+        unknown = 65535  # eph, epv: not known
+        self.send(
+            mavlink2.MAVLink_gps_raw_int_message(
+                vehicle_us, fix, *position, unknown, unknown, speed_cms, cog_cdeg, satellites
             )
         )
 

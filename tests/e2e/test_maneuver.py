@@ -16,9 +16,9 @@ import pytest
 
 from mavattitude.sim import scenarios
 from mavattitude.sim.scoring import tilt_error
-from mavattitude.sim.trajectory import GRAVITY_NED_MPS2
+from mavattitude.sim.trajectory import GRAVITY_NED_MPS2, Fly, Hold, Script
 
-from .conftest import assert_all_outputs_valid
+from .conftest import assert_all_outputs_valid, wait_counter
 
 pytestmark = pytest.mark.e2e
 
@@ -56,3 +56,25 @@ def test_maneuvering_flight_tilt_error_is_the_specific_force_conflict(fly: Calla
     # In the holds at both ends the attitude is right.
     hold = (c.t_s < 2.0) | (c.t_s > 24.2)
     assert np.degrees(np.max(np.linalg.norm(c.error_body_rad[hold], axis=1))) < 1.0
+
+
+def test_sustained_turn_holds_the_tilt_with_the_gps_velocity_live(fly: Callable[..., Any]) -> None:
+    """A coordinated turn at a 27° bank for 20 s through the live service in fused mode: it asks the fake vehicle
+    for GPS_RAW_INT, takes the vehicle's acceleration from its velocity (centripetal, 4.9 m/s² at the peak) and
+    holds the tilt: measured 0.63° RMS, 0.86° at worst over the turn (without the velocity, ``gps_max_accel_mps2:
+    0``: 1.48° RMS, 3.8° at worst). The bounds: 1° RMS (the harder SITL flight's target, 0.8°, with a margin for
+    the link) and 2.5° at worst (its p99 target)."""
+    script = Script(
+        [Hold(3.0), Fly(3.0, delta_vel_ned_mps=(10.0, 0.0, 0.0)), Fly(20.0, turn_rad=2.0 * np.pi), Hold(2.0)],
+        scenarios.DEFAULT_MAG_NED_UT,
+    )
+    service = {"estimator": {"method": "fused"}}
+    with fly(script, scenarios.consumer_sensors(200.0), service, speed=4.0) as (v, svc):
+        assert v.wait_for_script_time(script.duration_s - 0.5, 30.0)
+        gps_updates = wait_counter(svc, "fused.gps_updates", 500.0)
+    assert_all_outputs_valid(v)
+    c = v.comparison(since_script_s=8.0)  # the turn's sustained part on
+    turn = c.t_s < 26.0
+    tilt = np.degrees(tilt_error(c.q_est[turn], c.q_true[turn]))
+    assert np.sqrt(np.mean(tilt**2)) < 1.0 and tilt.max() < 2.5, f"tilt RMS {np.sqrt(np.mean(tilt**2)):.2f}°"
+    assert gps_updates >= 500  # 50 Hz updates with the acceleration removed: from the second fix on
