@@ -127,7 +127,7 @@ class RestNoise:
             return False
         accel_std = tuple(math.sqrt(s / p.dof_acc) for s in p.acc)
         mag_std = tuple(math.sqrt(s / p.dof_mag) for s in p.mag)
-        if min(accel_std) <= 0.0 or min(mag_std) <= 0.0:  # a quantised sensor that never moved: no σ to use
+        if not (_measured(accel_std) and _measured(mag_std)):
             return False
         self.measured = NoiseModel(accel_std=accel_std, mag_std=mag_std)
         n_gyr = p.dof_acc + p.blocks  # every block's ticks: the gyro and accelerometer come together
@@ -141,3 +141,14 @@ class RestNoise:
         gyr_std = max(math.sqrt(s / (n - 1)) for s in gyr.scatter())
         acc_std = max(math.sqrt(s / (acc.n - 1)) for s in acc.scatter())
         return rate < STILL_RATE_RADPS and gyr_std < STILL_GYRO_STD_RADPS and acc_std < STILL_ACCEL_STD_MPS2
+
+
+#: An axis whose σ is this far below the sensor's largest is no noise measured but the arithmetic's rounding
+#: (a simulator's noise-free axis: 2e-14 m/s² beside 3e-3), and IGN would take it as a vector known exactly
+MIN_AXIS_FRACTION = 1e-6
+
+
+def _measured(std: tuple[float, ...]) -> bool:
+    """Whether a sensor's per-axis σ are all noise: none zero (a quantised sensor that never moved) nor lost in
+    rounding beside the others (:data:`MIN_AXIS_FRACTION`)."""
+    return min(std) > MIN_AXIS_FRACTION * max(std)

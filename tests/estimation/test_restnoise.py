@@ -80,3 +80,15 @@ def test_rest_s_zero_keeps_the_config_noise() -> None:
     config = from_dict({"noise": {"rest_s": 0}, "reference": {"magnetic": {"field_ned_uT": [20.0, 0.0, 45.0]}}})
     p = pipeline.AttitudePipeline(config)
     assert p.estimator.rest_noise is None and p.counters.estimator() == {}
+
+
+def test_an_axis_without_noise_is_no_sigma_measured() -> None:
+    """A simulator's noise-free axis (SITL's x and y accelerometer: 2e-14 m/s² of rounding beside 3e-3 on z) is
+    not measured noise: IGN would take that axis as exact and refuse every tick (σ/|a| 1e-14); the prior stays."""
+    rest = RestNoise(rest_s=10.0)
+    rng = np.random.default_rng(SEED)
+    for k in range(round(12.0 * RATE_HZ)):
+        acc = (1e-14 * rng.normal(), 1e-14 * rng.normal(), -9.81 + rng.normal(0.0, 0.003))
+        mag = tuple(np.array([20.0, 0.0, 45.0]) + rng.normal(0.0, MAG_STD))
+        rest.add(k / RATE_HZ, acc, mag, tuple(np.add(GYRO_BIAS, rng.normal(0.0, GYRO_STD, 3))))
+    assert rest.still_s >= 10.0 and rest.measured is None
