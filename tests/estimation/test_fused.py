@@ -226,20 +226,6 @@ def test_sustained_acceleration_fused_error_is_a_fifth_of_ign() -> None:
     assert fused <= ign / 5.0
 
 
-def test_the_ign_residual_alone_also_rejects_sustained_acceleration() -> None:
-    """``accel_residual_gain`` (off by default, docs/fused.md says why) with the |a| term off: the tilt
-    error of the maneuvering flight halves at least (measured 8.5° → 3.5° RMS with k_r = 3)."""
-    script = scenarios.maneuver()
-    t, acc, gyr, mag = _measure(script, scenarios.consumer_sensors(200.0))
-    tilt_rms = []
-    for gain in (0.0, 3.0):
-        settings = dataclasses.replace(FusedSettings(), accel_norm_gain=0.0, accel_residual_gain=gain)
-        _, out = _run(t, acc, gyr, mag, settings)
-        q = np.array([o.q for o in out])
-        tilt_rms.append(_rms(np.degrees(tilt_error(q, script.attitude([o.time_s for o in out])))))
-    assert tilt_rms[1] < tilt_rms[0] / 2.0
-
-
 def _disturbed(mag: np.ndarray, t: np.ndarray, start_s: float, stop_s: float) -> np.ndarray:
     """A magnet near the sensor: +30 µT along body x between ``start_s`` and ``stop_s``."""
     out = mag.copy()

@@ -19,12 +19,11 @@ Tilt update — ``u = ã/|ã|`` against ``h = A(q) v_a``: ``u − h ≈ [h×] δ
 ``e₁, e₂ ⊥ h``: ``zᵢ = eᵢ·(u − h)``, ``h_θ = eᵢ × h``, ``r = (σ_a'/|ã|)²``, gain kept off ``h`` (the
 heading), with the acceleration rejection (smooth covariance inflation, never a switch)::
 
-    σ_a'² = σ_a² + (k_n (|ã_j| − g))² + (k_d |a_I − a_I,j|)² + (k_r g ε)²
+    σ_a'² = σ_a² + (k_n (|ã_j| − g))² + (k_d |a_I − a_I,j|)²
 
 ``|ã_j| − g``: a sustained acceleration (it changes |a|); ``|a_I − a_I,j|``: the two pre-filters disagree,
 so the long one still holds an acceleration that started or ended within ``τ_a`` (a flight's manoeuvre,
-which hand motion is not); ``ε``: the measured angle between ``ã`` and ``m`` minus the reference's
-(only while the field is clean).
+which hand motion is not).
 
 Heading update — the horizontal field ``m_h`` (of ``R(q) (m − o)``) against the reference's
 horizontal direction ``n``: ``z = atan2(m_h × n, m_h · n)``, ``h_θ = A(q) e_D`` (the vertical in the body),
@@ -64,7 +63,6 @@ from mavattitude.estimation.conventions import (
     Array,
     Quat,
     Vec3,
-    clip_unit,
     rotate_ned_to_body_parts,
     rotation_matrix_parts,
     tilt_quat_parts,
@@ -74,7 +72,7 @@ from mavattitude.estimation.velocity import GpsVelocity
 from .ekf import ErrorStateFilter, rotated
 from .gps import GpsCompensation
 from .magnetic import MagneticChecks
-from .mat3 import Block, cross, dot, symmetric
+from .mat3 import Block, cross, symmetric
 from .mat3 import matvec as _matvec
 from .prefilter import EarthFramePrefilters
 from .rest import RestDetector
@@ -223,7 +221,6 @@ class FusedFilter:
         self._v_acc: Vec3 = tuple(float(v) / norms[1] for v in self.acc_ref)  # type: ignore[assignment]
         self._acc_ref_up = self._v_acc == (0.0, 0.0, -1.0)
         field: Vec3 = tuple(mag.tolist())  # type: ignore[assignment]
-        self._ref_angle = math.acos(clip_unit(dot(self._v_acc, field) / norms[0]))
         self._mag.set_reference(field, self._v_acc, self._started)
 
     def set_velocity(self, velocity: GpsVelocity) -> None:
@@ -320,9 +317,6 @@ class FusedFilter:
         d = mag_norm = math.inf
         if mag is not None:
             d, mag_norm = self._check_field(mag, r, time_s)
-        if mag is not None and d < 1.0 and s.accel_residual_gain > 0.0:  # a zero gain adds exactly 0.0
-            residual = self._vector_residual(acc, acc_norm, mag, mag_norm)
-            sigma_a2 += (s.accel_residual_gain * s.gravity_mps2 * residual) ** 2
         # Past half a radian of direction noise the accelerometer tells nothing the gyro does not know.
         sigma_a, sigma_max = math.sqrt(sigma_a2), _MAX_UNIT_STD * acc_norm
         self._tilt_update(acc, acc_norm, sigma_max if sigma_max < sigma_a else sigma_a, r)
@@ -342,8 +336,8 @@ class FusedFilter:
         return (g[0] - b[0], g[1] - b[1], g[2] - b[2])
 
     def _prefiltered(self, raw: Vec3, r: Sequence[float], time_s: float) -> tuple[Vec3, float]:
-        """``ã`` (the long pre-filter, body frame) and ``σ_a'²`` without the residual term (module docstring);
-        with a GPS acceleration, both pre-filters' outputs are gravity alone (:mod:`.gps`)."""
+        """``ã`` (the long pre-filter, body frame) and ``σ_a'²`` (module docstring); with a GPS acceleration,
+        both pre-filters' outputs are gravity alone (:mod:`.gps`)."""
         s = self.settings
         r_g = rotation_matrix_parts(self._ekf.q_gyro)
         a_earth = _matvec(r_g, raw)  # R(q_g) a
@@ -377,11 +371,6 @@ class FusedFilter:
         (w0, w1, w2), (m0, m1, m2) = rate, mag
         t0, t1, t2 = w1 * m2 - w2 * m1, w2 * m0 - w0 * m2, w0 * m1 - w1 * m0  # ω × m, written out as below
         return self._skew2 * (t0 * t0 + t1 * t1 + t2 * t2)
-
-    def _vector_residual(self, acc: Vec3, acc_norm: float, mag: Vec3, mag_norm: float) -> float:
-        """IGN residual as an angle: measured angle between the vectors minus the reference angle."""
-        cos_m = dot(acc, mag) / (acc_norm * mag_norm)
-        return abs(math.acos(clip_unit(cos_m)) - self._ref_angle)
 
     def _tilt_update(self, acc: Vec3, acc_norm: float, sigma_a: float, r: Sequence[float]) -> None:
         """The accelerometer direction, along the two axes it measures; its gain is kept off the heading."""

@@ -41,7 +41,6 @@ class FusedSettings:
     )
     accel_lag_gain: float = ranged(3.0, "k_d: σ_a added per m/s² between the two pre-filters' outputs")
     accel_norm_gain: float = ranged(8.0, "k_n: σ_a added per m/s² of ‖a‖ − g (of the short pre-filter)")
-    accel_residual_gain: float = ranged(0.0, "k_r: σ_a added per g·rad of the acc/mag angle error")
     mag_std_uT: float = ranged(3.75, "σ_m: magnetometer σ per axis, µT", lo_open=True)
     mag_norm_tolerance_fraction: float = ranged(
         0.1, "τ_n: ‖B‖ off its learnt value by this fraction is a disturbance", hi=10.0, lo_open=True
