@@ -53,14 +53,20 @@ def _assert_share(c: dict[str, float], inside: int) -> None:
     assert pairs >= MIN_SHARE * inside and pairs + missed <= inside, (c, inside)
 
 
-@pytest.mark.parametrize(("rate_hz", "outputs"), [(200.0, 250), (2.0, 8)], ids=["full_rate", "telemetry_2hz"])
+@pytest.mark.parametrize(
+    ("rate_hz", "outputs", "method"),
+    [(200.0, 250, "ign"), (2.0, 8, "ign"), (2.0, 8, "fused")],
+    ids=["full_rate", "telemetry_2hz", "telemetry_2hz_fused"],
+)
 def test_every_autopilot_attitude_inside_our_span_is_paired(
-    fly: Callable[..., Any], rate_hz: float, outputs: int
+    fly: Callable[..., Any], rate_hz: float, outputs: int, method: str
 ) -> None:
-    with fly(_turning(), scenarios.paper_sensors(200.0), SERVICE, link_max_imu_hz=rate_hz) as (v, svc):
+    service = {**SERVICE, "estimator": {"method": method}}
+    with fly(_turning(), scenarios.paper_sensors(200.0), service, link_max_imu_hz=rate_hz) as (v, svc):
         wait_outputs(v, outputs, timeout_s=EVENT_TIMEOUT_S + outputs / min(rate_hz, 50.0))
         c = _settled(v, svc)
-        slow = svc.wait_for_line(r"RAW_IMU at [\d.]+ Hz: one attitude per sample, no filtering", 0.0)
+        what = "too slow to integrate the gyro: one IGN attitude" if method == "fused" else "one attitude"
+        slow = svc.wait_for_line(rf"RAW_IMU at [\d.]+ Hz: {what} per sample, no filtering", 0.0)
     _assert_share(c, _inside_span(v))
     assert (slow is not None) == (rate_hz < 20.0) and c["input_lost"] == 0  # a 2 Hz stream is no silence
 
