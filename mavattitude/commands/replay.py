@@ -66,6 +66,7 @@ from mavattitude.errors import DataFileError, MavAttitudeError
 from mavattitude.estimation import METHODS
 from mavattitude.estimation.conventions import euler_from_quat
 from mavattitude.files import LOG_SUFFIXES
+from mavattitude.link.logstreams import TILT_ONLY
 from mavattitude.reports import heading_lost, rate_handling
 from mavattitude.sensors.frontend import SampleFlag
 from mavattitude.sensors.magref import MIN_MEASURED_TICKS
@@ -266,8 +267,11 @@ def replay_log(job: Job) -> LogResult:
         _check_found(str(job.log), job.config.input.message, replayed)
     except MavAttitudeError as exc:
         return dataclasses.replace(result, status="failed", note=str(exc))
-    _fill(result, replayed, _imu_name(source, job.config))
+    message = _telemetry_message(source, job.config)
+    _fill(result, replayed, message or "IMU")
     log.info("%s: %s", job.log, result.columns["rate_handling"])
+    if message and not replayed.pipeline.compass_seen:  # a .bin's or .ulg's reader said it as it read the log
+        log.warning("%s: %s carries no magnetometer reading: %s", job.log, message, TILT_ONLY)
     write_outputs(job.csv, replayed.outputs)
     log.info("%s: wrote %d attitudes to %s", job.log, result.outputs, job.csv)
     damage = getattr(source, "damage", None)
@@ -286,11 +290,11 @@ def replay_log(job: Job) -> LogResult:
     return result
 
 
-def _imu_name(source: Any, config: Config) -> str:
-    """What the log's IMU samples are called: a telemetry log's message, else the autopilot's IMU records."""
+def _telemetry_message(source: Any, config: Config) -> str | None:
+    """A telemetry log's IMU message (None: the autopilot's own log, whose IMU records are called IMU)."""
     from mavattitude.link.tlog import TlogSource
 
-    return config.input.message if isinstance(source, TlogSource) else "IMU"
+    return config.input.message if isinstance(source, TlogSource) else None
 
 
 def _heading(outputs: list[Any]) -> str:

@@ -10,6 +10,7 @@ import pytest
 
 from mavattitude.cli import main
 from mavattitude.estimation.conventions import quat_from_euler, rotate_ned_to_body
+from mavattitude.link.logstreams import TILT_ONLY
 from mavattitude.sensors.magref import field_from_angles
 from mavattitude.sim.logwriter import SensorLog, static_log, write_dataflash, write_tlog
 from tests.shared import shared_path
@@ -108,7 +109,7 @@ def tilted_without_compass(kind: str) -> SensorLog:
 
 
 @pytest.mark.parametrize("method", ["ign", "fused"])
-def test_a_log_without_a_compass_gives_roll_and_pitch_with_the_heading_unknown(tmp_path, method):
+def test_a_log_without_a_compass_gives_roll_and_pitch_with_the_heading_unknown(tmp_path, capsys, method):
     """Never a refusal of a log that has an IMU: no MAG records, MAG all zero (.bin), RAW_IMU's magnetometer all
     zero (.tlog), no GPS either (reference.magnetic auto: no field is needed for roll and pitch)."""
     logs = [
@@ -120,6 +121,8 @@ def test_a_log_without_a_compass_gives_roll_and_pitch_with_the_heading_unknown(t
     main(["replay", *map(str, logs), "-o", str(out), "--config", str(CONFIG), "--method", method, "--no-plot"])
     with (out / "summary.csv").open(encoding="utf-8") as f:
         rows = list(csv.DictReader(f))
+    said = [line for line in capsys.readouterr().err.splitlines() if TILT_ONLY in line]
+    assert [next(str(p) for p in logs if f" {p}: " in line) for line in said] == list(map(str, logs))  # one each
     for log, row in zip(logs, rows, strict=True):
         assert row["status"] == "ok" and row["heading"] == "unknown: no magnetometer", row
         # the first input_timeout_s (0.5 s) waits for a compass reading: 25 of the 1000 samples
