@@ -75,7 +75,9 @@ class FusedSettings:
     )
     gps_min_satellites: float = ranged(6.0, "GPS velocities from fewer satellites are not used", hi=255.0)
     gps_max_interval_s: float = ranged(
-        0.5, "GPS fixes further apart are not differenced; an acceleration is dropped this long after, s", hi=10.0
+        1.0,
+        "GPS fixes further apart are not differenced (a 2 Hz stream is); an acceleration is dropped this long after, s",
+        hi=10.0,
     )
     gps_latency_s: float = ranged(
         0.1, "the GPS receiver's latency: its velocity is this much older than its fix time, s", hi=2.0
