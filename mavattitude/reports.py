@@ -142,6 +142,7 @@ def counters_line(
         *((f"rejected.{k}", rejected[k]) for k in sorted({*c.rejected, *rejected})),
         *((f"mag_rejected.{k}", v) for k, v in sorted(frontend.mag_rejected.items())),
         ("gap_resets", frontend.gap_resets),
+        ("per_sample", frontend.per_sample),  # ticks that are one input sample each: the input too slow to filter
         ("reboots", frontend.reboots),
         ("not_converged", pipeline_counters.not_converged),
         ("mean_iterations", c.mean_iterations),

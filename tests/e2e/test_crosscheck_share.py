@@ -69,6 +69,7 @@ def test_every_autopilot_attitude_inside_our_span_is_paired(
         slow = svc.wait_for_line(rf"RAW_IMU at [\d.]+ Hz: {what} per sample, no filtering", 0.0)
     _assert_share(c, _inside_span(v))
     assert (slow is not None) == (rate_hz < 20.0) and c["input_lost"] == 0  # a 2 Hz stream is no silence
+    assert (c["per_sample"] >= outputs) == (rate_hz < 20.0)
 
 
 def _tilt_error_deg(v: FakeVehicle) -> np.ndarray:
