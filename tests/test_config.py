@@ -109,6 +109,13 @@ def test_every_bad_value_is_named_by_its_path(data, message):
         from_dict(data)
 
 
+def test_the_fused_method_takes_noise_rest_s():
+    """noise.rest_s is no σ with a counterpart in estimator.fused: it times the rest measurement of the IGN that
+    solves a too-slow input per sample under the fused method too, so it is taken, not refused."""
+    c = from_dict({"estimator": {"method": "fused"}, "noise": {"rest_s": 0}})
+    assert c.noise.rest_s == 0.0
+
+
 def test_values_are_normalised():
     c = from_dict(
         {
