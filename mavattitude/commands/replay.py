@@ -11,15 +11,20 @@ shows while the vehicle is still (reference.position_wait_s after its start, as 
 
 One log and OUT ending in .csv (or .csv.gz): the attitude is written there. Several logs, or a
 directory of them: OUT is a directory, with one CSV per log (the columns of `mavattitude solve`), and
-summary.csv, the table also printed: per log its duration, samples, outputs, ours-minus-autopilot
-roll / pitch / yaw RMS and p99 (degrees; at each of the autopilot's attitudes, ours interpolated to its
-time, as the service's cross-check pairs them; differences wrapped to ±180°), how many of the autopilot's
-attitudes inside our output span were compared (compared, compared_pct) and why the others were not
-(not_compared: gap, reset, late, overflow), rejected inputs, the rate handling (an IMU slower than twice the
-low-pass cutoff, 20 Hz or slower, gives one unfiltered attitude per sample; --method fused then solves them with IGN:
-too slow to integrate), the heading's source (a log without a magnetometer, or one reading zero, gives roll
-and pitch with the yaw NaN), the magnetic reference used (WMM release, place and date; the field measured
-from the compass; or the one given) and what was wrong with the file.
+summary.csv, the table also printed, per log: log, status (ok, damaged: read up to the damage, failed), its
+duration_s, samples, outputs, ours-minus-autopilot roll_rms_deg, pitch_rms_deg, yaw_rms_deg and roll_p99_deg,
+pitch_p99_deg, yaw_p99_deg (degrees; at each of the autopilot's attitudes, ours interpolated to its time, as
+the service's cross-check pairs them; differences wrapped to ±180°), how many of the autopilot's attitudes
+inside our output span were compared (compared, compared_pct) and why the others were not (not_compared: gap,
+reset, late, overflow), rejects (inputs and ticks refused), rate_handling (an IMU at 20 Hz or slower, below
+about twice the low-pass cutoff, gives one unfiltered attitude per sample; --method fused then solves them with
+IGN: too slow to integrate), heading, its source (a log without a magnetometer, or one reading zero, gives roll
+and pitch with the yaw NaN), reference, the magnetic one used (WMM release, place and date; the field measured
+from the compass; or the one given), the estimator's own counters named by its method (ign.noise_rest_s, the
+still time seen, and ign.noise_measured, 1 where the σ measured at rest were used; the fused filter's fused.*
+and heading_from_compass), the compass monitor's compass_dip_deg (the first minute's mean),
+compass_dip_expected_deg, compass_field_ratio and compass_warnings, with crosscheck.enabled the cross-check's
+xc_pairs, xc_rms_deg and xc_warnings, and a note on what was wrong with the file.
 Every magnetometer a log holds (a .bin's MAG instances; a .tlog's RAW_IMU, SCALED_IMU2, SCALED_IMU3) is
 judged by the compass monitor against the same IMU: the summary's compasses column ("0 ok; 1 turns unlike
 the gyro: turned?"), and compass, the one replayed and why: --mag, else the one the autopilot used where

@@ -240,3 +240,16 @@ def test_replay_as_a_subprocess(tmp_path):
     # The differences are ours minus the autopilot's, as the table says: yaw ≈ −2°.
     yaw = next(line for line in done.stdout.splitlines() if line.startswith("yaw"))
     assert float(yaw.split()[1]) == pytest.approx(-AUTOPILOT_YAW_OFFSET_DEG, abs=MAX_ERR_DEG / 2)
+
+
+def test_help_names_every_summary_column(tmp_path):
+    """replay --help lists what summary.csv holds: every column a replay writes is named there."""
+    from mavattitude.commands import replay
+
+    logs = [write_tlog(tmp_path / f"{n}.tlog", seconds=6.0, second_vehicle=False) for n in ("a", "b")]
+    out = tmp_path / "out"
+    assert main(["replay", *map(str, logs), "-o", str(out), "--no-plot"]) == 0
+    with (out / "summary.csv").open() as f:
+        columns = next(csv.reader(f))
+    help_text = " ".join(replay.__doc__.split())
+    assert [c for c in columns if c not in help_text] == []
