@@ -187,7 +187,11 @@ class LinkConfig:
         default=191, metadata=_meta(_number(1, 255, integer=True), "our component id (191 = onboard computer)")
     )
     request_messages: bool = field(
-        default=True, metadata=_meta(_boolean, "request the input message with SET_MESSAGE_INTERVAL")
+        default=True,
+        metadata=_meta(
+            _boolean,
+            "ask with SET_MESSAGE_INTERVAL for the input and the streams the config uses (position, GPS, ATTITUDE)",
+        ),
     )
     request_rate_hz: float = field(
         default=200.0, metadata=_meta(_number(0.0, 2000.0, lo_open=True), "requested input rate, Hz")

@@ -72,7 +72,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         dest="request_messages",
         action="store_const",
         const=False,
-        help="do not request the input message (the autopilot already streams it)",
+        help="ask for no stream with SET_MESSAGE_INTERVAL (the input, the position, SYSTEM_TIME, GPS_RAW_INT, "
+        "ATTITUDE: none of them; the autopilot already streams what is needed)",
     )
     parser.add_argument(
         "--signing-key",

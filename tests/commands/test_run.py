@@ -40,3 +40,16 @@ def test_a_udp_port_another_instance_holds_is_a_one_line_error(capsys) -> None:
     errors = [line for line in err.splitlines() if "error" in line]
     assert len(errors) == 1 and f"cannot open udpin:127.0.0.1:{port}: Address already in use" in errors[0]
     assert "Traceback" not in err
+
+
+def test_no_request_says_it_stops_every_stream_request(capsys) -> None:
+    """--no-request turns link.request_messages off, and with it every stream the service would ask for."""
+    from mavattitude.service import ATTITUDE_MESSAGE, GPS_VELOCITY_MESSAGE, TIME_MESSAGE
+
+    with pytest.raises(SystemExit, match="0"):
+        main(["run", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    no_request = text[text.index("--no-request ") :].split(" --", 1)[0]
+    assert [
+        m for m in ("input", "position", TIME_MESSAGE, GPS_VELOCITY_MESSAGE, ATTITUDE_MESSAGE) if m not in no_request
+    ] == []
