@@ -27,6 +27,8 @@ from mavattitude.sim.sensors import DEFAULT_RATE_HZ
 from mavattitude.sim.trajectory import Rotate, Script
 from mavattitude.sim.vehicle import FakeVehicle, VehicleConfig
 
+DRAIN_TIMEOUT_S = 2.0  # ample for a receive thread to read a socket buffer's worth of datagrams
+
 
 @dataclass(frozen=True)
 class SoakWindow:
@@ -124,6 +126,9 @@ def run_soak(
                     progress(window)
             report.exit_code = service.stop()
             report.final_counters = service.final_counters() if service.counters else {}
+            # The service's last datagrams may still wait in the vehicle's socket when it exits: let the vehicle
+            # read what was sent before counting (what never arrives still shows as a shortfall).
+            vehicle.wait_for_outputs(int(report.final_counters.get("emitted", 0)), DRAIN_TIMEOUT_S)
             report.wall_s = time.monotonic() - wall0
         report.imu_sent = vehicle.imu_sent
         report.outputs = len(vehicle.attitude_log)
