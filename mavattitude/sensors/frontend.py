@@ -400,11 +400,8 @@ class _Stream:
             self.design(fs)
             redesigned = True
         b0, b1, b2, a1, a2 = self.coef  # type: ignore[misc]
-        x1, y1 = self.x1, self.y1
-        y = [
-            b0 * xi + b1 * u1 + b2 * u2 - a1 * v1 - a2 * v2
-            for xi, u1, u2, v1, v2 in zip(x, x1, self.x2, y1, self.y2, strict=False)
-        ]
+        x1, x2, y1, y2 = self.x1, self.x2, self.y1, self.y2
+        y = [b0 * x[i] + b1 * x1[i] + b2 * x2[i] - a1 * y1[i] - a2 * y2[i] for i in range(len(x))]
         self.x1, self.x2, self.y1, self.y2, self.y_last = x, x1, y, y1, y
         return CONTINUED, redesigned
 
@@ -441,7 +438,8 @@ class FrontEnd:
         self.per_sample = False  # the input is slow: one tick per sample, unfiltered (the module docstring)
         self._mag_taken: Vec3 | None = None  # the last magnetometer reading taken, as received
         self._repeat_hold_s = repeat_hold_s(s)
-        self._next_k = 0
+        self._gridded = s.filter_enabled  # ticks on the output rate's grid (while the input is not slow)
+        self._set_next_tick(0)  # the next tick, k / output_rate_hz: _next_tick_s
         self._pending_reset = False
 
     def set_expected_field_uT(self, magnitude_uT: float | None) -> None:
@@ -485,21 +483,32 @@ class FrontEnd:
             elif not (sample.mag_repeats and self._repeated(t, mag)):
                 self._mag_taken = mag
                 status, redesigned = self._mag.push(t, _apply(self._mag_cal, mag))
-                c.mag_gap_resets += status == GAP
-                c.redesigns += redesigned
-        a, g = _apply(self._acc, acc), _apply(self._gyr, gyr)
-        status, redesigned = self._imu.push(t, (*a, *g))
-        c.redesigns += redesigned
-        slow = self._imu.slow
-        if status != CONTINUED or slow != self.per_sample:
-            if status == GAP:
-                c.gap_resets += 1
-                limit_s = self._imu.gap_limit_s  # (the gap among the intervals now: the median barely moves)
-                log.warning("input gap longer than %.3g s before %.3f s: filter restarted", limit_s, t)
-            self._pending_reset = True
-            self._next_k = first_tick(t, s.output_rate_hz)
-            self.per_sample = slow
+                if status or redesigned:
+                    c.mag_gap_resets += status == GAP
+                    c.redesigns += redesigned
+        imu = self._imu
+        status, redesigned = imu.push(t, _apply(self._acc, acc) + _apply(self._gyr, gyr))
+        if status or redesigned or imu.slow != self.per_sample:
+            c.redesigns += redesigned
+            self._restart_ticks(t, status)
+        elif t < self._next_tick_s and self._gridded and not self.per_sample:
+            return []  # most samples of a filtered stream complete no tick
         return self._emit(t)
+
+    def _restart_ticks(self, t: float, status: int) -> None:
+        """After a (re)start of the input's filter or a change of its pace: the ticks start afresh at ``t``."""
+        if status == GAP:
+            self.counters.gap_resets += 1
+            limit_s = self._imu.gap_limit_s  # (the gap among the intervals now: the median barely moves)
+            log.warning("input gap longer than %.3g s before %.3f s: filter restarted", limit_s, t)
+        if status != CONTINUED or self._imu.slow != self.per_sample:
+            self._pending_reset = True
+            self._set_next_tick(first_tick(t, self.settings.output_rate_hz))
+            self.per_sample = self._imu.slow
+
+    def _set_next_tick(self, k: int) -> None:
+        self._next_k = k
+        self._next_tick_s = k / self.settings.output_rate_hz
 
     @property
     def rate_hz(self) -> float:
@@ -559,7 +568,7 @@ class FrontEnd:
             y = imu.y_last if exact else _lerp(imu.t_prev, imu.y_prev, t, imu.y_last, tk)
             out.append(self._tick(tk, y))
             k += 1
-        self._next_k = k
+        self._set_next_tick(k)
         return out
 
     def _tick(self, tk: float, y: Sequence[float], raw: bool = False) -> ProcessedSample:
