@@ -41,7 +41,6 @@ from . import mat3 as m3
 from .mat3 import ZERO3, Block
 
 IDENTITY_Q: Quat = (1.0, 0.0, 0.0, 0.0)
-Vec6 = tuple[float, float, float, float, float, float]  # [θ part, bias part]
 
 
 class ErrorStateFilter:
@@ -73,12 +72,16 @@ class ErrorStateFilter:
         """``Δq ← Δq ⊗ exp(ω Δt)`` with the sample's bias-corrected rate."""
         b = self.bias
         vx, vy, vz = dt * (gx - b[0]), dt * (gy - b[1]), dt * (gz - b[2])
-        step = quat_from_rotvec_parts(vx, vy, vz)
+        angle = math.sqrt(vx * vx + vy * vy + vz * vz)
+        # quat_from_rotvec_parts written out (the same floats), its angle also the scale-factor noise's
+        half = 0.5 * angle
+        k = 0.5 * math.sin(half) / half if half > 1e-9 else 0.5 - half * half / 12.0
+        step = (math.cos(half), k * vx, k * vy, k * vz)
         # The first sample after a propagation (every sample when each one is an update): Δq is the identity,
         # and the identity times the step is the step, the same floats.
         self.dq = step if self.duration_s == 0.0 else quat_multiply_parts(self.dq, step)
         self.duration_s += dt
-        self.angle_rad += math.sqrt(vx * vx + vy * vy + vz * vz)
+        self.angle_rad += angle
 
     def current_q(self) -> Quat:
         if self.duration_s == 0.0:  # just propagated: q is already normalised, with w ≥ 0
@@ -92,15 +95,17 @@ class ErrorStateFilter:
         # Φ = [[A, c (I + A)], [0, I]] by blocks: with X = [A, c (I + A)] P = A Y + c [P_θbᵀ, P_bb],
         # Y = [P_θθ + c P_θbᵀ, P_θb + c P_bb]: P_θb ← X_b, P_θθ ← (X_θ + c X_b) Aᵀ + c X_b.
         tt, tb, bb = self.p_tt, self.p_tb, self.p_bb
-        x_t = m3.tmm_shift(r, tt, c, m3.transpose(tb))
-        x_b = m3.tmm_shift(r, tb, c, bb)
+        x_t = m3.tmm_shift(r, tt, c, tb)
+        x_b = m3.tmm_shift(r, tb, c, bb)  # P_bb is symmetric: read transposed, it is itself
         noise2, scale2, walk2 = self._q_noise
         angle = self.angle_rad
         self.p_tt = m3.mm_shift_sym(x_t, c, x_b, r, noise2 * t + scale2 * (angle * angle))  # Aᵀ = R(Δq)
         self.p_tb = x_b
-        self.p_bb = m3.symmetric(bb, walk2 * t)
-        self.q = self.current_q()
-        self.q_gyro = quat_normalize_parts(quat_multiply_parts(self.q_gyro, self.dq))
+        self.p_bb = m3.plus_diagonal(bb, walk2 * t)
+        dq = self.dq
+        if t != 0.0:  # current_q(), written out: a call per update
+            self.q = quat_normalize_parts(quat_multiply_parts(self.q, dq))
+        self.q_gyro = quat_normalize_parts(quat_multiply_parts(self.q_gyro, dq))
         self.dq, self.duration_s, self.angle_rad = IDENTITY_Q, 0.0, 0.0
 
     def update(
@@ -149,8 +154,25 @@ class ErrorStateFilter:
             c = o0 * kt0 + o1 * kt1 + o2 * kt2
             kt0, kt1, kt2 = kt0 - c * o0, kt1 - c * o1, kt2 - c * o2
         m = 0.5 * s  # v = (s/2) K − u
-        v = (m * kt0 - ut0, m * kt1 - ut1, m * kt2 - ut2, m * kb0 - ub0, m * kb1 - ub1, m * kb2 - ub2)
-        self.p_tt, self.p_tb, self.p_bb = _joseph(tt, tb, bb, (kt0, kt1, kt2, kb0, kb1, kb2), v)
+        v0, v1, v2 = m * kt0 - ut0, m * kt1 - ut1, m * kt2 - ut2
+        v3, v4, v5 = m * kb0 - ub0, m * kb1 - ub1, m * kb2 - ub2
+        # P + K vᵀ + v Kᵀ on the three blocks, here rather than in a function of its own (a call and two 6-tuples
+        # cost as much as a block's arithmetic); the diagonal blocks' entries above the diagonal computed once.
+        xy, xz, yz = tt[1] + kt0 * v1 + v0 * kt1, tt[2] + kt0 * v2 + v0 * kt2, tt[5] + kt1 * v2 + v1 * kt2
+        self.p_tt = (tt[0] + 2.0 * kt0 * v0, xy, xz, xy, tt[4] + 2.0 * kt1 * v1, yz, xz, yz, tt[8] + 2.0 * kt2 * v2)
+        xy, xz, yz = bb[1] + kb0 * v4 + v3 * kb1, bb[2] + kb0 * v5 + v3 * kb2, bb[5] + kb1 * v5 + v4 * kb2
+        self.p_bb = (bb[0] + 2.0 * kb0 * v3, xy, xz, xy, bb[4] + 2.0 * kb1 * v4, yz, xz, yz, bb[8] + 2.0 * kb2 * v5)
+        self.p_tb = (
+            tb[0] + kt0 * v3 + v0 * kb0,
+            tb[1] + kt0 * v4 + v0 * kb1,
+            tb[2] + kt0 * v5 + v0 * kb2,
+            tb[3] + kt1 * v3 + v1 * kb0,
+            tb[4] + kt1 * v4 + v1 * kb1,
+            tb[5] + kt1 * v5 + v1 * kb2,
+            tb[6] + kt2 * v3 + v2 * kb0,
+            tb[7] + kt2 * v4 + v2 * kb1,
+            tb[8] + kt2 * v5 + v2 * kb2,
+        )
         self.dx = (d0 + kt0 * z, d1 + kt1 * z, d2 + kt2 * z, d3 + kb0 * z, d4 + kb1 * z, d5 + kb2 * z)
 
     def turn_about_down(self, angle_rad: float) -> None:
@@ -184,35 +206,14 @@ def rotated(q: Quat, vx: float, vy: float, vz: float) -> Quat:
     t = 0.5 + angle2 / 24.0
     a0, a1, a2 = t * vx, t * vy, t * vz
     w, x, y, z = q
-    return quat_normalize_parts(  # q ⊗ (1, a), the product written out
-        (
-            w - x * a0 - y * a1 - z * a2,
-            x + w * a0 + y * a2 - z * a1,
-            y + w * a1 - x * a2 + z * a0,
-            z + w * a2 + x * a1 - y * a0,
-        )
+    # q ⊗ (1, a) and quat_normalize_parts, written out (the same floats): two calls, twice a sample at 25 Hz
+    w, x, y, z = (
+        w - x * a0 - y * a1 - z * a2,
+        x + w * a0 + y * a2 - z * a1,
+        y + w * a1 - x * a2 + z * a0,
+        z + w * a2 + x * a1 - y * a0,
     )
-
-
-def _joseph(tt: Block, tb: Block, bb: Block, k: Vec6, v: Vec6) -> tuple[Block, Block, Block]:
-    """``P + K vᵀ + v Kᵀ`` on the blocks ``P_θθ``, ``P_θb``, ``P_bb`` (``K = [K_θ; K_b]``, ``v`` alike; module
-    docstring). Symmetric as written: the diagonal blocks' entries above the diagonal computed once. The three
-    in one call: a call costs as much as a block's arithmetic."""
-    k0, k1, k2, k3, k4, k5 = k
-    v0, v1, v2, v3, v4, v5 = v
-    xy, xz, yz = tt[1] + k0 * v1 + v0 * k1, tt[2] + k0 * v2 + v0 * k2, tt[5] + k1 * v2 + v1 * k2
-    p_tt = (tt[0] + 2.0 * k0 * v0, xy, xz, xy, tt[4] + 2.0 * k1 * v1, yz, xz, yz, tt[8] + 2.0 * k2 * v2)
-    xy, xz, yz = bb[1] + k3 * v4 + v3 * k4, bb[2] + k3 * v5 + v3 * k5, bb[5] + k4 * v5 + v4 * k5
-    p_bb = (bb[0] + 2.0 * k3 * v3, xy, xz, xy, bb[4] + 2.0 * k4 * v4, yz, xz, yz, bb[8] + 2.0 * k5 * v5)
-    p_tb = (
-        tb[0] + k0 * v3 + v0 * k3,
-        tb[1] + k0 * v4 + v0 * k4,
-        tb[2] + k0 * v5 + v0 * k5,
-        tb[3] + k1 * v3 + v1 * k3,
-        tb[4] + k1 * v4 + v1 * k4,
-        tb[5] + k1 * v5 + v1 * k5,
-        tb[6] + k2 * v3 + v2 * k3,
-        tb[7] + k2 * v4 + v2 * k4,
-        tb[8] + k2 * v5 + v2 * k5,
-    )
-    return p_tt, p_tb, p_bb
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    if w < 0.0:
+        n = -n
+    return (w / n, x / n, y / n, z / n)

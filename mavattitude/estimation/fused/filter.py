@@ -72,7 +72,7 @@ from mavattitude.estimation.velocity import GpsVelocity
 from .ekf import ErrorStateFilter, rotated
 from .gps import GpsCompensation
 from .magnetic import MagneticChecks
-from .mat3 import Block, cross, symmetric
+from .mat3 import ZERO3, Block, cross, plus_diagonal
 from .mat3 import matvec as _matvec
 from .prefilter import EarthFramePrefilters
 from .rest import RestDetector
@@ -261,7 +261,11 @@ class FusedFilter:
             # The next due time after this sample: dues it has passed (an input slower than the updates) lapse.
             start, period = self._start_s, self._update_period_s
             self._next_update_s = start + (math.floor((time_s + _SAME_TIME_S - start) / period) + 1) * period
-            self._update(acc_mps2, mag_uT, time_s, mag_age_s)
+            # The update: P propagated to now, the zero-rate, tilt and heading updates (module docstring), the reset.
+            self._pace(time_s)
+            self._ekf.propagate()
+            self._measure(acc_mps2, mag_uT, time_s, mag_age_s)
+            self._ekf.reset()
         if time_s + _SAME_TIME_S < self._next_output_s:
             return []
         return self._outputs(time_s)
@@ -272,13 +276,6 @@ class FusedFilter:
         return self._ekf.current_q()
 
     # --- measurement updates ------------------------------------------------------------------------
-    def _update(self, acc_mps2: ArrayLike, mag_uT: ArrayLike | None, time_s: float, mag_age_s: float) -> None:
-        """Propagate ``P`` to now, then the zero-rate, tilt and heading updates (module docstring), then the reset."""
-        self._pace(time_s)
-        self._ekf.propagate()
-        self._measure(acc_mps2, mag_uT, time_s, mag_age_s)
-        self._ekf.reset()
-
     def _pace(self, time_s: float) -> None:
         """Keep the per-update filters (the two pre-filters, the rest detector, the field learning) designed
         for the interval updates really come at: ``1 / update_rate_hz`` from a faster input, the input's own
@@ -311,7 +308,8 @@ class FusedFilter:
         acc, sigma_a2 = self._prefiltered(raw, r, time_s)
         acc_norm = math.sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
         mag = None if mag_uT is None else self._mag.corrected((float(mag_uT[0]), float(mag_uT[1]), float(mag_uT[2])))
-        rate = self._body_rate()  # the bias is the same until the update's reset
+        b, g = ekf.bias, self._gyr_last  # ω (:meth:`_body_rate`, written out): the bias is the same until the reset
+        rate = (g[0] - b[0], g[1] - b[1], g[2] - b[2])
         if mag is not None and mag_age_s > 0.0:
             mag = _carried(mag, rate, mag_age_s)
         d = mag_norm = math.inf
@@ -432,7 +430,7 @@ class FusedFilter:
         if self._started:
             self._ekf.start(q, p_tt)  # type: ignore[arg-type]
         else:
-            self._ekf.start(q, p_tt, symmetric((0.0,) * 9, self.settings.gyro_bias_init_radps**2))  # type: ignore[arg-type]
+            self._ekf.start(q, p_tt, plus_diagonal(ZERO3, self.settings.gyro_bias_init_radps**2))  # type: ignore[arg-type]
         if mag is not None and not (self._started and self.heading_known):  # the field learnt anew
             self._mag.start(self._mag.corrected((float(mag[0]), float(mag[1]), float(mag[2]))))
             self.heading_known = True

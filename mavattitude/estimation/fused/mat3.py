@@ -16,9 +16,10 @@ matvec = rotate_body_to_ned_parts  # a x
 
 
 def tmm_shift(r: Block, y: Block, k: float, e: Block) -> Block:
-    """``rᵀ (y + k e) + k e`` written out (the covariance propagation, once per update); ``k e`` once."""
+    """``rᵀ (y + k eᵀ) + k eᵀ`` written out (the covariance propagation, once per update); ``k eᵀ`` once, ``e``
+    read transposed rather than transposed into a new tuple."""
     r0, r1, r2, r3, r4, r5, r6, r7, r8 = r
-    e0, e1, e2, e3, e4, e5, e6, e7, e8 = e
+    e0, e3, e6, e1, e4, e7, e2, e5, e8 = e
     e0, e1, e2, e3, e4, e5, e6, e7, e8 = k * e0, k * e1, k * e2, k * e3, k * e4, k * e5, k * e6, k * e7, k * e8
     y0, y1, y2, y3, y4, y5, y6, y7, y8 = y
     z0, z1, z2, z3, z4, z5, z6, z7, z8 = y0 + e0, y1 + e1, y2 + e2, y3 + e3, y4 + e4, y5 + e5, y6 + e6, y7 + e7, y8 + e8
@@ -53,15 +54,10 @@ def mm_shift_sym(y: Block, k: float, e: Block, r: Block, diag: float) -> Block:
     )  # fmt: skip
 
 
-def transpose(a: Block) -> Block:
+def plus_diagonal(a: Block, diag: float) -> Block:
+    """``a + diag I``."""
     a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
-    return (a0, a3, a6, a1, a4, a7, a2, a5, a8)
-
-
-def symmetric(a: Block, diag: float = 0.0) -> Block:
-    """``(a + aᵀ)/2 + diag I``: removes the rounding asymmetry of a covariance update."""
-    xy, xz, yz = 0.5 * (a[1] + a[3]), 0.5 * (a[2] + a[6]), 0.5 * (a[5] + a[7])
-    return (a[0] + diag, xy, xz, xy, a[4] + diag, yz, xz, yz, a[8] + diag)
+    return (a0 + diag, a1, a2, a3, a4 + diag, a5, a6, a7, a8 + diag)
 
 
 def dot(a: Sequence[float], b: Sequence[float]) -> float:
