@@ -36,8 +36,10 @@ the last rest window instead, with its dip off by ±3° and its strength off by 
 geometric mean and worst of fused/VQF, losses to imufusion, the geometric mean against the first row's.
 
 ``--field``: per trial, the measured field turned into NED by the true attitude over the movement phase against
-the reference: its heading (mean, RMS), strength ratio and dip difference, beside the filter's heading error
-(ground-truth analysis: why heading differs from recording to recording).
+the reference: its heading (mean, RMS; the white part, one 50 Hz update to the next; the slow part, its 20 s running
+mean), strength ratio and dip difference, beside the gyro's own heading drift over 5 and 20 s and the
+filter's heading error (RMS, mean, correlation with the field's slow part): ground-truth analysis of why heading
+differs from recording to recording, and of what a weight on the field's consistency with the gyro could see.
 
 ``--misoriented`` runs each trial with its magnetometer's axes flipped or turned by 90° and prints the RMS
 roll/pitch difference from the good-compass run (the target: ≤ 1°: the field sets heading only).
@@ -327,26 +329,69 @@ def leave_groups_out(groups: dict[str, tuple[str, ...]], base: FusedSettings, na
 
 def field_in_motion(trials: Sequence[str], settings: FusedSettings) -> None:
     """Why heading differs between recordings: the measured field turned into NED by the *true* attitude over
-    the movement phase, against the reference (from the opening rest): its heading (mean and RMS about the
-    reference's north), strength and dip; beside the filter's own heading error. Analysis of the ground truth
-    only, never inside the filter."""
-    from mavattitude.estimation.conventions import rotate_body_to_ned
+    the movement phase, against the reference (from the opening rest): its heading error (mean and RMS about the
+    reference's north; its change from one 50 Hz update to the next over √2, the white part; the RMS of its 20 s
+    running mean, the slow part), strength and dip; the gyro's heading drift over 5 and 20 s; the filter's heading
+    error (RMS, mean) and its correlation with the field's 20 s mean (negative: the filter follows the field,
+    ``ψ − ψ_true = −δ``). Analysis of the ground truth only, never inside the filter."""
+    from mavattitude.estimation.conventions import quat_conjugate, quat_multiply, rotate_body_to_ned
 
-    print(f"{'trial':6}{'field heading mean':>20}{'rms':>6}{'|B| ratio':>11}{'dip diff':>10}{'fused heading':>15}")
+    print(
+        f"{'trial':6}{'field heading':>14}{'rms':>6}{'white':>7}{'20 s':>6}{'gyro 5 s':>10}{'20 s':>6}"
+        f"{'|B| ratio':>10}{'dip diff':>9}{'fused heading':>15}{'mean':>7}{'corr':>7}"
+    )
     for trial in trials:
         rec = recording(trial)
         keep = rec.movement & np.all(np.isfinite(rec.truth_q), axis=1)
-        field = rotate_body_to_ned(rec.truth_q[keep], rec.mag_uT[keep])
+        field = rotate_body_to_ned(np.nan_to_num(rec.truth_q, nan=1.0), rec.mag_uT)
         ref = rec.reference.field_ned_uT
-        heading = np.degrees(np.arctan2(field[:, 1], field[:, 0]))
-        strength = np.linalg.norm(field, axis=1)
-        dip = np.degrees(np.arcsin(field[:, 2] / strength)) - math.degrees(math.asin(ref[2] / np.linalg.norm(ref)))
-        fused_heading = score(trial, settings)[1]
+        heading = _wrapped_deg(np.arctan2(field[:, 1], field[:, 0]) - math.atan2(ref[1], ref[0]))
+        strength = np.linalg.norm(field, axis=1)[keep]
+        dip = np.degrees(np.arcsin(field[keep, 2] / strength)) - math.degrees(math.asin(ref[2] / np.linalg.norm(ref)))
+        rate_hz = 1.0 / float(np.median(np.diff(rec.time_s)))
+        slow = np.convolve(heading, np.ones(round(20.0 * rate_hz)) / round(20.0 * rate_hz), mode="same")
+        n1 = round(0.02 * rate_hz)  # one 50 Hz update apart: BROAD's magnetometer repeats within a few samples
+        white = _wrapped_deg(np.radians(heading[n1:] - heading[:-n1]))[keep[n1:] & keep[:-n1]] / math.sqrt(2.0)
+        q = run_fused(rec, settings)[0]
+        err = quat_multiply(q, quat_conjugate(rec.truth_q))  # the earth-frame error
+        fused = np.degrees(2.0 * np.arctan2(err[:, 3] * np.sign(err[:, 0]), np.abs(err[:, 0])))[keep]
+        gyro = _gyro_drift_deg(rec, 5.0), _gyro_drift_deg(rec, 20.0)
         print(
-            f"{trial:6}{heading.mean():20.2f}{np.sqrt(np.mean(heading**2)):6.2f}"
-            f"{strength.mean() / np.linalg.norm(ref):11.3f}{dip.mean():10.2f}{fused_heading:15.2f}",
+            f"{trial:6}{heading[keep].mean():14.2f}{_rms(heading[keep]):6.2f}{_rms(white):7.2f}{_rms(slow[keep]):6.2f}"
+            f"{gyro[0]:10.2f}{gyro[1]:6.2f}{strength.mean() / np.linalg.norm(ref):10.3f}"
+            f"{dip.mean():9.2f}{_rms(fused):15.2f}{fused.mean():7.2f}{np.corrcoef(fused, slow[keep])[0, 1]:7.2f}",
             flush=True,
         )
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(x**2)))
+
+
+def _wrapped_deg(angle_rad: np.ndarray) -> np.ndarray:
+    return np.degrees(np.angle(np.exp(1j * angle_rad)))
+
+
+def _gyro_drift_deg(rec: Recording, window_s: float) -> float:
+    """RMS heading error (degrees) of the gyro alone over ``window_s``: integrated from the true attitude at the
+    start of each window of the movement phase, its bias the opening rest's mean rate."""
+    from mavattitude.estimation.conventions import quat_conjugate, quat_from_rotvec_parts, quat_multiply_parts
+
+    bias = rec.gyr_radps[: np.argmax(rec.movement)].mean(axis=0)
+    steps = (rec.gyr_radps[1:] - bias) * np.diff(rec.time_s)[:, None]
+    finite = np.all(np.isfinite(rec.truth_q), axis=1)
+    drift, start = [], int(np.argmax(rec.movement))
+    n = round(window_s / float(np.median(np.diff(rec.time_s))))
+    while start + n < len(rec):
+        end = start + n
+        if rec.movement[start] and rec.movement[end] and finite[start] and finite[end]:
+            q = tuple(rec.truth_q[start])
+            for step in steps[start:end].tolist():
+                q = quat_multiply_parts(q, quat_from_rotvec_parts(*step))
+            w, _, _, z = quat_multiply_parts(q, tuple(quat_conjugate(rec.truth_q[end])))
+            drift.append(2.0 * math.atan2(z * math.copysign(1.0, w), abs(w)))
+        start = end
+    return math.degrees(_rms(np.array(drift))) if drift else math.nan
 
 
 def misoriented(trials: Sequence[str], settings: FusedSettings) -> None:
