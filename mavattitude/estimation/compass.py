@@ -681,12 +681,24 @@ class CompassMonitor:
         """One tick; ``mag_age_s``: how long before ``time_s`` the magnetometer reading was taken (held)."""
         if self._expected_dip != self._expected_dip:
             return None
+        return self.update_and_suspect(time_s, acc_mps2, mag_uT, gyr_radps, mag_age_s)[0]
+
+    def update_and_suspect(
+        self, time_s: float, acc_mps2: Vec3, mag_uT: Vec3, gyr_radps: Vec3, mag_age_s: float = 0.0
+    ) -> tuple[CompassEvent | None, bool]:
+        """:meth:`update` then :meth:`suspect` of the same tick, its quietness and dip computed once (the live
+        ticks' form of :meth:`update_rows`)."""
+        if self._expected_dip != self._expected_dip:
+            return None, self.suspect(acc_mps2, mag_uT, gyr_radps)
         # plain floats: numpy scalars (the batch front end's ticks) make this arithmetic ten times slower
         acc_mps2, mag_uT, gyr_radps = _floats(acc_mps2), _floats(mag_uT), _floats(gyr_radps)
         quiet = self.quiet(acc_mps2, gyr_radps)
         dip = measured_dip_deg(acc_mps2, mag_uT) if quiet else math.nan
         field = _norm(mag_uT) if quiet and self._field_uT is not None else None
-        return self._take(float(time_s), mag_uT, gyr_radps, float(mag_age_s), quiet, dip, field)
+        event = self._take(float(time_s), mag_uT, gyr_radps, float(mag_age_s), quiet, dip, field)
+        if self.inconsistent or self.confirmed:
+            return event, self.inconsistent
+        return event, self._dip_suspect(dip if quiet else measured_dip_deg(acc_mps2, mag_uT), quiet)
 
     def update_rows(
         self, time_s: Array, acc_mps2: Array, mag_uT: Array, gyr_radps: Array, mag_age_s: Array | None = None
