@@ -3,7 +3,10 @@
 One thread, one loop: wait (bounded) for input on the link, handle every message that arrived, then
 run whatever periodic work is due (heartbeat, rate requests, input watchdog, counters, sd_notify). The
 input message goes decode → pipeline → ATTITUDE_QUATERNION in the same pass that received it, so the
-latency from arrival to send is the processing time alone; nothing waits for a timer.
+latency from arrival to send is the processing time alone; nothing waits for a timer. Between two output
+ticks the loop sleeps until the sample completing the next one can arrive at the earliest
+(:mod:`mavattitude.link.arrivals`) and reads what came meanwhile in one pass, rather than wake for each sample;
+what waited through a sleep counts its latency from the sleep's start, so the latency is never understated.
 
 What it reads comes from a message source (:mod:`mavattitude.link.source`: the live link, decoded) through
 the dispatcher (:mod:`mavattitude.dispatch`) that ``replay`` uses too: it locks onto the autopilot
@@ -63,10 +66,11 @@ from mavattitude.estimation import METHODS
 from mavattitude.estimation.compass import CompassEvent
 from mavattitude.estimation.crosscheck import CrossCheck
 from mavattitude.link import MavlinkLink, load_signing_key, message_id
+from mavattitude.link.arrivals import TickArrivals
 from mavattitude.link.logstreams import TILT_ONLY
 from mavattitude.link.requests import LOW_FRACTION, RateMonitor, StreamRequest
 from mavattitude.link.session import LinkSession
-from mavattitude.link.source import AutopilotAttitude, MavlinkDecoder, MavlinkSource, MessageSource, Sender
+from mavattitude.link.source import AutopilotAttitude, MavlinkDecoder, MavlinkSource, Sender
 from mavattitude.periodic import Every
 from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, Pushed
 from mavattitude.reports import (
@@ -202,7 +206,7 @@ class AttitudeService:
         link: MavlinkLink,
         pipeline: AttitudePipeline,
         notifier: SystemdNotifier | None = None,
-        source: MessageSource | None = None,
+        source: MavlinkSource | None = None,
         alive_file: alive.AliveFile | None = None,
     ) -> None:
         self.config = config
@@ -215,6 +219,7 @@ class AttitudeService:
         self._input_name = config.input.message
         self._limiter = _RateLimiter(config.output.statustext_interval_s, time.monotonic)
         self._latencies_s: list[float] = []
+        self._arrivals = TickArrivals(pipeline.frontend.settings.output_rate_hz)
         self._last_input: float | None = None
         self._input_lost = False
         self._per_sample = False  # the input too slow to filter, as last said (_say_rate_handling)
@@ -270,11 +275,19 @@ class AttitudeService:
     def step(self, wait_s: float) -> None:
         """One pass of the loop: wait up to ``wait_s`` for input, handle all of it, then the periodic work due."""
         handle = self.dispatcher.handle
-        for received in self.source.recv(wait_s):
+        for received in self.source.recv(wait_s, self._quiet_until()):
             handle(received)
         now = time.monotonic()
         if self._tick.due(now):
             self._periodic(now)
+
+    def _quiet_until(self) -> float:
+        """Until when no input can complete an output tick (:class:`TickArrivals`): the link may sleep till then.
+        Never while each sample is a tick (a slow or unfiltered input) or the input is silent."""
+        frontend = self.pipeline.frontend
+        if frontend.per_sample or not frontend.settings.filter_enabled or self._input_lost:
+            return -math.inf
+        return self._arrivals.earliest()
 
     def _periodic(self, now: float) -> None:
         """The work due every ``TICK_S`` at most: the link's upkeep, the watches, what is said and touched."""
@@ -437,6 +450,7 @@ class AttitudeService:
 
     def on_input(self, sample: ImuSample, t_rx: float) -> None:
         self._last_input = t_rx
+        self._arrivals.add(sample.time_s, t_rx, self.link.backlog)
         for instance, event in self.other_compasses.push(sample, self.pipeline):
             self._on_compass(event, instance)
         if self._rate is not None:
@@ -515,6 +529,7 @@ class AttitudeService:
         self._statustext("input_lost", text, "warning", log_it=False)
         if self._rate is not None:
             self._rate.restart()
+        self._arrivals.forget()
         self.session.ask_now(time.monotonic())  # a rebooted autopilot has forgotten our request: ask now
 
     def _reject(self, reason: str, exc: BaseException, counted: bool = False) -> None:

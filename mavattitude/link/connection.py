@@ -22,12 +22,15 @@ from __future__ import annotations
 import errno
 import functools
 import logging
+import math
 import socket
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
+
+from fastcrc import crc16
 
 from mavattitude.errors import InputError, LinkError, SigningError
 from mavattitude.link.mavlink2 import force_mavlink2, mavlink2, mavutil
@@ -37,8 +40,10 @@ from mavattitude.sensors import units
 log = logging.getLogger(__name__)
 
 Message = Any  # a pymavlink MAVLink_message: field attributes, get_type(), get_srcSystem(), ...
+Sender = tuple[int, int]  # MAVLink (system id, component id)
 
 MAX_MESSAGES_PER_RECV = 64  # bound one recv() so a burst cannot starve heartbeats and the watchdog
+MIN_SLEEP_S = 0.001  # a shorter quiet spell is waited for on the socket: a sleep's wake-up would cost as much
 UDP_RECEIVE_BUFFER_BYTES = 1 << 20
 UDP_PEER_TIMEOUT_S = 5.0  # a udpin peer silent this long is no longer sent to (unless it is the only one)
 CONNECT_TIMEOUT_S = 0.5  # a TCP connect attempt; short, so a stop request is never held up for long
@@ -154,37 +159,65 @@ class _TcpServer(mavutil.mavtcpin):
         return data
 
 
-class _Udp(mavutil.mavudp):
-    """pymavlink's UDP socket, parsing each datagram on its own and answering only real peers.
+@dataclass(frozen=True)
+class DirectFrame:
+    """A message the link decodes from its frame itself, without pymavlink's message object: ``decode`` takes the
+    payload's fields as the frame carries them (wire order, pymavlink's ``unpacker`` of the message) and returns
+    the item to hand on (:meth:`MavlinkLink.recv_items`)."""
 
-    - MAVLink over UDP puts whole frames in each datagram. pymavlink keeps the bytes of a truncated
-      frame and reads the next datagram as its continuation, so one truncated datagram also destroys
-      the good frame after it; here the incomplete rest of a datagram is dropped (and counted) when
-      the next one arrives.
-    - A ``udpin`` socket sends to every address it has heard from. pymavlink adds any sender, forever;
-      here only senders of a well-formed (and, with signing required, well-signed) message count, and
-      one silent for ``UDP_PEER_TIMEOUT_S`` is dropped (pymavlink keeps the last one), so garbage from a
-      spoofed address buys neither our traffic nor our memory.
+    message_id: int
+    decode: Callable[[tuple[Any, ...]], Any]
+
+
+class _FrameReader:
+    """:class:`DirectFrame` on a datagram: one unsigned MAVLink 2 frame of its message, CRC checked (CRC-16/MCRF4XX
+    over the frame after the magic, then the message's CRC extra byte, as pymavlink checks it); anything else is
+    left to pymavlink, which parses it as before."""
+
+    def __init__(self, frame: DirectFrame) -> None:
+        cls = mavlink2.mavlink_map[frame.message_id]
+        self._id = frame.message_id.to_bytes(3, "little")
+        self._crc_extra = bytes([cls.crc_extra])
+        self._unpack = cls.unpacker.unpack
+        self._size = cls.unpacker.size
+        self._decode = frame.decode
+
+    def read(self, data: bytes) -> tuple[Sender, Any] | None:
+        """The sender and item of ``data``, or None when it is not such a frame (or its CRC is wrong)."""
+        end = len(data) - 2
+        if end < mavlink2.HEADER_LEN_V2 or data[0] != mavlink2.PROTOCOL_MARKER_V2 or data[2] != 0:
+            return None
+        if data[7:10] != self._id or end != mavlink2.HEADER_LEN_V2 + data[1]:
+            return None
+        if crc16.mcrf4xx(self._crc_extra, crc16.mcrf4xx(memoryview(data)[1:end])) != data[end] | data[end + 1] << 8:
+            return None
+        payload = data[mavlink2.HEADER_LEN_V2 : end]
+        if len(payload) != self._size:  # MAVLink 2 drops trailing zero bytes; pymavlink pads, or cuts a long one
+            payload = (payload + bytes(self._size))[: self._size]
+        return (data[5], data[6]), self._decode(self._unpack(payload))
+
+
+class DatagramConnection:
+    """Reading whole datagrams (UDP, and the in-memory link): each parsed on its own, the input message (when the
+    link is given its :class:`DirectFrame`) decoded straight from its frame.
+
+    MAVLink over UDP puts whole frames in each datagram. pymavlink keeps the bytes of a truncated frame and
+    reads the next datagram as its continuation, so one truncated datagram also destroys the good frame after
+    it; here the incomplete rest of a datagram is dropped (and counted) when the next one arrives.
     """
 
+    mav: Any
     on_truncated: Any = None  # called once per dropped incomplete frame
-
-    def __init__(self, address: str, *, input: bool, **kwargs: Any) -> None:
-        if input:
-            _check_port_free(address)
-        super().__init__(address, input=input, timeout=UDP_PEER_TIMEOUT_S, **kwargs)
-        # room for a burst while the loop is busy (the kernel caps this at net.core.rmem_max)
-        self.port.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, UDP_RECEIVE_BUFFER_BYTES)
-        self._sender: tuple[str, int] | None = None
+    direct: _FrameReader | None = None
 
     def recv(self, n: int | None = None) -> bytes:
-        try:
-            data, self._sender = self.port.recvfrom(mavutil.UDP_MAX_PACKET_LEN)
-        except (BlockingIOError, ConnectionRefusedError):  # nothing waiting; an ICMP error from a udpout peer
-            return b""
-        return data
+        raise NotImplementedError
 
-    def recv_msg(self) -> Message | None:
+    def heard(self) -> None:
+        """The last datagram held a well-formed message (for a peer list)."""
+
+    def recv_msg(self) -> Message | tuple[Sender, Any] | None:
+        """The next message (pymavlink's), or ``(sender, item)`` of one decoded directly; None when nothing waits."""
         # Complete frames still buffered from the last datagram. The parser is called only when bytes are
         # left (one frame per datagram is usual): a call on nothing is a third of its calls per message, and
         # with robust parsing it changes no state.
@@ -199,10 +232,14 @@ class _Udp(mavutil.mavudp):
                 self.mav.expected_length = mavlink2.HEADER_LEN_V1 + 2
                 if self.on_truncated is not None:
                     self.on_truncated()
+            direct = self.direct
+            got = direct.read(data) if direct is not None else None
+            if got is not None:
+                self.heard()
+                return got
             msg = self._decode(data) if _whole_frame(data) else self.mav.parse_char(data)
-        if self.udp_server and msg is not None and msg.get_type() != "BAD_DATA":
-            self.clients.add(self._sender)
-            self.clients_last_alive[self._sender] = time.time()  # pymavlink's write() ages them by time.time()
+        if msg is not None and msg.get_type() != "BAD_DATA":
+            self.heard()
         # no mavutil.post_message: its per-system bookkeeping (two message copies per instance-keyed
         # message such as RAW_IMU) is a third of the receive cost and nothing here reads it
         return msg
@@ -219,6 +256,36 @@ class _Udp(mavutil.mavudp):
             return mavlink2.MAVLink_bad_data(mbuf, reason.message)
 
 
+class _Udp(DatagramConnection, mavutil.mavudp):
+    """pymavlink's UDP socket, read as :class:`DatagramConnection`, answering only real peers.
+
+    A ``udpin`` socket sends to every address it has heard from. pymavlink adds any sender, forever; here only
+    senders of a well-formed (and, with signing required, well-signed) message count, and one silent for
+    ``UDP_PEER_TIMEOUT_S`` is dropped (pymavlink keeps the last one), so garbage from a spoofed address buys
+    neither our traffic nor our memory.
+    """
+
+    def __init__(self, address: str, *, input: bool, **kwargs: Any) -> None:
+        if input:
+            _check_port_free(address)
+        super().__init__(address, input=input, timeout=UDP_PEER_TIMEOUT_S, **kwargs)
+        # room for a burst while the loop is busy (the kernel caps this at net.core.rmem_max)
+        self.port.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, UDP_RECEIVE_BUFFER_BYTES)
+        self._sender: tuple[str, int] | None = None
+
+    def recv(self, n: int | None = None) -> bytes:
+        try:
+            data, self._sender = self.port.recvfrom(mavutil.UDP_MAX_PACKET_LEN)
+        except (BlockingIOError, ConnectionRefusedError):  # nothing waiting; an ICMP error from a udpout peer
+            return b""
+        return data
+
+    def heard(self) -> None:
+        if self.udp_server:
+            self.clients.add(self._sender)
+            self.clients_last_alive[self._sender] = time.time()  # pymavlink's write() ages them by time.time()
+
+
 def autopilot_heartbeat(autopilot: Any, mav_type: Any, system: Any) -> Any:
     """Whether HEARTBEAT fields say a flight controller (not a GCS, companion, gimbal, camera or ADS-B unit, and
     not system 255, the ground stations' id): on one message's ints, or a log's columns (``&`` and ``!=`` only)."""
@@ -226,6 +293,10 @@ def autopilot_heartbeat(autopilot: Any, mav_type: Any, system: Any) -> Any:
     for kind in NOT_AUTOPILOT_TYPES:
         verdict = verdict & (mav_type != kind)
     return verdict
+
+
+def _as_is(msg: Message) -> Message:
+    return msg
 
 
 def _whole_frame(data: bytes) -> bool:
@@ -335,6 +406,9 @@ class MavlinkLink:
         self._retry_at = 0.0
         self._signing_clock_at = 0.0
         self._conn: Any = None
+        self._direct: tuple[DirectFrame, _FrameReader] | None = None  # the last one asked for, ready
+        self._backlog_since: float | None = None  # a sleep's backlog is being read: its stamp
+        self.backlog = False  # the last recv_items returned what waited through a sleep (stamped at its start)
         self.last_send_s = float("nan")  # time.monotonic() at which the last packet was handed to the OS
         try:
             self._open()
@@ -464,30 +538,81 @@ class MavlinkLink:
 
     def recv(self, timeout_s: float) -> list[tuple[float, Message]]:
         """Wait up to ``timeout_s`` for input; return ``(arrival time.monotonic(), message)`` pairs."""
+        return [(t_rx, msg) for t_rx, _, msg in self.recv_items(timeout_s, _as_is)]
+
+    def recv_items(
+        self,
+        timeout_s: float,
+        decode: Callable[[Message], Any],
+        direct: DirectFrame | None = None,
+        quiet_until: float = -math.inf,
+    ) -> list[tuple[float, Sender, Any]]:
+        """Wait up to ``timeout_s`` for input; return ``(arrival time.monotonic(), sender, decode(message))`` of
+        every message waiting (at most ``MAX_MESSAGES_PER_RECV``). A datagram that is exactly one unsigned frame
+        of ``direct``'s message is decoded by it instead, without pymavlink (not while signing is required: then
+        every frame is pymavlink's to check).
+
+        ``quiet_until`` (``time.monotonic()``): nothing the caller waits for can arrive before then, so the link
+        sleeps until then (within ``timeout_s``) rather than wake for every message, and returns what arrived
+        meanwhile at once, stamped with the time the sleep began (each may have arrived at any moment of it:
+        latency counted from there is never understated). :attr:`backlog` says whether it did.
+        """
         conn = self._conn
         if conn is None:
             self._reopen(timeout_s)
             return []
         self._keep_signing_clock()
+        if isinstance(conn, DatagramConnection):
+            conn.direct = self._reader(direct)
+        asleep_since = self._backlog_since  # a backlog longer than one call is still stamped so
+        if asleep_since is None:
+            now = time.monotonic()
+            quiet_s = min(quiet_until - now, timeout_s)
+            if quiet_s >= MIN_SLEEP_S:
+                time.sleep(quiet_s)
+                asleep_since, timeout_s = now, timeout_s - quiet_s
+        if asleep_since is not None:
+            received = self._read(conn, decode, asleep_since)
+            self.backlog = True
+            self._backlog_since = asleep_since if len(received) >= MAX_MESSAGES_PER_RECV else None
+            if received or self._conn is None:
+                return received
+        self.backlog = False
         if not conn.select(max(timeout_s, 0.0)):
             return []
-        received: list[tuple[float, Message]] = []
+        return self._read(conn, decode, None)
+
+    def _read(
+        self, conn: Any, decode: Callable[[Message], Any], stamp: float | None
+    ) -> list[tuple[float, Sender, Any]]:
+        """Every message waiting (at most ``MAX_MESSAGES_PER_RECV``), stamped ``stamp``, else when read."""
+        received: list[tuple[float, Sender, Any]] = []
         try:
             while len(received) < MAX_MESSAGES_PER_RECV:
-                t_rx = time.monotonic()  # before reading and parsing: our whole handling counts as latency
+                # before reading and parsing: our whole handling counts as latency
+                t_rx = time.monotonic() if stamp is None else stamp
                 msg = conn.recv_msg()
                 if msg is None:
                     break
-                if msg.get_type() == "BAD_DATA":
+                if type(msg) is tuple:  # (sender, item), decoded from its frame
+                    received.append((t_rx, *msg))
+                elif msg.get_type() == "BAD_DATA":
                     self._count_bad(msg)
-                    continue
-                received.append((t_rx, msg))
+                else:
+                    received.append((t_rx, (msg.get_srcSystem(), msg.get_srcComponent()), decode(msg)))
         except OSError as exc:  # includes _Disconnected and serial.SerialException
             self._drop(exc)
         if received:
             self.counters.received += len(received)
             self._backoff_s = self._reconnect_range_s[0]  # the link works: the next failure retries fast
         return received
+
+    def _reader(self, direct: DirectFrame | None) -> _FrameReader | None:
+        if direct is None or self._require_signing:
+            return None
+        if self._direct is None or self._direct[0] is not direct:
+            self._direct = (direct, _FrameReader(direct))
+        return self._direct[1]
 
     def _count_truncated(self) -> None:
         self.counters.bad_data += 1

@@ -12,12 +12,12 @@ from __future__ import annotations
 from collections import deque
 from typing import Any
 
-from mavattitude.link.connection import Endpoint, MavlinkLink, Message
+from mavattitude.link.connection import DatagramConnection, Endpoint, MavlinkLink, Message
 from mavattitude.link.mavlink2 import mavlink2
 
 
-class _MemoryConnection:
-    """The part of a pymavlink connection that :class:`MavlinkLink` drives, over two queues."""
+class _MemoryConnection(DatagramConnection):
+    """The part of a pymavlink connection that :class:`MavlinkLink` drives, over two queues of datagrams."""
 
     def __init__(self, source_system: int, source_component: int, inbox: deque[bytes], outbox: list[bytes]) -> None:
         self.mav = mavlink2.MAVLink(self, srcSystem=source_system, srcComponent=source_component)
@@ -30,11 +30,8 @@ class _MemoryConnection:
     def select(self, timeout_s: float) -> bool:
         return bool(self.inbox) or self.mav.buf_len() > 0
 
-    def recv_msg(self) -> Message | None:
-        msg = self.mav.parse_char(b"")  # complete frames still buffered from the last datagram
-        while msg is None and self.inbox:
-            msg = self.mav.parse_char(self.inbox.popleft())
-        return msg
+    def recv(self, n: int | None = None) -> bytes:
+        return self.inbox.popleft() if self.inbox else b""
 
     def close(self) -> None:
         """Nothing to release."""

@@ -22,6 +22,8 @@ DataFlash ``.bin``, ULog ``.ulg``: :func:`mavattitude.link.logs.open_log`) all p
 from __future__ import annotations
 
 import datetime as dt
+import math
+import operator
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -29,10 +31,10 @@ from typing import Any, Protocol
 from mavattitude.config import Config
 from mavattitude.errors import SensorError
 from mavattitude.estimation.conventions import quat_from_euler_parts
-from mavattitude.link.connection import MavlinkLink, Message
+from mavattitude.link.connection import DirectFrame, MavlinkLink, Message, Sender
+from mavattitude.link.mavlink2 import mavlink2, message_id
 from mavattitude.sensors import units
 
-Sender = tuple[int, int]  # MAVLink (system id, component id)
 Received = tuple[float, Sender, Any]  # (t_rx, sender, item): see the module docstring
 
 ATTITUDE_MESSAGES = ("ATTITUDE", "ATTITUDE_QUATERNION")  # the autopilot's own attitude, as Euler angles or q
@@ -113,6 +115,8 @@ class MavlinkDecoder:
     date_of: Callable[[Message], dt.date | None] | None = None
     _routes: dict[str, Callable[[Message], Any]] = field(init=False, repr=False)
     vehicle_date: dt.date | None = field(default=None, init=False)
+    direct: DirectFrame = field(init=False, repr=False)  # the input message, decoded from its frame by the link
+    _wire: Callable[[tuple[Any, ...]], tuple[Any, Any, Any]] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         self._routes = {
@@ -122,6 +126,8 @@ class MavlinkDecoder:
             **dict.fromkeys(units.POSITION_MESSAGES, self._position),
             "SYSTEM_TIME": self._system_time,
         }
+        self._wire = _wire_fields(self.message)
+        self.direct = DirectFrame(message_id(self.message), self._imu_fields)
 
     @classmethod
     def from_config(cls, config: Config, date_of: Callable[[Message], dt.date | None] | None = None) -> MavlinkDecoder:
@@ -143,6 +149,13 @@ class MavlinkDecoder:
         except SensorError as exc:
             return Undecodable(exc)
 
+    def _imu_fields(self, wire: tuple[Any, ...]) -> Any:
+        """The input message from the fields of its frame (wire order): what :meth:`_imu` makes of the message."""
+        try:
+            return units.decode_fields(self.message, *self._wire(wire), self.profile)
+        except SensorError as exc:
+            return Undecodable(exc)
+
     def _system_time(self, msg: Message) -> None:
         self.vehicle_date = units.decode_utc_date(msg) or self.vehicle_date
 
@@ -157,6 +170,19 @@ class MavlinkDecoder:
         return PositionFix(position, self.date_of(msg) if self.date_of is not None else None, velocity)
 
 
+def _wire_fields(message: str) -> Callable[[tuple[Any, ...]], tuple[Any, Any, Any]]:
+    """Where an IMU message's fields sit in its payload as unpacked (pymavlink's wire order): the time field,
+    :data:`~mavattitude.sensors.units.IMU_FIELDS` and ``fields_updated`` (0 where the message has none), as
+    :func:`~mavattitude.sensors.units.decode_fields` takes them."""
+    cls = mavlink2.mavlink_map[message_id(message)]
+    at = dict(zip(cls.fieldnames, cls.orders, strict=True))
+    imu = operator.itemgetter(*(at[name] for name in units.IMU_FIELDS))
+    time_at, updated_at = at[units.LAYOUTS[message].time_field], at.get("fields_updated")
+    if updated_at is None:
+        return lambda wire: (wire[time_at], imu(wire), 0)
+    return lambda wire: (wire[time_at], imu(wire), wire[updated_at])
+
+
 def _heartbeat(msg: Message) -> Heartbeat:
     return Heartbeat(MavlinkLink.is_autopilot_heartbeat(msg))
 
@@ -167,10 +193,6 @@ def _attitude(msg: Message) -> AutopilotAttitude:
 
 def _attitude_quaternion(msg: Message) -> AutopilotAttitude:
     return AutopilotAttitude(msg.time_boot_ms * 1e-3, (msg.q1, msg.q2, msg.q3, msg.q4))
-
-
-def _sender(msg: Message) -> Sender:
-    return (msg.get_srcSystem(), msg.get_srcComponent())
 
 
 class MavlinkSource:
@@ -184,6 +206,6 @@ class MavlinkSource:
         self.decoder = decoder
         self.name = link.endpoint.address
 
-    def recv(self, timeout_s: float) -> list[Received]:
-        decode = self.decoder
-        return [(t_rx, _sender(msg), decode(msg)) for t_rx, msg in self.link.recv(timeout_s)]
+    def recv(self, timeout_s: float, quiet_until: float = -math.inf) -> list[Received]:
+        """What arrived within ``timeout_s``; nothing is awaited before ``quiet_until`` (the link may sleep)."""
+        return self.link.recv_items(timeout_s, self.decoder, self.decoder.direct, quiet_until)

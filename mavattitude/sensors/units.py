@@ -253,9 +253,20 @@ def decode(msg: Any, profile: UnitProfile) -> ImuSample:
     magnitude (wrong units at the sender, e.g. ArduPilot's HIGHRES_IMU magnetometer).
     """
     kind = msg.get_type()
+    profile.scale(kind)  # a message the profile does not read raises here, before its fields are read
+    layout = LAYOUTS[kind]
+    fields_updated = 0 if layout.integer else msg.fields_updated
+    return decode_fields(kind, getattr(msg, layout.time_field), _imu_fields(msg), fields_updated, profile)
+
+
+def decode_fields(
+    kind: str, time_value: float, values: tuple[float, ...], fields_updated: int, profile: UnitProfile
+) -> ImuSample:
+    """:func:`decode` from the message's raw field values: its time field, :data:`IMU_FIELDS` in order and
+    ``fields_updated`` (HIGHRES_IMU; ignored for the integer messages). What the live link calls with the
+    fields it unpacked from a frame itself, skipping pymavlink's message object."""
     scale = profile.messages.get(kind) or profile.scale(kind)
     layout = LAYOUTS[kind]
-    values = _imu_fields(msg)
     saturated = _NONE_SATURATED
     if layout.integer:
         if scale.count_bits is not None:
@@ -265,7 +276,7 @@ def decode(msg: Any, profile: UnitProfile) -> ImuSample:
             saturated = _sensor_names(_at_limits(np.array([values], dtype=float), lo, hi)[0].tolist())
         has_mag = any(values[6:])  # an integer message with no compass reads exactly zero
     else:
-        has_mag = bool(msg.fields_updated & HIGHRES_MAG_UPDATED)
+        has_mag = bool(fields_updated & HIGHRES_MAG_UPDATED)
     ax, ay, az, gx, gy, gz, mx, my, mz = values
     sa, sg = scale.acc_mps2, scale.gyr_radps
     mag: Vec3 | None = None
@@ -276,7 +287,7 @@ def decode(msg: Any, profile: UnitProfile) -> ImuSample:
         if norm > MAX_PLAUSIBLE_FIELD_UT:
             raise _implausible(kind, profile, norm)
     return ImuSample(
-        getattr(msg, layout.time_field) * layout.time_unit_s,
+        time_value * layout.time_unit_s,
         (ax * sa, ay * sa, az * sa),
         (gx * sg, gy * sg, gz * sg),
         mag,

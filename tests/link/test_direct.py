@@ -1,0 +1,165 @@
+"""The input message decoded straight from its frame by the link (no pymavlink message object): the same items,
+senders and counters as pymavlink's path, over real UDP on 127.0.0.1, and every other datagram handled as before.
+
+Each case sends the same datagrams twice, once read with the input message's :class:`DirectFrame` and once
+without (pymavlink decodes every frame), and compares what came out.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v10 import ardupilotmega as mavlink1
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from mavattitude.link import MavlinkLink
+from mavattitude.link.mavlink2 import mavlink2 as link_dialect
+from mavattitude.link.source import MavlinkDecoder, Undecodable
+from mavattitude.sensors import units
+from tests.link.peer import UdpPeer
+from tests.link.test_connection import WAIT_S
+from tests.link.test_signing import KEY, OTHER_KEY
+
+SEED = 20250611
+
+
+def _drain(link: MavlinkLink, decoder: MavlinkDecoder, direct: bool, count: int) -> list[tuple]:
+    """``(sender, item)`` of everything the link hands over until ``count`` datagrams are accounted for."""
+    got: list[tuple] = []
+    deadline = time.monotonic() + WAIT_S
+    c = link.counters
+    while time.monotonic() < deadline and c.received + c.bad_data + c.signature_rejected < count:
+        got += [(s, i) for _, s, i in link.recv_items(0.05, decoder, decoder.direct if direct else None)]
+    return got
+
+
+def _comparable(item: object) -> object:
+    """An item as a value: an Undecodable by its reason (exceptions compare by identity)."""
+    return ("undecodable", str(item.error)) if isinstance(item, Undecodable) else item
+
+
+def _both_ways(datagrams: list[bytes], decoder: MavlinkDecoder, **link_kwargs: object) -> list[tuple]:
+    """The same datagrams through a fresh link read directly and one read by pymavlink: (items, counters) each."""
+    results = []
+    for direct in (True, False):
+        link = MavlinkLink("udpin:127.0.0.1:0", source_system=1, **link_kwargs)
+        peer = UdpPeer()
+        peer.target = link.local_address
+        try:
+            for data in datagrams:
+                peer.send_raw(data)
+            got = _drain(link, decoder, direct, len(datagrams))
+            results.append(([(s, _comparable(i)) for s, i in got], dataclasses.asdict(link.counters)))
+        finally:
+            link.close()
+            peer.close()
+    return results
+
+
+def _random_samples(rng: np.random.Generator, n: int) -> list[units.ImuSample]:
+    """Plausible readings, one without a compass and one far too strong (the unit check refuses it)."""
+    samples = []
+    for i in range(n):
+        mag = tuple(rng.normal(0.0, 30.0, 3))
+        samples.append(
+            units.ImuSample(10.0 + 0.005 * i, tuple(rng.normal(0.0, 6.0, 3)), tuple(rng.normal(0, 1, 3)), mag)
+        )
+    samples[3] = dataclasses.replace(samples[3], mag_uT=None)
+    samples[5] = dataclasses.replace(samples[5], mag_uT=(2500.0, 0.0, 0.0))
+    return samples
+
+
+@pytest.mark.parametrize(
+    ("message", "profile", "refused"),
+    # 2 500 µT is 50 000 ADIS16405 counts: clipped to 14 bits, 410 µT, plausible
+    [
+        ("RAW_IMU", "ardupilot", 1),
+        ("SCALED_IMU2", "ardupilot", 1),
+        ("HIGHRES_IMU", "px4", 1),
+        ("RAW_IMU", "adis16405", 0),
+    ],
+)
+def test_direct_items_equal_pymavlinks_and_skip_its_decoder(message, profile, refused, monkeypatch):
+    rng = np.random.default_rng(SEED)
+    decoder = MavlinkDecoder(message, units.PROFILES[profile])
+    peer = mavlink2.MAVLink(None, srcSystem=3, srcComponent=1)
+    cls = getattr(mavlink2, f"MAVLink_{message.lower()}_message")
+    datagrams = [
+        bytes(cls(**units.encode(s, units.PROFILES[profile], message)).pack(peer)) for s in _random_samples(rng, 12)
+    ]
+    assert any(len(d) < 12 + cls.unpacker.size for d in datagrams)  # MAVLink 2 trims trailing zeros: padded back
+    decoded = []
+    real_decode = link_dialect.MAVLink.decode
+    monkeypatch.setattr(link_dialect.MAVLink, "decode", lambda mav, buf: decoded.append(1) or real_decode(mav, buf))
+    (direct, direct_counters), (by_pymavlink, counters) = _both_ways(datagrams, decoder)
+    assert len(decoded) == len(datagrams)  # only the run without the direct path called pymavlink's decoder
+    assert direct == by_pymavlink and direct_counters == counters
+    assert len(direct) == 12 and {s for s, _ in direct} == {(3, 1)}
+    assert sum(isinstance(i, tuple) and i[0] == "undecodable" for _, i in direct) == refused
+
+
+def _frame_with_payload(peer: mavlink2.MAVLink, msg: object, extra: bytes) -> bytes:
+    """``msg`` packed with ``extra`` bytes after its payload (a newer dialect's extension fields), CRC redone."""
+    frame = bytearray(msg.pack(peer))  # type: ignore[attr-defined]
+    frame[1] += len(extra)
+    frame[-2:-2] = extra
+    crc = mavlink2.x25crc(bytes(frame[1:-2]))
+    crc.accumulate(bytes([msg.crc_extra]))  # type: ignore[attr-defined]
+    frame[-2:] = crc.crc.to_bytes(2, "little")
+    return bytes(frame)
+
+
+def _as_decoded(decoder: MavlinkDecoder, frame: bytes) -> object:
+    """What pymavlink and the decoder make of one frame, alone."""
+    return decoder(mavlink2.MAVLink(None).decode(bytearray(frame)))
+
+
+def test_bad_crc_truncated_foreign_and_other_frames_handled_as_before():
+    decoder = MavlinkDecoder("RAW_IMU", units.PROFILES["ardupilot"])
+    vehicle = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    stranger = mavlink2.MAVLink(None, srcSystem=9, srcComponent=1)
+    v1 = mavlink1.MAVLink(None, srcSystem=1, srcComponent=1)
+    sample = units.ImuSample(5.0, (0.1, 0.2, -9.8), (0.01, 0.0, 0.0), (20.0, 1.0, 40.0))
+    fields = units.encode(sample, units.PROFILES["ardupilot"], "RAW_IMU")
+    v1_fields = {k: v for k, v in fields.items() if k in mavlink1.MAVLink_raw_imu_message.fieldnames}
+    good = bytes(mavlink2.MAVLink_raw_imu_message(**fields).pack(vehicle))
+    sample = _as_decoded(decoder, good)  # as sent, in the message's integer units
+    bad_crc = good[:-1] + bytes([good[-1] ^ 0xFF])
+    datagrams = [
+        good,
+        bad_crc,
+        good[:20],  # truncated: dropped (and counted) when the next datagram arrives
+        good,
+        bytes(mavlink2.MAVLink_raw_imu_message(**fields).pack(stranger)),  # another sender: handed on as its own
+        bytes(mavlink2.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3).pack(vehicle)),
+        bytes(mavlink1.MAVLink_raw_imu_message(**v1_fields).pack(v1)),  # MAVLink 1: pymavlink's
+        good + good,  # two frames in one datagram: pymavlink's
+        _frame_with_payload(vehicle, mavlink2.MAVLink_raw_imu_message(**fields), b"\x07\x07"),  # longer payload: cut
+    ]
+    (direct, direct_counters), (by_pymavlink, counters) = _both_ways(datagrams, decoder)
+    assert direct == by_pymavlink and direct_counters == counters
+    assert counters["bad_data"] == 2 and counters["received"] == 8
+    assert [s for s, _ in direct] == [(1, 1), (1, 1), (9, 1), (1, 1), (1, 1), (1, 1), (1, 1), (1, 1)]
+    assert sum(i == sample for _, i in direct) == 7  # every RAW_IMU, however it came, decodes to the sample sent
+
+
+def test_signed_input_checked_by_pymavlink_and_unsigned_refused_when_signing_is_required():
+    decoder = MavlinkDecoder("RAW_IMU", units.PROFILES["ardupilot"])
+    sample = units.ImuSample(5.0, (0.1, 0.2, -9.8), (0.01, 0.0, 0.0), (20.0, 1.0, 40.0))
+    msg = mavlink2.MAVLink_raw_imu_message(**units.encode(sample, units.PROFILES["ardupilot"], "RAW_IMU"))
+    sample = _as_decoded(decoder, bytes(msg.pack(mavlink2.MAVLink(None))))
+    unsigned, honest, forger = UdpPeer(), UdpPeer(key=KEY), UdpPeer(key=OTHER_KEY)
+    datagrams = [unsigned.pack(msg), forger.pack(msg), honest.pack(msg), unsigned.pack(msg)]
+    for peer in (unsigned, honest, forger):
+        peer.close()
+    required = _both_ways(datagrams, decoder, signing_key=KEY, require_signing=True)
+    assert required[0] == required[1]
+    (items, counters) = required[0]
+    assert items == [((1, 1), sample)] and counters["signature_rejected"] == 3
+    allowed = _both_ways(datagrams, decoder, signing_key=KEY, require_signing=False)
+    assert allowed[0] == allowed[1]
+    # unsigned input allowed: a bad signature is no worse than none (pymavlink's rule, kept)
+    assert allowed[0][0] == [((1, 1), sample)] * 4 and allowed[0][1]["signature_rejected"] == 0
