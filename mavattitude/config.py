@@ -425,7 +425,8 @@ def _cross_check(c: Config) -> None:
     elif any(v is not None for v in scales.values()):
         _fail("input.custom", f"scales are only used with profile: custom (profile is {c.input.profile})")
     method = METHODS[c.estimator.method]
-    # the σ only: rest_s still times the rest measurement of the IGN that solves a too-slow input per sample
+    # the σ only: rest_s still times the rest measurement (the fused filter starts from its gyro bias, its σ_m
+    # floored by the magnetometer's σ; the IGN that solves a too-slow input per sample weighs with it)
     changed = [k for k in NOISE_SIGMA_KEYS if getattr(c.noise, k) != getattr(DEFAULTS.noise, k)]
     if not method.sensor_noise and changed:
         key = changed[0]

@@ -283,6 +283,8 @@ _NO_HEADING = int(SampleFlag.NO_HEADING)
 NO_FIELD_NED_UT = np.array([1.0, 0.0, 0.0])
 #: What the fused method solves a tick of an input too slow to integrate with (``PER_SAMPLE``).
 SLOW_INPUT_METHOD = "ign"
+#: The fused method's rest-noise measurement takes one sample per this interval (50 Hz at most; just under: jitter)
+REST_NOISE_PERIOD_S = 0.0199
 
 
 class _SolutionCovariance:
@@ -338,6 +340,12 @@ class FusedEstimator:
     the rate held over a step is wrong by tens of degrees), so such a tick is solved from its accelerometer and
     magnetometer alone (:data:`SLOW_INPUT_METHOD`), as the snapshot methods do, and the filter starts afresh
     (from IGN) when the input is fast again.
+
+    With ``noise.rest_s`` the samples (one per :data:`REST_NOISE_PERIOD_S`) feed a rest-noise measurement
+    (:mod:`mavattitude.estimation.restnoise`): once the vehicle has been still that long, the magnetometer's σ
+    floors the filter's ``σ_m`` and the gyro bias measured at rest is the one every filter started after it
+    starts from (``P_bb`` its standard error plus the bias walk since); the log says so once, the counters
+    (``noise_rest_s``, ``noise_measured``, ``bias_from_rest``) say which values are in use.
     """
 
     wants_filtered = False
@@ -357,6 +365,10 @@ class FusedEstimator:
         self._mag_ref: Array | None = None
         self._past: Counter[str] = Counter()  # counters of the filters dropped by a reset
         self._slow = SnapshotEstimator(config, SLOW_INPUT_METHOD)
+        rest_s = config.noise.rest_s
+        self.rest_noise = RestNoise(rest_s) if rest_s > 0.0 else None
+        self._rest_next_s = -math.inf  # the next sample time the rest measurement takes
+        self._bias_from_rest = 0  # filters started from the gyro bias measured at rest
 
     def reset(self) -> None:
         self._drop_filter()
@@ -372,6 +384,10 @@ class FusedEstimator:
         long its heading has come from the gyro alone (``heading_gap_s``, whole seconds)."""
         counts = self._past + Counter(self._filter.counters if self._filter is not None else {})
         out: dict[str, float] = {k: counts[k] for k in self._counter_names}
+        rest = self.rest_noise
+        if rest is not None:
+            out |= {"noise_rest_s": round(rest.still_s, 1), "noise_measured": int(rest.measured is not None)}
+            out["bias_from_rest"] = self._bias_from_rest
         if self._filter is not None:
             x, y, z = self._filter.mag_offset_uT.tolist()
             out |= {"mag_offset_x_uT": x, "mag_offset_y_uT": y, "mag_offset_z_uT": z}
@@ -382,12 +398,50 @@ class FusedEstimator:
         if self._filter is not None:
             self._filter.set_velocity(velocity)
 
+    def _measure_noise(self, rest: RestNoise, sample: ProcessedSample) -> None:
+        """The sample into the rest measurement (the σ of a sample's noise is the σ of every sample's: one per
+        :data:`REST_NOISE_PERIOD_S` measures it as well, at a bounded cost from a fast input); once measured,
+        the magnetometer's σ floors the running filter's ``σ_m``, said once in the log (then at debug level)."""
+        self._rest_next_s = sample.time_s + REST_NOISE_PERIOD_S
+        if not rest.add(sample.time_s, sample.acc_mps2, sample.mag_uT, sample.gyr_radps):
+            return
+        if self._filter is not None:
+            self._hand_over(self._filter, rest, sample.time_s)
+        measured, bias = rest.measured, rest.gyro_bias_radps
+        log.log(
+            logging.INFO if rest.updated_s == rest.since_s else logging.DEBUG,  # said once, the first time
+            "t=%.1f s: noise measured at rest over %.0f s: gyro bias %s rad/s, the fused filter's start from now on; "
+            "mag σ %s µT, the floor of its σ_m (%.3g µT); accel σ %s m/s² (its σ_a is of the pre-filtered specific "
+            "force: not floored)",
+            sample.time_s,
+            rest.still_s,
+            _axes(bias or ()),
+            _axes(measured.mag_std),  # type: ignore[union-attr]
+            self.settings.mag_std_uT,
+            _axes(measured.accel_std),  # type: ignore[union-attr]
+        )
+
+    def _bias_std(self, rest: RestNoise, time_s: float) -> Vec3:
+        """The measured bias's σ per axis at ``time_s``: its standard error and the bias walk since the measurement."""
+        walk2 = self.settings.gyro_bias_walk_radps2**2 * max(0.0, time_s - rest.updated_s)
+        return tuple(math.sqrt(s * s + walk2) for s in rest.gyro_bias_std_radps or (0.0,) * 3)  # type: ignore[return-value]
+
+    def _hand_over(self, filt: Any, rest: RestNoise, time_s: float) -> bool:
+        """What the rest showed, to the filter (:meth:`FusedFilter.set_rest_noise`: the bias only before its start)."""
+        mag_std = max(rest.measured.mag_std)  # type: ignore[union-attr]
+        return filt.set_rest_noise(mag_std, rest.gyro_bias_radps, self._bias_std(rest, time_s))
+
     def estimate(self, sample: ProcessedSample, mag_ref_ned_uT: Array) -> list[AttitudeOutput]:
         if sample.flags & _PER_SAMPLE:
             self._drop_filter()
             return self._slow.estimate(sample, mag_ref_ned_uT)
+        rest = self.rest_noise
+        if rest is not None and not 0.0 < self._rest_next_s - sample.time_s <= REST_NOISE_PERIOD_S:
+            self._measure_noise(rest, sample)
         if self._filter is None:
             self._filter = self._new_filter(mag_ref_ned_uT)
+            if rest is not None and rest.measured is not None:
+                self._bias_from_rest += self._hand_over(self._filter, rest, sample.time_s)
         # The pipeline replaces its reference array when the field changes and never writes into it, so the
         # same object is the same field: the values are compared only when a new array arrives (rarely).
         elif mag_ref_ned_uT is not self._mag_ref and not np.array_equal(self._mag_ref, mag_ref_ned_uT):

@@ -60,7 +60,9 @@ def _score(times, q, cov, q_true, keep) -> tuple[float, np.ndarray]:
     return float(np.sqrt(np.mean(total**2))), claimed / scatter
 
 
-def compare(name: str, rows: tuple, reference: list[float], true_noise: dict, q_true_at, rest_at) -> list[str]:
+def scores(rows: tuple, reference: list[float], true_noise: dict, q_true_at, rest_at) -> tuple[dict, object] | str:
+    """Per run (``config``, ``true``, ``measured``): the rest RMS (deg), the claimed σ / scatter per axis, and the
+    rest-noise measurement; or why there is nothing to score."""
     runs = {
         "config": _run(rows, reference, DEFAULT_NOISE, 0.0),
         "true": _run(rows, reference, true_noise, 0.0),
@@ -68,15 +70,25 @@ def compare(name: str, rows: tuple, reference: list[float], true_noise: dict, q_
     }
     rest = runs["measured"][3]
     if rest.measured is None:
-        return [f"{name:28} rest {rest.still_s:5.1f} s: too little to measure"]
-    switched_s = rest.since_s
-    lines = []
+        return f"rest {rest.still_s:5.1f} s: too little to measure"
+    out = {}
     for label, (t, q, cov, _) in runs.items():
-        keep = rest_at(t) & (t >= switched_s)
+        keep = rest_at(t) & (t >= rest.since_s)  # the ticks after the switch to the measured σ
         if keep.sum() < 50:
-            return [f"{name:28} fewer than 50 rest ticks after the switch"]
-        rms, ratio = _score(t, q, cov, q_true_at(t), keep)
-        lines.append(f"{name:28} {label:9} rest RMS {rms:6.3f} deg   claimed σ / scatter x y z {_fmt(ratio)}")
+            return "fewer than 50 rest ticks after the switch"
+        out[label] = _score(t, q, cov, q_true_at(t), keep)
+    return out, rest
+
+
+def compare(name: str, *recording) -> list[str]:
+    result = scores(*recording)
+    if isinstance(result, str):
+        return [f"{name:28} {result}"]
+    runs, rest = result
+    lines = [
+        f"{name:28} {label:9} rest RMS {rms:6.3f} deg   claimed σ / scatter x y z {_fmt(ratio)}"
+        for label, (rms, ratio) in runs.items()
+    ]
     m = rest.measured
     lines.append(f"{'':28} measured σ acc {_fmt(m.accel_std)} m/s², mag {_fmt(m.mag_std)} µT over {rest.still_s:.0f} s")
     return lines
@@ -86,22 +98,21 @@ def _fmt(values) -> str:
     return " ".join(f"{v:6.3f}" for v in values)
 
 
-def sim() -> list[str]:
+def sim_recording(seed: int = 0, duration_s: float = 60.0) -> tuple:
+    """The fake vehicle at rest (consumer sensors at 200 Hz, seeded), as :func:`scores` takes a recording."""
     from mavattitude.sim import scenarios
 
-    script, sensors = scenarios.static(60.0), scenarios.consumer_sensors(200.0)
-    rng = np.random.default_rng(0)
+    script, sensors = scenarios.static(duration_s), scenarios.consumer_sensors(200.0)
+    rng = np.random.default_rng(seed)
     t = sensors.sample_times(0.0, script.duration_s, rng)
     acc, gyr, mag = sensors.measure(script, t, rng)
     true = {"accel_std_mps2": list(sensors.accel.noise_std), "mag_std_uT": list(sensors.mag.noise_std)}
-    return compare(
-        "fake vehicle at rest",
-        (t, acc, gyr, mag),
-        list(scenarios.DEFAULT_MAG_NED_UT),
-        true,
-        script.attitude,
-        lambda ticks: np.ones(len(ticks), dtype=bool),
-    )
+    everywhere = lambda ticks: np.ones(len(ticks), dtype=bool)  # noqa: E731
+    return (t, acc, gyr, mag), list(scenarios.DEFAULT_MAG_NED_UT), true, script.attitude, everywhere
+
+
+def sim() -> list[str]:
+    return compare("fake vehicle at rest", *sim_recording())
 
 
 def broad(trial: str) -> list[str]:

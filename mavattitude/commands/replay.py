@@ -21,8 +21,9 @@ about twice the low-pass cutoff, gives one unfiltered attitude per sample; --met
 IGN: too slow to integrate), heading, its source (a log without a magnetometer, or one reading zero, gives roll
 and pitch with the yaw NaN), reference, the magnetic one used (WMM release, place and date; the field measured
 from the compass; or the one given), the estimator's own counters named by its method (ign.noise_rest_s, the
-still time seen, and ign.noise_measured, 1 where the σ measured at rest were used; the fused filter's fused.*
-and heading_from_compass), the compass monitor's compass_dip_deg (the first minute's mean),
+still time seen, and ign.noise_measured, 1 where the σ measured at rest were used; the fused filter's fused.*,
+among them fused.noise_rest_s, fused.noise_measured and fused.bias_from_rest, the filters started from the gyro
+bias measured at rest, and heading_from_compass), the compass monitor's compass_dip_deg (the first minute's mean),
 compass_dip_expected_deg, compass_field_ratio and compass_warnings, with crosscheck.enabled the cross-check's
 xc_pairs, xc_rms_deg and xc_warnings, and a note on what was wrong with the file.
 Every magnetometer a log holds (a .bin's MAG instances; a .tlog's RAW_IMU, SCALED_IMU2, SCALED_IMU3) is

@@ -11,9 +11,11 @@ the vehicle's vibration add to it. So the ticks themselves are measured, in bloc
 - the still blocks' within-block variances are pooled per axis (``Σ (nᵢ − 1) sᵢ² / Σ (nᵢ − 1)``: each block's
   own mean removed, so a vehicle at rest in several attitudes, or a slow drift between blocks, adds nothing),
   for the accelerometer, the magnetometer (the ticks that carry a reading) and the gyroscope, whose pooled mean
-  is its bias;
+  is its bias (:attr:`RestNoise.gyro_bias_radps`, with its standard error ``σ_g / √n`` per axis in
+  :attr:`RestNoise.gyro_bias_std_radps`);
 - once ``rest_s`` of still blocks are in, :attr:`RestNoise.measured` is the :class:`NoiseModel` of those σ,
-  re-made as more rest comes (every block). Until then the caller keeps its prior.
+  re-made as more rest comes (every block; :attr:`RestNoise.updated_s` the tick time it last was). Until then
+  the caller keeps its prior.
 """
 
 from __future__ import annotations
@@ -85,6 +87,8 @@ class RestNoise:
         self.measured: NoiseModel | None = None
         self.since_s = math.nan  # the tick time :attr:`measured` was first there
         self.gyro_bias_radps: Vec3 | None = None
+        self.gyro_bias_std_radps: Vec3 | None = None  # the bias's standard error per axis, rad/s
+        self.updated_s = math.nan  # the tick time :attr:`measured` and the bias were last re-made
         self._pool = _Pool([0.0] * 3, [0.0] * 3, [0.0] * 3, [0.0] * 3)
         self._start_s = math.nan
         self._block = (_Moments(), _Moments(), _Moments())
@@ -95,8 +99,10 @@ class RestNoise:
             changed = self._close(time_s - self._start_s)
             self._start_s = time_s
             self._block = (_Moments(), _Moments(), _Moments())
-            if changed and self.since_s != self.since_s:  # NaN: the first time
-                self.since_s = time_s
+            if changed:
+                self.updated_s = time_s
+                if self.since_s != self.since_s:  # NaN: the first time
+                    self.since_s = time_s
         else:
             changed = False
         acc_m, mag_m, gyr_m = self._block
@@ -132,6 +138,7 @@ class RestNoise:
         self.measured = NoiseModel(accel_std=accel_std, mag_std=mag_std)
         n_gyr = p.dof_acc + p.blocks  # every block's ticks: the gyro and accelerometer come together
         self.gyro_bias_radps = tuple(s / n_gyr for s in p.gyr_sum)  # type: ignore[assignment]
+        self.gyro_bias_std_radps = tuple(math.sqrt(s / p.dof_acc / n_gyr) for s in p.gyr)  # type: ignore[assignment]
         return True
 
     @staticmethod

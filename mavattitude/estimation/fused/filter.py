@@ -32,7 +32,8 @@ nothing else, so a wrong or disturbed field can never move roll and pitch. ``σ_
 ``(τ_m |ω × m|)²``: the field error of a sample-time skew ``τ_m`` between gyro and magnetometer in a turn.
 
 Start-up and gaps: the first sample with both vectors initialises ``q`` from IGN and ``P_θθ`` from its
-covariance, ``P_bb = σ_b0² I``; a gap longer than ``max_gap_s`` restarts from IGN, keeping the bias. With no
+covariance, ``P_bb = σ_b0² I`` (or the bias measured at rest: :meth:`FusedFilter.set_rest_noise`); a gap longer
+than ``max_gap_s`` restarts from IGN, keeping the bias. With no
 magnetometer reading for ``max_gap_s`` from the first sample (a vehicle without a compass), it starts on roll
 and pitch alone (:func:`~mavattitude.estimation.conventions.tilt_quat_parts`, yaw 0, ``P_θθ`` the tilt's σ
 with a heading uniform over ±180°): the gyro and the tilt updates carry roll and pitch, and the heading stays
@@ -160,6 +161,7 @@ class FusedFilter:
         # The squared settings the updates weigh with, once: a float's ** is a libm pow call, every update.
         self._accel_var, self._lag_gain2 = s.accel_std_mps2**2, s.accel_lag_gain**2
         self._mag_var, self._skew2 = s.mag_std_uT**2, s.mag_skew_s**2
+        self._p_bb_start = plus_diagonal(ZERO3, s.gyro_bias_init_radps**2)  # P_bb of a first start
         self._noise = NoiseModel(accel_std=(s.accel_std_mps2,) * 3, mag_std=(s.mag_std_uT,) * 3)
         self._t_last = 0.0
         self._heading_at_s = 0.0  # the last heading update's time (or the last start's: IGN's heading)
@@ -222,6 +224,20 @@ class FusedFilter:
         self._acc_ref_up = self._v_acc == (0.0, 0.0, -1.0)
         field: Vec3 = tuple(mag.tolist())  # type: ignore[assignment]
         self._mag.set_reference(field, self._v_acc, self._started)
+
+    def set_rest_noise(self, mag_std_uT: float, gyro_bias_radps: Vec3, gyro_bias_std_radps: Vec3) -> bool:
+        """What the sensors showed at rest (:mod:`mavattitude.estimation.restnoise`): the magnetometer's σ per axis
+        (its largest) floors ``σ_m`` from the next update on (an effective σ is never below the reading's own
+        noise); before the start, the gyro bias is the one the filter starts from, ``P_bb`` its variance per axis
+        (a start after this one keeps the filter's own bias, as a restart does). True when it took the bias."""
+        s = self.settings
+        self._mag_var = max(s.mag_std_uT * s.mag_std_uT, mag_std_uT * mag_std_uT)
+        if self._started:
+            return False
+        self._ekf.bias = gyro_bias_radps
+        p_bb = tuple(min(std * std, s.gyro_bias_init_radps**2) for std in gyro_bias_std_radps)
+        self._p_bb_start = (p_bb[0], 0.0, 0.0, 0.0, p_bb[1], 0.0, 0.0, 0.0, p_bb[2])
+        return True
 
     def set_velocity(self, velocity: GpsVelocity) -> None:
         """The GPS receiver's velocity, received after the last sample: its differences are the vehicle's
@@ -430,7 +446,7 @@ class FusedFilter:
         if self._started:
             self._ekf.start(q, p_tt)  # type: ignore[arg-type]
         else:
-            self._ekf.start(q, p_tt, plus_diagonal(ZERO3, self.settings.gyro_bias_init_radps**2))  # type: ignore[arg-type]
+            self._ekf.start(q, p_tt, self._p_bb_start)  # type: ignore[arg-type]
         if mag is not None and not (self._started and self.heading_known):  # the field learnt anew
             self._mag.start(self._mag.corrected((float(mag[0]), float(mag[1]), float(mag[2]))))
             self.heading_known = True
