@@ -311,6 +311,32 @@ def _whole_frame(data: bytes) -> bool:
     return len(data) == mavlink2.HEADER_LEN_V2 + data[1] + 2 + signature
 
 
+class _FramePacker:
+    """One message's frames as pymavlink's MAVLink 2 ``pack`` makes them, unsigned, byte for byte: the payload by
+    the message's own struct (wire order), its trailing zero bytes cut (one kept), the header with the sender's
+    sequence number (then advanced, as ``MAVLink.send`` does), the CRC with the message's CRC extra. A fifth of
+    the Python of building pymavlink's message object and packing it."""
+
+    def __init__(self, cls: Any) -> None:
+        self._pack = cls.unpacker.pack
+        self._id = int(cls.id).to_bytes(3, "little")
+        self._crc_extra = bytes([cls.crc_extra])
+
+    def frame(self, mav: Any, *wire: Any) -> bytes:
+        payload = self._pack(*wire).rstrip(b"\0") or b"\0"
+        seq = mav.seq
+        mav.seq = (seq + 1) % 256
+        head = bytes((mavlink2.PROTOCOL_MARKER_V2, len(payload), 0, 0, seq, mav.srcSystem, mav.srcComponent))
+        frame = head + self._id + payload
+        crc = crc16.mcrf4xx(self._crc_extra, crc16.mcrf4xx(memoryview(frame)[1:]))
+        return frame + crc.to_bytes(2, "little")
+
+
+_QUATERNION = _FramePacker(mavlink2.MAVLink_attitude_quaternion_message)
+_QUATERNION_COV = _FramePacker(mavlink2.MAVLink_attitude_quaternion_cov_message)
+_NO_OFFSET = (0.0, 0.0, 0.0, 0.0)  # ATTITUDE_QUATERNION's repr_offset_q: none
+
+
 def _check_port_free(address: str) -> None:
     """Raise ``EADDRINUSE`` when another socket already holds this UDP address.
 
@@ -739,6 +765,8 @@ class MavlinkLink:
         writer = conn.mav.file if conn is not None else None
         if not isinstance(writer, _StampedWriter):
             return self._send_attitude(time_s, q, rates_radps, covariance)
+        if self._signing is None:  # else pymavlink packs and signs each
+            return self._write_frames(writer, self._attitude_frames(conn.mav, time_s, q, rates_radps, covariance))
         try:
             with writer.one_write():
                 return self._send_attitude(time_s, q, rates_radps, covariance)
@@ -747,6 +775,31 @@ class MavlinkLink:
             self.counters.send_failed += 1 + (covariance is not None)
             self._drop(exc)
             return False
+
+    def _attitude_frames(
+        self,
+        mav: Any,
+        time_s: float,
+        q: Sequence[float],
+        rates_radps: Sequence[float],
+        covariance: Sequence[float] | None,
+    ) -> list[bytes]:
+        """The frames :meth:`_send_attitude` sends, packed by :class:`_FramePacker` (unsigned)."""
+        frames = [_QUATERNION.frame(mav, units.time_boot_ms(time_s) & 0xFFFFFFFF, *q, *rates_radps, *_NO_OFFSET)]
+        if covariance is not None:
+            frames.append(_QUATERNION_COV.frame(mav, units.time_usec(time_s), *q, *rates_radps, *covariance))
+        return frames
+
+    def _write_frames(self, writer: _StampedWriter, frames: list[bytes]) -> bool:
+        """Packed frames in one write, counted sent, or failed and the link dropped."""
+        try:
+            writer.write(b"".join(frames))
+        except OSError as exc:
+            self.counters.send_failed += len(frames)
+            self._drop(exc)
+            return False
+        self.counters.sent += len(frames)
+        return True
 
     def _send_attitude(
         self, time_s: float, q: Sequence[float], rates_radps: Sequence[float], covariance: Sequence[float] | None

@@ -1,8 +1,9 @@
-"""The input message decoded straight from its frame by the link (no pymavlink message object): the same items,
-senders and counters as pymavlink's path, over real UDP on 127.0.0.1, and every other datagram handled as before.
+"""Frames the link handles without pymavlink's message objects: the input message decoded straight from its
+frame (the same items, senders and counters as pymavlink's path, over real UDP on 127.0.0.1, and every other
+datagram handled as before), and the attitude it sends packed byte for byte as pymavlink packs it.
 
-Each case sends the same datagrams twice, once read with the input message's :class:`DirectFrame` and once
-without (pymavlink decodes every frame), and compares what came out.
+Each reception case sends the same datagrams twice, once read with the input message's :class:`DirectFrame` and
+once without (pymavlink decodes every frame), and compares what came out.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavattitude.link import MavlinkLink
 from mavattitude.link.mavlink2 import mavlink2 as link_dialect
+from mavattitude.link.memory import MemoryLink
 from mavattitude.link.source import MavlinkDecoder, Undecodable
 from mavattitude.sensors import units
 from tests.link.peer import UdpPeer
@@ -163,3 +165,31 @@ def test_signed_input_checked_by_pymavlink_and_unsigned_refused_when_signing_is_
     assert allowed[0] == allowed[1]
     # unsigned input allowed: a bad signature is no worse than none (pymavlink's rule, kept)
     assert allowed[0][0] == [((1, 1), sample)] * 4 and allowed[0][1]["signature_rejected"] == 0
+
+
+def test_attitude_frames_are_pymavlinks_bytes():
+    """Trailing zero bytes cut as pymavlink cuts them (a zero rate, an all-zero covariance tail, NaN "unknown"),
+    the sequence shared with what pymavlink sends (the HEARTBEAT between), the one datagram per attitude."""
+    rng = np.random.default_rng(SEED)
+    link = MemoryLink(source_system=5)
+    reference = mavlink2.MAVLink(None, srcSystem=5, srcComponent=mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER)
+    cases = [(12.0, [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0] * 9), (0.0, [0.0] * 4, [0.0] * 3, None)]
+    for _ in range(20):
+        q = rng.normal(size=4)
+        cov = [float("nan")] + [0.0] * 8 if rng.random() < 0.3 else rng.normal(0, 1e-3, 9).tolist()
+        cases.append((float(rng.uniform(0, 5e6)), (q / np.linalg.norm(q)).tolist(), rng.normal(size=3).tolist(), cov))
+    for time_s, q, rates, cov in cases:
+        assert link.send_attitude(time_s, q, rates, cov)
+        expected = reference.attitude_quaternion_encode(units.time_boot_ms(time_s), *q, *rates, [0.0] * 4).pack(
+            reference
+        )
+        reference.seq += 1
+        if cov is not None:
+            expected += reference.attitude_quaternion_cov_encode(units.time_usec(time_s), q, *rates, cov).pack(
+                reference
+            )
+            reference.seq += 1
+        assert link.sent_bytes[-1] == expected
+        link.send_heartbeat()
+        reference.seq += 1
+    assert link.counters.sent == 3 * len(cases) - 1 and link.counters.send_failed == 0
