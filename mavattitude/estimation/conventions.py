@@ -187,11 +187,11 @@ def _shepperd_candidates(r: tuple) -> tuple[tuple, tuple]:
     # Antisymmetric (d*) and symmetric (s*) off-diagonal combinations.
     dx, dy, dz = r21 - r12, r02 - r20, r10 - r01
     sxy, sxz, syz = r01 + r10, r02 + r20, r12 + r21
-    candidates = (
-        (1 + trace, dx, dy, dz),
-        (dx, 1 + 2 * r00 - trace, sxy, sxz),
-        (dy, sxy, 1 + 2 * r11 - trace, syz),
-        (dz, sxz, syz, 1 + 2 * r22 - trace),
+    candidates = (  # float constants: an int operand takes CPython's slow mixed-type path (same values)
+        (1.0 + trace, dx, dy, dz),
+        (dx, 1.0 + 2.0 * r00 - trace, sxy, sxz),
+        (dy, sxy, 1.0 + 2.0 * r11 - trace, syz),
+        (dz, sxz, syz, 1.0 + 2.0 * r22 - trace),
     )
     return (trace, r00, r11, r22), candidates
 

@@ -112,8 +112,8 @@ def sym_solve(m: Sym, b: Vec) -> Vec:
 
 def sym_inverse(m: Sym) -> Sym:
     """``m⁻¹``; NaN where ``m`` is not positive definite."""
-    inv, adj = _inverse_det(m)
-    return tuple(e * inv for e in adj)  # type: ignore[return-value]
+    inv, (xx, xy, xz, yy, yz, zz) = _inverse_det(m)
+    return (xx * inv, xy * inv, xz * inv, yy * inv, yz * inv, zz * inv)
 
 
 def sym_add(a: Sym, b: Sym, k: Scalar = 1.0) -> Sym:
@@ -157,12 +157,12 @@ def unit_covariance(w: Vec, n: Scalar, var: Vec) -> Sym:
     k = 1.0 / (n * n)
     # (I − ŵŵᵀ) R (I − ŵŵᵀ) = R − ŵ(Rŵ)ᵀ − (Rŵ)ŵᵀ + (ŵᵀRŵ) ŵŵᵀ
     return (
-        (var[0] - 2 * w[0] * rw[0] + s * w[0] * w[0]) * k,
+        (var[0] - 2.0 * w[0] * rw[0] + s * w[0] * w[0]) * k,
         (-w[0] * rw[1] - rw[0] * w[1] + s * w[0] * w[1]) * k,
         (-w[0] * rw[2] - rw[0] * w[2] + s * w[0] * w[2]) * k,
-        (var[1] - 2 * w[1] * rw[1] + s * w[1] * w[1]) * k,
+        (var[1] - 2.0 * w[1] * rw[1] + s * w[1] * w[1]) * k,
         (-w[1] * rw[2] - rw[1] * w[2] + s * w[1] * w[2]) * k,
-        (var[2] - 2 * w[2] * rw[2] + s * w[2] * w[2]) * k,
+        (var[2] - 2.0 * w[2] * rw[2] + s * w[2] * w[2]) * k,
     )
 
 
@@ -348,8 +348,8 @@ def sym_congruence(a: Sym, s: Sym) -> Sym:
 
 def _outer_sym(x: Vec, y: Vec) -> Sym:
     """``x yᵀ + y xᵀ``."""
-    return (2 * x[0] * y[0], x[0] * y[1] + y[0] * x[1], x[0] * y[2] + y[0] * x[2],
-            2 * x[1] * y[1], x[1] * y[2] + y[1] * x[2], 2 * x[2] * y[2])  # fmt: skip
+    return (2.0 * x[0] * y[0], x[0] * y[1] + y[0] * x[1], x[0] * y[2] + y[0] * x[2],
+            2.0 * x[1] * y[1], x[1] * y[2] + y[1] * x[2], 2.0 * x[2] * y[2])  # fmt: skip
 
 
 def covariance(method: str, mag: tuple, acc: tuple) -> Sym:
@@ -390,8 +390,16 @@ def _sandwich(
         asum - a1 * w1[2] * w1[2] - a2 * w2[2] * w2[2],
     )
     b1, b2 = cross_sandwich(w1, r1), cross_sandwich(w2, r2)
-    middle = tuple(a1 * a1 * x + a2 * a2 * y for x, y in zip(b1, b2, strict=True))
-    return sym_congruence(sym_inverse(m), middle)  # type: ignore[arg-type]
+    aa1, aa2 = a1 * a1, a2 * a2
+    middle = (
+        aa1 * b1[0] + aa2 * b2[0],
+        aa1 * b1[1] + aa2 * b2[1],
+        aa1 * b1[2] + aa2 * b2[2],
+        aa1 * b1[3] + aa2 * b2[3],
+        aa1 * b1[4] + aa2 * b2[4],
+        aa1 * b1[5] + aa2 * b2[5],
+    )
+    return sym_congruence(sym_inverse(m), middle)
 
 
 def _equal(w: Vec, n: Scalar, var: Vec) -> Scalar:
