@@ -69,7 +69,8 @@ class Listener(Protocol):
         """An input sample from the vehicle, about to enter the pipeline."""
 
     def on_outputs(self, pushed: Pushed, t_rx: float) -> None:
-        """What the pipeline made of the last input sample (often nothing)."""
+        """What the pipeline made of the last input sample, when it made anything (an output, a reject, a
+        compass verdict): most samples complete no tick, and the listener is not called for them."""
 
     def on_autopilot_attitude(self, attitude: AutopilotAttitude, t_rx: float) -> None:
         """The autopilot's own attitude estimate."""
@@ -171,7 +172,8 @@ class Dispatcher:
         except Exception as exc:  # a bug below us: the sample is dropped, the listener decides what to say
             self._reject("internal_error", exc)
             return
-        self.listener.on_outputs(pushed, t_rx)
+        if pushed:
+            self.listener.on_outputs(pushed, t_rx)
 
     def _on_position(self, fix: PositionFix) -> None:
         p = fix.position

@@ -129,6 +129,10 @@ class Pushed:
     def reject(self, reason: str) -> None:
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
 
+    def __bool__(self) -> bool:
+        """Whether anything was produced (most samples complete no tick)."""
+        return bool(self.outputs or self.rejected or self.compass)
+
 
 @dataclass
 class PipelineCounters:

@@ -8,7 +8,7 @@ ticks the loop sleeps until the sample completing the next one can arrive at the
 (:mod:`mavattitude.link.arrivals`) and reads what came meanwhile in one pass, rather than wake for each sample;
 what waited through a sleep counts its latency from the sleep's start, so the latency is never understated.
 
-What it reads comes from a message source (:mod:`mavattitude.link.source`: the live link, decoded) through
+What it reads comes from the live link, decoded (:mod:`mavattitude.link.source`'s decoder), through
 the dispatcher (:mod:`mavattitude.dispatch`) that ``replay`` uses too: it locks onto the autopilot
 (``link.vehicle_system_id``, or with 0 the first autopilot HEARTBEAT; every other sender is ignored and
 counted) and routes the IMU samples into the pipeline and the positions to its magnetic reference. The
@@ -70,7 +70,7 @@ from mavattitude.link.arrivals import TickArrivals
 from mavattitude.link.logstreams import TILT_ONLY
 from mavattitude.link.requests import LOW_FRACTION, RateMonitor, StreamRequest
 from mavattitude.link.session import LinkSession
-from mavattitude.link.source import AutopilotAttitude, MavlinkDecoder, MavlinkSource, Sender
+from mavattitude.link.source import AutopilotAttitude, MavlinkDecoder, Sender
 from mavattitude.periodic import Every
 from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, Pushed
 from mavattitude.reports import (
@@ -196,8 +196,8 @@ def open_link(config: Config) -> MavlinkLink:
 class AttitudeService:
     """The loop: ``AttitudeService(config, link, pipeline).run(stop_event)`` returns the final counters.
 
-    ``link`` is what the service sends on; it reads from ``source``, by default ``link`` itself with the
-    config's input message and unit profile (:class:`~mavattitude.link.source.MavlinkSource`).
+    ``link`` is what the service reads and sends on; it reads with the config's input message and unit profile
+    (:class:`~mavattitude.link.source.MavlinkDecoder`, the input message decoded by the link from its frame).
     """
 
     def __init__(
@@ -206,12 +206,11 @@ class AttitudeService:
         link: MavlinkLink,
         pipeline: AttitudePipeline,
         notifier: SystemdNotifier | None = None,
-        source: MavlinkSource | None = None,
         alive_file: alive.AliveFile | None = None,
     ) -> None:
         self.config = config
         self.link = link
-        self.source = source if source is not None else MavlinkSource(link, MavlinkDecoder.from_config(config))
+        self.decoder = MavlinkDecoder.from_config(config)
         self.pipeline = pipeline
         self.notifier = notifier if notifier is not None else default_notifier()
         self.alive_file = alive_file if alive_file is not None else alive.AliveFile()
@@ -246,7 +245,6 @@ class AttitudeService:
             pipeline,
             self,
             system_id=config.link.vehicle_system_id,
-            vehicle=self.source.vehicle,
             counters=self.counters,
             wants_position=config.reference.magnetic.mode == "auto",
         )
@@ -274,8 +272,8 @@ class AttitudeService:
 
     def step(self, wait_s: float) -> None:
         """One pass of the loop: wait up to ``wait_s`` for input, handle all of it, then the periodic work due."""
-        handle = self.dispatcher.handle
-        for received in self.source.recv(wait_s, self._quiet_until()):
+        handle, decoder = self.dispatcher.handle, self.decoder
+        for received in self.link.recv_items(wait_s, decoder, decoder.direct, self._quiet_until()):
             handle(received)
         now = time.monotonic()
         if self._tick.due(now):
@@ -292,6 +290,8 @@ class AttitudeService:
     def _periodic(self, now: float) -> None:
         """The work due every ``TICK_S`` at most: the link's upkeep, the watches, what is said and touched."""
         self.session.tick(now)
+        if self.pipeline.frontend.per_sample != self._per_sample:
+            self._say_rate_handling()
         if self._rate is not None:
             self._check_rate(self._rate, now)
         if self._xcheck is not None and self._publish.due(now):
@@ -465,8 +465,6 @@ class AttitudeService:
         for event in pushed.compass:
             self._on_compass(event)
         outputs = pushed.outputs
-        if self.pipeline.frontend.per_sample != self._per_sample:
-            self._say_rate_handling()
         if outputs and (outputs[-1].flags & SampleFlag.NO_HEADING) != self._no_heading:
             self._say_tilt_only(bool(outputs[-1].flags & SampleFlag.NO_HEADING))
         for out in outputs:

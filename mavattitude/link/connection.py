@@ -32,7 +32,7 @@ from typing import Any
 
 from fastcrc import crc16
 
-from mavattitude.errors import InputError, LinkError, SigningError
+from mavattitude.errors import InputError, LinkError, SensorError, SigningError
 from mavattitude.link.mavlink2 import force_mavlink2, mavlink2, mavutil
 from mavattitude.link.signing import signing_timestamp_now, verify_signature
 from mavattitude.sensors import units
@@ -163,10 +163,12 @@ class _TcpServer(mavutil.mavtcpin):
 class DirectFrame:
     """A message the link decodes from its frame itself, without pymavlink's message object: ``decode`` takes the
     payload's fields as the frame carries them (wire order, pymavlink's ``unpacker`` of the message) and returns
-    the item to hand on (:meth:`MavlinkLink.recv_items`)."""
+    the item to hand on (:meth:`MavlinkLink.recv_items`), or raises :class:`SensorError`, handed on as
+    ``refused(error)``."""
 
     message_id: int
     decode: Callable[[tuple[Any, ...]], Any]
+    refused: Callable[[SensorError], Any]  # the item for fields ``decode`` refuses (raising SensorError)
 
 
 class _FrameReader:
@@ -181,6 +183,7 @@ class _FrameReader:
         self._unpack = cls.unpacker.unpack
         self._size = cls.unpacker.size
         self._decode = frame.decode
+        self._refused = frame.refused
 
     def read(self, data: bytes) -> tuple[Sender, Any] | None:
         """The sender and item of ``data``, or None when it is not such a frame (or its CRC is wrong)."""
@@ -194,7 +197,10 @@ class _FrameReader:
         payload = data[mavlink2.HEADER_LEN_V2 : end]
         if len(payload) != self._size:  # MAVLink 2 drops trailing zero bytes; pymavlink pads, or cuts a long one
             payload = (payload + bytes(self._size))[: self._size]
-        return (data[5], data[6]), self._decode(self._unpack(payload))
+        try:
+            return (data[5], data[6]), self._decode(self._unpack(payload))
+        except SensorError as exc:
+            return (data[5], data[6]), self._refused(exc)
 
 
 class DatagramConnection:
@@ -221,7 +227,8 @@ class DatagramConnection:
         # Complete frames still buffered from the last datagram. The parser is called only when bytes are
         # left (one frame per datagram is usual): a call on nothing is a third of its calls per message, and
         # with robust parsing it changes no state.
-        msg = self.mav.parse_char(b"") if self.mav.buf_len() else None
+        mav = self.mav
+        msg = mav.parse_char(b"") if len(mav.buf) > mav.buf_index else None  # pymavlink's buf_len(), inline
         if msg is None:
             data = self.recv()
             if not data:

@@ -22,8 +22,6 @@ DataFlash ``.bin``, ULog ``.ulg``: :func:`mavattitude.link.logs.open_log`) all p
 from __future__ import annotations
 
 import datetime as dt
-import math
-import operator
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -116,7 +114,6 @@ class MavlinkDecoder:
     _routes: dict[str, Callable[[Message], Any]] = field(init=False, repr=False)
     vehicle_date: dt.date | None = field(default=None, init=False)
     direct: DirectFrame = field(init=False, repr=False)  # the input message, decoded from its frame by the link
-    _wire: Callable[[tuple[Any, ...]], tuple[Any, Any, Any]] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         self._routes = {
@@ -126,8 +123,9 @@ class MavlinkDecoder:
             **dict.fromkeys(units.POSITION_MESSAGES, self._position),
             "SYSTEM_TIME": self._system_time,
         }
-        self._wire = _wire_fields(self.message)
-        self.direct = DirectFrame(message_id(self.message), self._imu_fields)
+        frame = mavlink2.mavlink_map[message_id(self.message)]
+        at = dict(zip(frame.fieldnames, frame.orders, strict=True))  # each field's place in the unpacked payload
+        self.direct = DirectFrame(frame.id, units.wire_decoder(self.message, self.profile, at), Undecodable)
 
     @classmethod
     def from_config(cls, config: Config, date_of: Callable[[Message], dt.date | None] | None = None) -> MavlinkDecoder:
@@ -149,13 +147,6 @@ class MavlinkDecoder:
         except SensorError as exc:
             return Undecodable(exc)
 
-    def _imu_fields(self, wire: tuple[Any, ...]) -> Any:
-        """The input message from the fields of its frame (wire order): what :meth:`_imu` makes of the message."""
-        try:
-            return units.decode_fields(self.message, *self._wire(wire), self.profile)
-        except SensorError as exc:
-            return Undecodable(exc)
-
     def _system_time(self, msg: Message) -> None:
         self.vehicle_date = units.decode_utc_date(msg) or self.vehicle_date
 
@@ -168,19 +159,6 @@ class MavlinkDecoder:
         if self.vehicle_date is not None:
             return PositionFix(position, self.vehicle_date, velocity)
         return PositionFix(position, self.date_of(msg) if self.date_of is not None else None, velocity)
-
-
-def _wire_fields(message: str) -> Callable[[tuple[Any, ...]], tuple[Any, Any, Any]]:
-    """Where an IMU message's fields sit in its payload as unpacked (pymavlink's wire order): the time field,
-    :data:`~mavattitude.sensors.units.IMU_FIELDS` and ``fields_updated`` (0 where the message has none), as
-    :func:`~mavattitude.sensors.units.decode_fields` takes them."""
-    cls = mavlink2.mavlink_map[message_id(message)]
-    at = dict(zip(cls.fieldnames, cls.orders, strict=True))
-    imu = operator.itemgetter(*(at[name] for name in units.IMU_FIELDS))
-    time_at, updated_at = at[units.LAYOUTS[message].time_field], at.get("fields_updated")
-    if updated_at is None:
-        return lambda wire: (wire[time_at], imu(wire), 0)
-    return lambda wire: (wire[time_at], imu(wire), wire[updated_at])
 
 
 def _heartbeat(msg: Message) -> Heartbeat:
@@ -196,7 +174,7 @@ def _attitude_quaternion(msg: Message) -> AutopilotAttitude:
 
 
 class MavlinkSource:
-    """The live link as a message source: :meth:`MavlinkLink.recv` through a :class:`MavlinkDecoder`."""
+    """The live link as a message source: :meth:`MavlinkLink.recv_items` through a :class:`MavlinkDecoder`."""
 
     vehicle: Sender | None = None
     finished = False
@@ -206,6 +184,5 @@ class MavlinkSource:
         self.decoder = decoder
         self.name = link.endpoint.address
 
-    def recv(self, timeout_s: float, quiet_until: float = -math.inf) -> list[Received]:
-        """What arrived within ``timeout_s``; nothing is awaited before ``quiet_until`` (the link may sleep)."""
-        return self.link.recv_items(timeout_s, self.decoder, self.decoder.direct, quiet_until)
+    def recv(self, timeout_s: float) -> list[Received]:
+        return self.link.recv_items(timeout_s, self.decoder, self.decoder.direct)

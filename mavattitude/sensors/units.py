@@ -30,7 +30,7 @@ import datetime as dt
 import itertools
 import math
 import operator
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
@@ -295,6 +295,19 @@ def decode_fields(
         saturated,
         layout.integer,
     )
+
+
+def wire_decoder(kind: str, profile: UnitProfile, at: Mapping[str, int]) -> Callable[[Sequence[Any]], ImuSample]:
+    """:func:`decode_fields` on a message's fields as its frame's payload unpacks them (the MAVLink library's wire
+    order), ``at`` giving each field's place: what the live link decodes its input message with."""
+    imu = operator.itemgetter(*(at[name] for name in IMU_FIELDS))
+    time_at, updated_at = at[LAYOUTS[kind].time_field], at.get("fields_updated")
+
+    def decode_wire(wire: Sequence[Any]) -> ImuSample:
+        updated = 0 if updated_at is None else wire[updated_at]
+        return decode_fields(kind, wire[time_at], imu(wire), updated, profile)
+
+    return decode_wire
 
 
 @dataclass
