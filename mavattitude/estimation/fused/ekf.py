@@ -94,13 +94,10 @@ class ErrorStateFilter:
         r, c = rotation_matrix_parts(self.dq), -0.5 * t  # R(Δq), row-major; A(Δq) = R(Δq)ᵀ
         # Φ = [[A, c (I + A)], [0, I]] by blocks: with X = [A, c (I + A)] P = A Y + c [P_θbᵀ, P_bb],
         # Y = [P_θθ + c P_θbᵀ, P_θb + c P_bb]: P_θb ← X_b, P_θθ ← (X_θ + c X_b) Aᵀ + c X_b.
-        tt, tb, bb = self.p_tt, self.p_tb, self.p_bb
-        x_t = m3.tmm_shift(r, tt, c, tb)
-        x_b = m3.tmm_shift(r, tb, c, bb)  # P_bb is symmetric: read transposed, it is itself
+        bb = self.p_bb
         noise2, scale2, walk2 = self._q_noise
         angle = self.angle_rad
-        self.p_tt = m3.mm_shift_sym(x_t, c, x_b, r, noise2 * t + scale2 * (angle * angle))  # Aᵀ = R(Δq)
-        self.p_tb = x_b
+        self.p_tt, self.p_tb = m3.propagated(r, c, self.p_tt, self.p_tb, bb, noise2 * t + scale2 * (angle * angle))
         self.p_bb = m3.plus_diagonal(bb, walk2 * t)
         dq = self.dq
         if t != 0.0:  # current_q(), written out: a call per update
