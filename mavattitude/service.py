@@ -273,7 +273,10 @@ class AttitudeService:
     def step(self, wait_s: float) -> None:
         """One pass of the loop: wait up to ``wait_s`` for input, handle all of it, then the periodic work due."""
         handle, decoder = self.dispatcher.handle, self.decoder
-        for received in self.link.recv_items(wait_s, decoder, decoder.direct, self._quiet_until()):
+        quiet_until = self._quiet_until()
+        # periodic work due before the next tick's sample can come waits for it (within a TICK_S): no wake of its own
+        wait_s = max(wait_s, min(quiet_until - time.monotonic(), TICK_S))
+        for received in self.link.recv_items(wait_s, decoder, decoder.direct, quiet_until):
             handle(received)
         now = time.monotonic()
         if self._tick.due(now):
