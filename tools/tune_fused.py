@@ -35,6 +35,10 @@ fold never tunes on a sibling of what it is scored on (13 folds).
 the last rest window instead, with its dip off by ±3° and its strength off by ±8 %; then a row per variant:
 geometric mean and worst of fused/VQF, losses to imufusion, the geometric mean against the first row's.
 
+``--motion-field``: the same with the field where the body moves 5 % stronger and 5 % weaker than at the rest spot,
+its direction kept (the magnetometer scaled from the first movement sample on; VQF and imufusion re-run on the same
+data): a field off in strength but not in heading, which the strength-based weight takes for one off in heading.
+
 ``--field``: per trial, the measured field turned into NED by the true attitude over the movement phase against
 the reference: its heading (mean, RMS; the white part, one 50 Hz update to the next; the slow part, its 20 s running
 mean), strength ratio and dip difference, beside the gyro's own heading drift over 5 and 20 s and the
@@ -100,15 +104,23 @@ DEFAULT_TUNED = ("accel_lowpass_s", "accel_lag_gain", "accel_norm_gain", "mag_st
 #: The reference field's variants the figures must survive: as the validation takes it (the opening rest), from
 #: the last rest window instead, the dip off by ±3°, the strength off by ±8 %.
 REFERENCES = ("first rest", "last rest", "inclination +3°", "inclination -3°", "strength +8%", "strength -8%")
+#: The field where the body moves, stronger or weaker than at the rest spot with its direction kept (the magnetometer
+#: scaled from the first movement sample on): what the strength-based weight takes for a field off in heading.
+MOTION_FIELDS = ("motion field +5%", "motion field -5%")
 
 
 @functools.cache
 def recording(trial: str, reference: str = REFERENCES[0]) -> Recording:
-    """The trial, its magnetic reference one of :data:`REFERENCES`."""
+    """The trial, its magnetic reference one of :data:`REFERENCES`, or its field in motion one of
+    :data:`MOTION_FIELDS`."""
     (path,) = DATA_DIR.glob(f"{trial}_*.csv.gz")
     rec = load_recording(path)
     if reference == REFERENCES[0]:
         return rec
+    if reference in MOTION_FIELDS:
+        mag = rec.mag_uT.copy()
+        mag[np.argmax(rec.movement) :] *= 1.0 + float(reference.rpartition(" ")[2].rstrip("%")) / 100.0
+        return dataclasses.replace(rec, mag_uT=mag)
     field = _last_rest_field(rec) if reference == "last rest" else rec.reference.field_ned_uT
     strength, dip = float(np.linalg.norm(field)), math.atan2(field[2], field[0])
     kind, _, amount = reference.partition(" ")
@@ -162,12 +174,14 @@ def imufusion_with_bias(rec: Recording, gain: float = 0.1) -> np.ndarray:
     return ned_from_enu(q)
 
 
-def peer_scores(trial: str) -> dict[str, float]:
-    """Movement-phase RMS total (degrees) of VQF and imufusion on a trial, cached on disk."""
-    path = CACHE_DIR / f"{trial}.npz"
+def peer_scores(trial: str, reference: str = REFERENCES[0]) -> dict[str, float]:
+    """Movement-phase RMS total (degrees) of VQF and imufusion on a trial, cached on disk; on its field in motion
+    changed (:data:`MOTION_FIELDS`) they run on the same changed data (their reference is their own)."""
+    motion = reference in MOTION_FIELDS
+    path = CACHE_DIR / (f"{trial} {reference}.npz" if motion else f"{trial}.npz")
     if path.exists():
         return {k: float(v) for k, v in np.load(path).items()}
-    rec = recording(trial)
+    rec = recording(trial, reference if motion else REFERENCES[0])
     q = {"vqf": estimate_peer(rec, "vqf").q, "imufusion": imufusion_with_bias(rec)}
     scores = {k: score_broad(v, rec.truth_q, rec.movement, rec.rest).movement.total_deg for k, v in q.items()}
     CACHE_DIR.mkdir(parents=True, exist_ok=True)
@@ -242,14 +256,17 @@ def filter_row(settings: FusedSettings, reference: str = REFERENCES[0]) -> Row:
     return row
 
 
-def table(trials: Sequence[str], row: Row, note: str = "counters") -> tuple[float, float, int]:
+def table(
+    trials: Sequence[str], row: Row, note: str = "counters", reference: str = REFERENCES[0]
+) -> tuple[float, float, int]:
     """The per-trial table (``row(trial)``: total, heading, inclination, a note) and the summary line; the
-    summary's figures: geometric mean and worst of fused/VQF, trials worse than imufusion."""
+    summary's figures: geometric mean and worst of fused/VQF, trials worse than imufusion (the peers on the
+    ``reference`` variant's data)."""
     print(f"{'trial':6}{'fused':>7}{'head':>7}{'incl':>7}{'VQF':>7}{'imuf':>7}{'f/VQF':>7}{'f/imuf':>7}  {note}")
     r_vqf, losses = [], []
     for trial in trials:
         total, heading, incl, text = row(trial)
-        peers = peer_scores(trial)
+        peers = peer_scores(trial, reference)
         r_vqf.append(total / peers["vqf"])
         if total > peers["imufusion"]:
             losses.append(trial)
@@ -265,12 +282,13 @@ def table(trials: Sequence[str], row: Row, note: str = "counters") -> tuple[floa
     return geomean(r_vqf), max(r_vqf), len(losses)
 
 
-def reference_robustness(trials: Sequence[str], settings: FusedSettings) -> None:
-    """The table under each reference variant (:data:`REFERENCES`), then one summary row per variant."""
+def reference_robustness(trials: Sequence[str], settings: FusedSettings, variants: Sequence[str] = REFERENCES) -> None:
+    """The table under each reference variant (:data:`REFERENCES`, or the unchanged data and
+    :data:`MOTION_FIELDS`), then one summary row per variant."""
     rows = []
-    for reference in REFERENCES:
+    for reference in variants:
         print(f"- reference: {reference}", flush=True)
-        rows.append((reference, *table(trials, filter_row(settings, reference))))
+        rows.append((reference, *table(trials, filter_row(settings, reference), reference=reference)))
     first = rows[0][1]
     print(f"{'reference':18}{'geomean':>9}{'worst':>7}{'losses':>8}{'vs first':>10}")
     for reference, mean, worst, losses in rows:
@@ -484,6 +502,9 @@ def main() -> int:
         "--references", action="store_true", help="the table under each reference-field variant, and their summary"
     )
     parser.add_argument(
+        "--motion-field", action="store_true", help="the table with the field in motion ±5 %% stronger, and a summary"
+    )
+    parser.add_argument(
         "--field", action="store_true", help="the field in the motion volume (by the truth) against the reference"
     )
     parser.add_argument("--descend", action="store_true", help="coordinate descent of --tune on --trials")
@@ -511,6 +532,8 @@ def main() -> int:
         leave_groups_out(recording_groups(TRAINING), settings, args.tune)
     elif args.references:
         reference_robustness(args.trials, settings)
+    elif args.motion_field:
+        reference_robustness(args.trials, settings, (REFERENCES[0], *MOTION_FIELDS))
     elif args.field:
         field_in_motion(args.trials, settings)
     elif args.descend:
