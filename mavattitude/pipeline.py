@@ -412,9 +412,12 @@ class FusedEstimator:
             return
         if self._filter is not None:
             self._hand_over(self._filter, rest, sample.time_s)
+        level = logging.INFO if rest.updated_s == rest.since_s else logging.DEBUG  # said once, the first time
+        if not log.isEnabledFor(level):  # the figures formatted only to be said (a block a second at rest)
+            return
         measured, bias = rest.measured, rest.gyro_bias_radps
         log.log(
-            logging.INFO if rest.updated_s == rest.since_s else logging.DEBUG,  # said once, the first time
+            level,
             "t=%.1f s: noise measured at rest over %.0f s: gyro bias %s rad/s, the fused filter's start from now on; "
             "mag σ %s µT, the floor of its σ_m (%.3g µT); accel σ %s m/s² (its σ_a is of the pre-filtered specific "
             "force: not floored)",

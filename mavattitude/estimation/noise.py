@@ -21,7 +21,10 @@ from . import kernel
 
 def _sigmas(name: str, value: float | Sequence[float]) -> tuple[float, float, float]:
     try:
-        sig = tuple(float(s) for s in np.broadcast_to(np.asarray(value, dtype=float), (3,)))
+        if type(value) is tuple and len(value) == 3:  # the usual form, without numpy (a measurement's, every second)
+            sig = (float(value[0]), float(value[1]), float(value[2]))
+        else:
+            sig = tuple(float(s) for s in np.broadcast_to(np.asarray(value, dtype=float), (3,)))
     except (TypeError, ValueError) as exc:
         raise InputError(f"{name} must be one σ or three per-axis σ (x, y, z), got {value!r}") from exc
     if not all(s > 0.0 and 0.0 < s * s < math.inf for s in sig):  # σ² must neither overflow nor underflow
