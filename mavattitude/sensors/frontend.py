@@ -485,8 +485,8 @@ class FrontEnd:
                     c.redesigns += redesigned
         imu = self._imu
         status, redesigned = imu.push(t, _apply(self._acc, acc) + _apply(self._gyr, gyr))
-        if status or redesigned or imu.slow != self.per_sample:
-            c.redesigns += redesigned
+        c.redesigns += redesigned
+        if status != CONTINUED or imu.slow != self.per_sample:
             self._restart_ticks(t, status)
         elif t < self._next_tick_s and self._gridded and not self.per_sample:
             return []  # most samples of a filtered stream complete no tick
@@ -498,10 +498,9 @@ class FrontEnd:
             self.counters.gap_resets += 1
             limit_s = self._imu.gap_limit_s  # (the gap among the intervals now: the median barely moves)
             log.warning("input gap longer than %.3g s before %.3f s: filter restarted", limit_s, t)
-        if status != CONTINUED or self._imu.slow != self.per_sample:
-            self._pending_reset = True
-            self._set_next_tick(first_tick(t, self.settings.output_rate_hz))
-            self.per_sample = self._imu.slow
+        self._pending_reset = True
+        self._set_next_tick(first_tick(t, self.settings.output_rate_hz))
+        self.per_sample = self._imu.slow
 
     def _set_next_tick(self, k: int) -> None:
         self._next_k = k
