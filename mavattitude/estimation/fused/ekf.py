@@ -86,7 +86,7 @@ class ErrorStateFilter:
     def current_q(self) -> Quat:
         if self.duration_s == 0.0:  # just propagated: q is already normalised, with w ≥ 0
             return self.q
-        return quat_normalize_parts(quat_multiply_parts(self.q, self.dq))
+        return _composed(self.q, self.dq)
 
     def propagate(self) -> None:
         """Move the interval's rotation into ``q`` (and ``q_gyro``) and propagate ``P`` over it (``Φ``)."""
@@ -101,8 +101,8 @@ class ErrorStateFilter:
         self.p_bb = m3.plus_diagonal(bb, walk2 * t)
         dq = self.dq
         if t != 0.0:  # current_q(), written out: a call per update
-            self.q = quat_normalize_parts(quat_multiply_parts(self.q, dq))
-        self.q_gyro = quat_normalize_parts(quat_multiply_parts(self.q_gyro, dq))
+            self.q = _composed(self.q, dq)
+        self.q_gyro = _composed(self.q_gyro, dq)
         self.dq, self.duration_s, self.angle_rad = IDENTITY_Q, 0.0, 0.0
 
     def update(
@@ -176,7 +176,7 @@ class ErrorStateFilter:
         """``q ← q_z(angle) ⊗ q``: the attitude turned about NED down (north moved, the body did not). ``P`` is of
         body-frame errors, and the gyro-only ``q_gyro`` keeps a frame of its own: both unchanged."""
         half = 0.5 * angle_rad
-        self.q = quat_normalize_parts(quat_multiply_parts((math.cos(half), 0.0, 0.0, math.sin(half)), self.q))
+        self.q = _composed((math.cos(half), 0.0, 0.0, math.sin(half)), self.q)
 
     def reset(self) -> None:
         """Move the estimated error state ``[δθ, δb]`` into the nominal ``q`` and ``b``."""
@@ -190,6 +190,23 @@ class ErrorStateFilter:
 
 
 _ZERO_DX: tuple[float, ...] = (0.0,) * 6
+
+
+def _composed(q: Quat, p: Quat) -> Quat:
+    """``q ⊗ p`` normalised (``w ≥ 0``): quat_normalize_parts(quat_multiply_parts(q, p)) in one call, the same
+    floats (two quaternions an update)."""
+    qw, qx, qy, qz = q
+    pw, px, py, pz = p
+    w = qw * pw - qx * px - qy * py - qz * pz
+    x = qw * px + qx * pw + qy * pz - qz * py
+    y = qw * py - qx * pz + qy * pw + qz * px
+    z = qw * pz + qx * py - qy * px + qz * pw
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    if w < 0.0:
+        n = -n
+    return (w / n, x / n, y / n, z / n)
+
+
 _SMALL_ANGLE2 = 1e-4  # rad²: below 0.01 rad, rotated() spares sin, cos and the square root
 
 
@@ -199,7 +216,7 @@ def rotated(q: Quat, vx: float, vy: float, vz: float) -> Quat:
     filter update's correction (99 % below 1e-3 rad on BROAD) or an output tick's carry costs no libm call."""
     angle2 = vx * vx + vy * vy + vz * vz
     if angle2 >= _SMALL_ANGLE2:
-        return quat_normalize_parts(quat_multiply_parts(q, quat_from_rotvec_parts(vx, vy, vz)))
+        return _composed(q, quat_from_rotvec_parts(vx, vy, vz))
     t = 0.5 + angle2 / 24.0
     a0, a1, a2 = t * vx, t * vy, t * vz
     w, x, y, z = q
