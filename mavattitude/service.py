@@ -218,7 +218,7 @@ class AttitudeService:
         self._input_name = config.input.message
         self._limiter = _RateLimiter(config.output.statustext_interval_s, time.monotonic)
         self._latencies_s: list[float] = []
-        self._arrivals = TickArrivals(pipeline.frontend.settings.output_rate_hz)
+        self._arrivals = TickArrivals()
         self._last_input: float | None = None
         self._input_lost = False
         self._per_sample = False  # the input too slow to filter, as last said (_say_rate_handling)
@@ -284,9 +284,8 @@ class AttitudeService:
 
     def _quiet_until(self) -> float:
         """Until when no input can complete an output tick (:class:`TickArrivals`): the link may sleep till then.
-        Never while each sample is a tick (a slow or unfiltered input) or the input is silent."""
-        frontend = self.pipeline.frontend
-        if frontend.per_sample or not frontend.settings.filter_enabled or self._input_lost:
+        Never while each sample is a tick (an input too slow to filter) or the input is silent."""
+        if self.pipeline.frontend.per_sample or self._input_lost:
             return -math.inf
         return self._arrivals.earliest()
 
@@ -516,6 +515,7 @@ class AttitudeService:
         covariance = out.covariance_or_nan().ravel().tolist() if self.config.output.covariance else None
         if not self.link.send_attitude(out.time_s, q, rates_radps, covariance):
             return
+        self._arrivals.output(out.time_s)
         latency_s = self.link.last_send_s - t_rx
         self.counters.emitted += 1
         if len(self._latencies_s) < MAX_LATENCY_SAMPLES:

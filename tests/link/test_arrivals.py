@@ -28,45 +28,64 @@ def _stream(rng: np.random.Generator, n: int, jitter_s: float) -> tuple[np.ndarr
     return t, 500.0 + t + FLOOR_S + rng.exponential(jitter_s, n)
 
 
-def _tick_samples(t: np.ndarray) -> np.ndarray:
-    """Which samples complete a tick: the first at or after each k / OUTPUT_HZ."""
-    k = np.floor(t * OUTPUT_HZ)
-    return np.concatenate([[False], k[1:] > k[:-1]]) | np.concatenate([[False], np.isclose(t[1:] * OUTPUT_HZ, k[1:])])
+def _ticks(t: np.ndarray, start_s: float) -> np.ndarray:
+    """Each sample's output tick (NaN for none): the ticks start_s + k / OUTPUT_HZ, each emitted by the first sample
+    at or after it (the front end's grid with start_s 0, the fused filter's from its first sample)."""
+    k = np.floor((t - start_s) * OUTPUT_HZ)
+    first = np.concatenate([[True], k[1:] > k[:-1]])
+    return np.where(first, start_s + k / OUTPUT_HZ, np.nan)
 
 
-def test_forecast_never_after_the_tick_sample_and_sleeps_through_most_others():
+@pytest.mark.parametrize("start_s", [0.0, 10.0123])
+def test_forecast_never_after_the_tick_sample_and_sleeps_through_most_others(start_s):
     rng = np.random.default_rng(SEED)
     t, t_rx = _stream(rng, 4000, jitter_s=0.0005)
-    arrivals = TickArrivals(OUTPUT_HZ)
-    ticks = _tick_samples(t)
+    ticks = _ticks(t, start_s)
+    emits = np.flatnonzero(np.isfinite(ticks))
+    arrivals = TickArrivals()
     late, quiet = 0, 0
-    last_tick = int(np.flatnonzero(ticks)[-1])
-    for i in range(last_tick):
+    for i in range(emits[-1]):
         arrivals.add(t[i], t_rx[i])
+        if np.isfinite(ticks[i]):
+            arrivals.output(float(ticks[i]))
         earliest = arrivals.earliest()
-        nxt = i + 1 + int(np.argmax(ticks[i + 1 :]))  # the next tick's sample
-        late += earliest > t_rx[nxt]
+        late += earliest > t_rx[emits[emits > i][0]]  # the sample emitting the next tick
         quiet += earliest > t_rx[i + 1]  # the very next sample arrives while the loop sleeps
     assert late == 0
-    assert quiet > 0.5 * last_tick  # three samples of four arrive in the sleep before the tick's
+    assert quiet > 0.5 * emits[-1]  # two samples of four or more arrive in the sleep before the tick's
 
 
 def test_a_tick_sample_that_came_early_lowers_the_floor():
-    arrivals = TickArrivals(OUTPUT_HZ)
+    arrivals = TickArrivals()
     delay_s = 100.0 + FLOOR_S  # the two clocks' offset and the floor
     for i in range(40):
         arrivals.add(1.0 + i / RATE_HZ, 1.0 + i / RATE_HZ + delay_s)
+        if i % 4 == 0:
+            arrivals.output(1.0 + i / RATE_HZ)
     t_tick = 1.0 + 40 / RATE_HZ
     forecast = arrivals.earliest()
     assert forecast == pytest.approx(t_tick + delay_s - MARGIN_S, abs=1e-9)  # float rounding of the sums
     # the path got 2 ms faster: the tick's sample waited through a sleep that began 2 ms before its forecast
     arrivals.add(t_tick, t_tick + delay_s - 0.002, backlog=True)
+    arrivals.output(t_tick)
     next_tick = t_tick + 4 / RATE_HZ
     assert arrivals.earliest() == pytest.approx(next_tick + delay_s - 0.002 - MARGIN_S, abs=1e-9)
     arrivals.add(t_tick + 1 / RATE_HZ, t_tick + 1.0, backlog=True)  # before the next tick: says nothing of the floor
     assert arrivals.earliest() == pytest.approx(next_tick + delay_s - 0.002 - MARGIN_S, abs=1e-9)
     arrivals.forget()
     assert arrivals.earliest() == -math.inf
+
+
+def test_a_tick_out_of_step_with_the_samples_is_not_trusted():
+    """A vehicle clock that went back (a reboot) or wrapped leaves the last output far from the new samples: the
+    forecast falls back to the next sample's earliest arrival, never to the stale tick."""
+    arrivals = TickArrivals()
+    for i in range(40):
+        arrivals.add(500.0 + i / RATE_HZ, 600.0 + i / RATE_HZ)
+        if i % 4 == 0:
+            arrivals.output(500.0 + i / RATE_HZ)
+    arrivals.add(0.5, 600.2)  # rebooted: 0.5 s on its clock
+    assert arrivals.earliest() == pytest.approx(0.5 + 1 / RATE_HZ + 100.0 - MARGIN_S, abs=1e-9)
 
 
 def _raw_imu(peer: UdpPeer, time_s: float) -> bytes:
