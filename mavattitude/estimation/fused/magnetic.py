@@ -5,11 +5,13 @@ Disturbance measure — field magnitude and dip against the reference, the dip m
 
     d = max(| |m| − |m_ref| | / (τ_n |m_ref|),  |δ(m, q) − δ_ref| / (τ_δ + 3 √tr P_θθ))
 
-``|m_ref|`` and ``δ_ref`` are the magnitude and dip as this magnetometer measures them here, learnt (running
-means, from the reference's) over the first ``mag_reference_s`` of clean field from start-up: the reference
-sets the heading (its horizontal direction), the data the field the checks compare with, so a reference off
-by 8 % in strength or 3° in dip (a model, another rest spot) changes nothing. ``d ≥ 1``: disturbed, the
-magnetometer updates nothing.
+``|m_ref|`` and ``δ_ref`` are the magnitude and dip as this magnetometer measures them here, learnt from the
+clean field from start-up on: a running mean (from the reference's) over the first ``τ_ref =
+mag_reference_s``, then a first-order low-pass of time constant ``τ_ref`` (the running mean's count held at
+``τ_ref`` / period), so a field that differs where the body moves from where it rested is followed rather
+than weighed as a heading error. The reference sets the heading (its horizontal direction), the data the
+field the checks compare with, so a reference off by 8 % in strength or 3° in dip (a model, another rest
+spot) changes nothing. ``d ≥ 1``: disturbed, the magnetometer updates nothing.
 ``d < 1``: ``σ_m'² = σ_m² (1 + (d/d₀)⁶) ρ``, with the recovery factor after a disturbance that lasted
 ``T_c``: ``ρ = 1 + (ρ₀ − 1) min(1, T_c/T_r) max(0, 1 − t_clean/T_r)``. The sixth power keeps the weight
 flat near the reference, where ``d`` is calibration residue and noise (BROAD's clean field: ``d`` ≲ 0.45),
@@ -25,9 +27,18 @@ While the field is disturbed the heading coasts on the gyro, and the residual ``
 (``B``: the reference direction with the learnt magnitude and dip) is gathered over ``mag_offset_window_s``.
 If over that window the body turned (the predicted field direction moved: ``1 − |mean(A(q) B̂)| ≥
 mag_offset_turn_fraction``, which separates a body-fixed offset from an earth-fixed disturbance) and the
-residual stayed constant (RMS about its mean below ``τ_n |m_ref|``), its mean is added to ``o``; the
-corrected field ``m − o`` then passes the checks and the magnetometer corrects the heading again. A
-window that fails either test starts again.
+residual stayed constant (RMS about its mean below ``τ_n |m_ref|``) and did not follow the predicted field
+direction ``ĥ = A(q) B̂``, its mean is added to ``o``; the corrected field ``m − o`` then passes the checks
+and the magnetometer corrects the heading again. A window that fails a test starts again.
+
+The last test separates an offset from a field of another strength: that leaves ``e = k ĥ`` (``k``: the
+strength error), whose spread about its mean is small when the body turns little, and a mean that is no
+offset. The share of the residual's spread that follows ``ĥ`` (a squared correlation over the window)::
+
+    r² = cov(e, ĥ)² / (var(e) var(ĥ)),  cov(e, ĥ) = mean(e·ĥ) − mean(e)·mean(ĥ),  var(ĥ) = 1 − |mean(ĥ)|²
+
+is 1 for a pure strength error and 0 for a constant offset; a window with ``r² > mag_offset_scale_r2`` is
+refused.
 """
 
 from __future__ import annotations
@@ -55,7 +66,7 @@ class MagneticChecks:
         self._clean_since_s = -math.inf
         self._coast_s = 0.0
         self.offset_uT: Vec3 = (0.0, 0.0, 0.0)
-        self._window = [0.0] * 9  # n, Σe (3), Σ|e|², Σĥ (3), disturbed samples: one window from a disturbance on
+        self._window = _OffsetWindow()  # one window from a disturbance on
         self._window_start_s = math.inf
 
     def set_reference(self, field_ned_uT: Vec3, acc_ref_unit: Vec3, started: bool) -> None:
@@ -105,9 +116,11 @@ class MagneticChecks:
         relearned = disturbed and time_s - self._disturbed_since_s >= self.s.mag_relearn_s
         if relearned:
             self._disturbed_since_s, self._field_n, self.dip_ref = time_s, 0.0, dip
-        if (disturbed and not relearned) or self._field_n * self.period_s >= self.s.mag_reference_s:
+        if disturbed and not relearned:
             return relearned
-        self._field_n += 1.0
+        # A running mean over the first τ_ref, then a low-pass of time constant τ_ref: the count held there.
+        n, held = self._field_n + 1.0, self.s.mag_reference_s / self.period_s
+        self._field_n = n if n < held else held  # not min(): the builtin parses its arguments, every update
         self.norm_ref += (norm - self.norm_ref) / self._field_n
         self.dip_ref += (dip - self.dip_ref) / self._field_n
         return relearned
@@ -136,34 +149,57 @@ class MagneticChecks:
 
     def learn_offset(self, mag: Vec3, r: Sequence[float], time_s: float) -> bool:
         """Gather ``e = m − o − A(q) B`` over windows (``r``: R(q)); True when a window's mean was added to ``o``."""
-        s = self.s
-        if s.mag_offset_window_s == 0.0:
+        if self.s.mag_offset_window_s == 0.0:
             return False
         if time_s < self._window_start_s:
             if not self.disturbed:
                 return False
-            self._window, self._window_start_s = [0.0] * 9, time_s
-        w, norm, predicted = self._window, self.norm_ref, self.predicted_body(r)
-        e = (mag[0] - predicted[0], mag[1] - predicted[1], mag[2] - predicted[2])
-        w[0] += 1.0
-        w[8] += self.disturbed
-        for i in range(3):
-            w[1 + i] += e[i]
-            w[5 + i] += predicted[i] / norm
-        w[4] += dot(e, e)
-        if time_s - self._window_start_s < s.mag_offset_window_s:
+            self._window, self._window_start_s = _OffsetWindow(), time_s
+        self._window.add(mag, self.predicted_body(r), self.norm_ref, self.disturbed)
+        if time_s - self._window_start_s < self.s.mag_offset_window_s:
             return False
         self._window_start_s = math.inf
-        n = w[0]
-        mean = (w[1] / n, w[2] / n, w[3] / n)
-        spread2 = w[4] / n - dot(mean, mean)
-        turned = 1.0 - math.sqrt(w[5] ** 2 + w[6] ** 2 + w[7] ** 2) / n
-        if (
-            w[8] < 0.5 * n
-            or turned < s.mag_offset_turn_fraction
-            or spread2 > (s.mag_norm_tolerance_fraction * norm) ** 2
-        ):
+        mean = self._window.offset(self.s, self.norm_ref)
+        if mean is None:
             return False
         o = self.offset_uT
         self.offset_uT = (o[0] + mean[0], o[1] + mean[1], o[2] + mean[2])
         return True
+
+
+class _OffsetWindow:
+    """The sums one hard-iron window gathers: the residual ``e``, ``|e|²``, ``ĥ``, ``e·ĥ``, disturbed samples."""
+
+    __slots__ = ("disturbed", "e", "e2", "eh", "h", "n")
+
+    def __init__(self) -> None:
+        self.n = self.e2 = self.eh = self.disturbed = 0.0
+        self.e = [0.0, 0.0, 0.0]
+        self.h = [0.0, 0.0, 0.0]
+
+    def add(self, mag: Vec3, predicted: Vec3, norm: float, disturbed: bool) -> None:
+        e = (mag[0] - predicted[0], mag[1] - predicted[1], mag[2] - predicted[2])
+        self.n += 1.0
+        self.disturbed += disturbed
+        for i in range(3):
+            self.e[i] += e[i]
+            self.h[i] += predicted[i] / norm
+        self.e2 += dot(e, e)
+        self.eh += dot(e, predicted) / norm
+
+    def offset(self, s: FusedSettings, norm: float) -> Vec3 | None:
+        """The window's mean residual if it passes the module docstring's tests (``norm``: ``|m_ref|``)."""
+        n = self.n
+        mean = (self.e[0] / n, self.e[1] / n, self.e[2] / n)
+        h = (self.h[0] / n, self.h[1] / n, self.h[2] / n)
+        spread2 = self.e2 / n - dot(mean, mean)
+        var_h = 1.0 - dot(h, h)  # also the turn: 1 − |mean ĥ| ≈ var(ĥ)/2 for small turns
+        cov = self.eh / n - dot(mean, h)
+        if (
+            self.disturbed < 0.5 * n  # mostly a disturbance: a clean field needs no offset
+            or 1.0 - math.sqrt(dot(h, h)) < s.mag_offset_turn_fraction
+            or spread2 > (s.mag_norm_tolerance_fraction * norm) ** 2
+            or cov * cov > s.mag_offset_scale_r2 * spread2 * var_h
+        ):
+            return None
+        return mean

@@ -49,7 +49,10 @@ class FusedSettings:
         10.0, "τ_δ: dip off its reference by this much is a disturbance, deg", hi=90.0
     )
     mag_reference_s: float = ranged(
-        20.0, "τ_ref: ‖B‖ and the dip are learnt over this much clean field from the start, s", lo_open=True
+        20.0,
+        "τ_ref: ‖B‖ and the dip are learnt from clean field: a mean over the first τ_ref, then a low-pass of this"
+        " time constant, s",
+        lo_open=True,
     )
     mag_relearn_s: float = ranged(
         60.0, "T_new: a field disturbed this long without a break is adopted (it sets heading only), s", lo_open=True
@@ -69,6 +72,12 @@ class FusedSettings:
     )
     mag_offset_turn_fraction: float = ranged(
         0.05, "the turn the offset needs: 1 − ‖mean predicted field direction‖ over the window", hi=1.0
+    )
+    mag_offset_scale_r2: float = ranged(
+        0.5,
+        "a window whose residual follows the predicted field direction this much (r², the share of its spread a"
+        " field-strength error explains: more than half, the likelier cause) is refused as hard iron",
+        hi=1.0,
     )
     gps_max_accel_mps2: float = ranged(
         20.0, "a GPS velocity step implying more than this acceleration is a glitch, m/s² (0: GPS velocity unused)"
