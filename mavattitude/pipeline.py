@@ -38,20 +38,19 @@ estimator's state dropped.
 
 from __future__ import annotations
 
-import contextlib
 import datetime as dt
 import functools
-import gc
 import logging
 import math
 from collections import Counter
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
+from mavattitude import collector
 from mavattitude.config import Config
 from mavattitude.errors import ConfigError, InputError, MavAttitudeError
 from mavattitude.estimation import METHODS, NoiseModel, solve
@@ -493,24 +492,6 @@ def _invalid(output: AttitudeOutput) -> str | None:
     return None
 
 
-@contextlib.contextmanager
-def _collector_paused() -> Iterator[None]:
-    """CPython's cyclic garbage collector paused for a block (its state restored after).
-
-    The batch loop keeps every output (with its solution, for the lazy covariance): hundreds of thousands of
-    container objects that live to the end, which the collector, triggered by the allocations, traverses
-    again and again (15–20% of a long replay's time). The loop makes no reference cycles, so there is
-    nothing for the collector to find there; it runs again, as usual, after the block.
-    """
-    enabled = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if enabled:
-            gc.enable()
-
-
 def frontend_settings(config: Config, **overrides: Any) -> FrontEndSettings:
     """The front end's settings from the config (``overrides`` replace fields)."""
     values = {
@@ -674,7 +655,7 @@ class AttitudePipeline:
             return pushed
         gps_t, velocities = gps[0].tolist(), gps[1]
         next_gps = 0
-        with _collector_paused():
+        with collector.paused():
             for tick in batch.samples():
                 while next_gps < len(gps_t) and gps_t[next_gps] <= tick.time_s:
                     self.estimator.velocity(velocities[next_gps])

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from mavattitude import collector
 from mavattitude.config import Config
 from mavattitude.dispatch import DispatchCounters, Dispatcher
 from mavattitude.estimation.compass import CompassEvent, CompassMonitor
@@ -137,7 +138,14 @@ def replay(
     progress: Callable[[int, int], None] | None = None,
     at_once: bool = True,
 ) -> Replayed:
-    """Run ``source`` to its end through the service's dispatcher and pipeline (see the module docstring)."""
+    """Run ``source`` to its end through the service's dispatcher and pipeline (see the module docstring).
+
+    The collector is paused throughout (:mod:`mavattitude.collector`): every output is kept."""
+    with collector.paused():
+        return _replay(source, config, progress, at_once)
+
+
+def _replay(source: LogSource, config: Config, progress: Callable[[int, int], None] | None, at_once: bool) -> Replayed:
     pipeline = AttitudePipeline(config)
     result = Replayed([], [], DispatchCounters(), pipeline, None)
     if not at_once:

@@ -60,6 +60,7 @@ from typing import Any
 
 import numpy as np
 
+from mavattitude import collector
 from mavattitude.commands._offline import (
     Progress,
     add_config_arguments,
@@ -262,7 +263,14 @@ def replay_all(jobs: list[Job], workers: int) -> list[LogResult]:
 
 
 def replay_log(job: Job) -> LogResult:
-    """Replay one log to its CSV (and plot); what went wrong is the result's status and note, not an exception."""
+    """Replay one log to its CSV (and plot); what went wrong is the result's status and note, not an exception.
+
+    The collector is paused until the log's outputs are written and freed (:mod:`mavattitude.collector`)."""
+    with collector.paused():
+        return _replay_log(job)
+
+
+def _replay_log(job: Job) -> LogResult:
     from mavattitude.link.logs import open_log
     from mavattitude.replay import replay
 
