@@ -308,7 +308,7 @@ class FusedFilter:
             if self._gps is not None:
                 self._gps.design(1.0 / period)
             self._rest.set_period(period)
-            self._mag.period_s = period
+            self._mag.set_period(period)
 
     def _measure(self, acc_mps2: ArrayLike, mag_uT: ArrayLike | None, time_s: float, mag_age_s: float) -> None:
         """The update's measurements, each accumulated into the error state."""
@@ -373,10 +373,14 @@ class FusedFilter:
         """``(d, |m|)``; the disturbance tracked, the field learnt, the hard-iron offset gathered."""
         p = self._ekf.p_tt
         d, mag_norm, dip = self._mag.check(mag, (r[6], r[7], r[8]), p[0] + p[4] + p[8])
+        # The counters written only when they count: a dict item's += costs as much as four float operations.
         if math.isfinite(d):
-            self.counters["mag_relearned"] += self._mag.observe(d, mag_norm, dip, time_s)
-            self.counters["mag_offset_learned"] += self._mag.learn_offset(mag, r, time_s)
-        self.counters["mag_disturbed"] += d >= 1.0
+            if self._mag.observe(d, mag_norm, dip, time_s):
+                self.counters["mag_relearned"] += 1
+            if self._mag.learn_offset(mag, r, time_s):
+                self.counters["mag_offset_learned"] += 1
+        if d >= 1.0:
+            self.counters["mag_disturbed"] += 1
         return d, mag_norm
 
     def _skew_var(self, mag: Vec3, rate: Vec3) -> float:

@@ -56,7 +56,8 @@ class MagneticChecks:
 
     def __init__(self, settings: FusedSettings, period_s: float) -> None:
         self.s = settings
-        self.period_s = period_s  # the interval between updates (the filter keeps it to the measured one)
+        self._dip_tolerance_rad = math.radians(settings.mag_dip_tolerance_deg)
+        self.set_period(period_s)
         self.norm_ref = 1.0
         self.dip_ref = 0.0
         self.north: tuple[float, float] = (1.0, 0.0)  # horizontal direction of the reference, NED
@@ -68,6 +69,11 @@ class MagneticChecks:
         self.offset_uT: Vec3 = (0.0, 0.0, 0.0)
         self._window = _OffsetWindow()  # one window from a disturbance on
         self._window_start_s = math.inf
+
+    def set_period(self, period_s: float) -> None:
+        """The interval between updates, s (the filter keeps it to the measured one): the field learning's count
+        is held at ``τ_ref`` / period."""
+        self._held_n = self.s.mag_reference_s / period_s
 
     def set_reference(self, field_ned_uT: Vec3, acc_ref_unit: Vec3, started: bool) -> None:
         """A new reference direction (magnitude too before the start: it is learnt from the data after)."""
@@ -97,29 +103,28 @@ class MagneticChecks:
             return math.inf, norm, 0.0
         dip = math.asin(clip_unit((v0 * m0 + v1 * m1 + v2 * m2) / norm))
         d_norm = abs(norm - self.norm_ref) / (s.mag_norm_tolerance_fraction * self.norm_ref)
-        if s.mag_dip_tolerance_deg == 0.0:
+        if self._dip_tolerance_rad == 0.0:
             return d_norm, norm, dip
         # The predicted vertical is itself uncertain: widen the dip tolerance by 3σ of the attitude error.
-        tolerance = math.radians(s.mag_dip_tolerance_deg) + 3.0 * math.sqrt(p_trace)
+        tolerance = self._dip_tolerance_rad + 3.0 * math.sqrt(p_trace)
         d_dip = abs(dip - self.dip_ref) / tolerance
         return (d_dip if d_dip > d_norm else d_norm), norm, dip  # max(): the builtin parses its arguments
 
     def observe(self, d: float, norm: float, dip: float, time_s: float) -> bool:
         """Track the disturbance and learn the field; True when a disturbed field was adopted."""
-        disturbed = d >= 1.0
-        if disturbed and not self.disturbed:
-            self._disturbed_since_s = time_s
-        elif self.disturbed and not disturbed:
-            self._clean_since_s = time_s
-            self._coast_s = time_s - self._disturbed_since_s
-        self.disturbed = disturbed
-        relearned = disturbed and time_s - self._disturbed_since_s >= self.s.mag_relearn_s
-        if relearned:
+        relearned = False
+        if d >= 1.0:
+            if not self.disturbed:
+                self.disturbed, self._disturbed_since_s = True, time_s
+            if time_s - self._disturbed_since_s < self.s.mag_relearn_s:
+                return False
             self._disturbed_since_s, self._field_n, self.dip_ref = time_s, 0.0, dip
-        if disturbed and not relearned:
-            return relearned
+            relearned = True
+        elif self.disturbed:
+            self.disturbed, self._clean_since_s = False, time_s
+            self._coast_s = time_s - self._disturbed_since_s
         # A running mean over the first τ_ref, then a low-pass of time constant τ_ref: the count held there.
-        n, held = self._field_n + 1.0, self.s.mag_reference_s / self.period_s
+        n, held = self._field_n + 1.0, self._held_n
         self._field_n = n if n < held else held  # not min(): the builtin parses its arguments, every update
         self.norm_ref += (norm - self.norm_ref) / self._field_n
         self.dip_ref += (dip - self.dip_ref) / self._field_n
@@ -149,10 +154,8 @@ class MagneticChecks:
 
     def learn_offset(self, mag: Vec3, r: Sequence[float], time_s: float) -> bool:
         """Gather ``e = m − o − A(q) B`` over windows (``r``: R(q)); True when a window's mean was added to ``o``."""
-        if self.s.mag_offset_window_s == 0.0:
-            return False
-        if time_s < self._window_start_s:
-            if not self.disturbed:
+        if time_s < self._window_start_s:  # no window open: one opens on a disturbance
+            if not self.disturbed or self.s.mag_offset_window_s == 0.0:
                 return False
             self._window, self._window_start_s = _OffsetWindow(), time_s
         self._window.add(mag, self.predicted_body(r), self.norm_ref, self.disturbed)
