@@ -120,14 +120,15 @@ class ErrorStateFilter:
         Call :meth:`propagate` first (``q`` must carry the whole interval) and :meth:`reset` after the last."""
         tt, tb, bb = self.p_tt, self.p_tb, self.p_bb
         d0, d1, d2, d3, d4, d5 = self.dx
-        # The matrix-vector products written out, on local floats: a call or a tuple costs as much as the
-        # arithmetic (three updates a sample at 25 and 50 Hz).
+        # The blocks' entries as local floats, the products written out: a call, a tuple or an index costs as much
+        # as the arithmetic (three updates a sample at 25 and 50 Hz). P_bb is symmetric: its upper triangle.
+        t0, t1, t2, t3, t4, t5, t6, t7, t8 = tt
+        c0, c1, c2, c3, c4, c5, c6, c7, c8 = tb
+        b0, b1, b2, _, b4, b5, _, _, b8 = bb
         if h_theta is not None:
             h0, h1, h2 = h_theta
-            a0, a1, a2, a3, a4, a5, a6, a7, a8 = tt
-            ut0, ut1, ut2 = a0 * h0 + a1 * h1 + a2 * h2, a3 * h0 + a4 * h1 + a5 * h2, a6 * h0 + a7 * h1 + a8 * h2
-            a0, a1, a2, a3, a4, a5, a6, a7, a8 = tb
-            ub0, ub1, ub2 = a0 * h0 + a3 * h1 + a6 * h2, a1 * h0 + a4 * h1 + a7 * h2, a2 * h0 + a5 * h1 + a8 * h2
+            ut0, ut1, ut2 = t0 * h0 + t1 * h1 + t2 * h2, t3 * h0 + t4 * h1 + t5 * h2, t6 * h0 + t7 * h1 + t8 * h2
+            ub0, ub1, ub2 = c0 * h0 + c3 * h1 + c6 * h2, c1 * h0 + c4 * h1 + c7 * h2, c2 * h0 + c5 * h1 + c8 * h2
             s = r + (h0 * ut0 + h1 * ut1 + h2 * ut2)
             z -= h0 * d0 + h1 * d1 + h2 * d2
         else:
@@ -155,20 +156,20 @@ class ErrorStateFilter:
         v3, v4, v5 = m * kb0 - ub0, m * kb1 - ub1, m * kb2 - ub2
         # P + K vᵀ + v Kᵀ on the three blocks, here rather than in a function of its own (a call and two 6-tuples
         # cost as much as a block's arithmetic); the diagonal blocks' entries above the diagonal computed once.
-        xy, xz, yz = tt[1] + kt0 * v1 + v0 * kt1, tt[2] + kt0 * v2 + v0 * kt2, tt[5] + kt1 * v2 + v1 * kt2
-        self.p_tt = (tt[0] + 2.0 * kt0 * v0, xy, xz, xy, tt[4] + 2.0 * kt1 * v1, yz, xz, yz, tt[8] + 2.0 * kt2 * v2)
-        xy, xz, yz = bb[1] + kb0 * v4 + v3 * kb1, bb[2] + kb0 * v5 + v3 * kb2, bb[5] + kb1 * v5 + v4 * kb2
-        self.p_bb = (bb[0] + 2.0 * kb0 * v3, xy, xz, xy, bb[4] + 2.0 * kb1 * v4, yz, xz, yz, bb[8] + 2.0 * kb2 * v5)
+        xy, xz, yz = t1 + kt0 * v1 + v0 * kt1, t2 + kt0 * v2 + v0 * kt2, t5 + kt1 * v2 + v1 * kt2
+        self.p_tt = (t0 + 2.0 * kt0 * v0, xy, xz, xy, t4 + 2.0 * kt1 * v1, yz, xz, yz, t8 + 2.0 * kt2 * v2)
+        xy, xz, yz = b1 + kb0 * v4 + v3 * kb1, b2 + kb0 * v5 + v3 * kb2, b5 + kb1 * v5 + v4 * kb2
+        self.p_bb = (b0 + 2.0 * kb0 * v3, xy, xz, xy, b4 + 2.0 * kb1 * v4, yz, xz, yz, b8 + 2.0 * kb2 * v5)
         self.p_tb = (
-            tb[0] + kt0 * v3 + v0 * kb0,
-            tb[1] + kt0 * v4 + v0 * kb1,
-            tb[2] + kt0 * v5 + v0 * kb2,
-            tb[3] + kt1 * v3 + v1 * kb0,
-            tb[4] + kt1 * v4 + v1 * kb1,
-            tb[5] + kt1 * v5 + v1 * kb2,
-            tb[6] + kt2 * v3 + v2 * kb0,
-            tb[7] + kt2 * v4 + v2 * kb1,
-            tb[8] + kt2 * v5 + v2 * kb2,
+            c0 + kt0 * v3 + v0 * kb0,
+            c1 + kt0 * v4 + v0 * kb1,
+            c2 + kt0 * v5 + v0 * kb2,
+            c3 + kt1 * v3 + v1 * kb0,
+            c4 + kt1 * v4 + v1 * kb1,
+            c5 + kt1 * v5 + v1 * kb2,
+            c6 + kt2 * v3 + v2 * kb0,
+            c7 + kt2 * v4 + v2 * kb1,
+            c8 + kt2 * v5 + v2 * kb2,
         )
         self.dx = (d0 + kt0 * z, d1 + kt1 * z, d2 + kt2 * z, d3 + kb0 * z, d4 + kb1 * z, d5 + kb2 * z)
 
