@@ -94,11 +94,11 @@ class ErrorStateFilter:
         r, c = rotation_matrix_parts(self.dq), -0.5 * t  # R(Δq), row-major; A(Δq) = R(Δq)ᵀ
         # Φ = [[A, c (I + A)], [0, I]] by blocks: with X = [A, c (I + A)] P = A Y + c [P_θbᵀ, P_bb],
         # Y = [P_θθ + c P_θbᵀ, P_θb + c P_bb]: P_θb ← X_b, P_θθ ← (X_θ + c X_b) Aᵀ + c X_b.
-        bb = self.p_bb
         noise2, scale2, walk2 = self._q_noise
         angle = self.angle_rad
-        self.p_tt, self.p_tb = m3.propagated(r, c, self.p_tt, self.p_tb, bb, noise2 * t + scale2 * (angle * angle))
-        self.p_bb = m3.plus_diagonal(bb, walk2 * t)
+        self.p_tt, self.p_tb, self.p_bb = m3.propagated(
+            r, c, self.p_tt, self.p_tb, self.p_bb, noise2 * t + scale2 * (angle * angle), walk2 * t
+        )
         dq = self.dq
         if t != 0.0:  # current_q(), written out: a call per update
             self.q = _composed(self.q, dq)

@@ -221,6 +221,7 @@ class FusedFilter:
             self._ekf.turn_about_down(math.atan2(mag[1], mag[0]) - math.atan2(before[1], before[0]))
         self.mag_ref = mag
         self._v_acc: Vec3 = tuple(float(v) / norms[1] for v in self.acc_ref)  # type: ignore[assignment]
+        self._v_acc_opposite: Vec3 = (-self._v_acc[0], -self._v_acc[1], -self._v_acc[2])
         self._acc_ref_up = self._v_acc == (0.0, 0.0, -1.0)
         field: Vec3 = tuple(mag.tolist())  # type: ignore[assignment]
         self._mag.set_reference(field, self._v_acc, self._started)
@@ -299,9 +300,10 @@ class FusedFilter:
         take twice their time constants)."""
         times = self._update_times
         times.append(time_s)
-        if len(times) <= PACE_MIN_INTERVALS:
+        intervals = len(times) - 1
+        if intervals < PACE_MIN_INTERVALS:
             return
-        period = (time_s - times[0]) / (len(times) - 1)
+        period = (time_s - times[0]) / intervals
         if abs(period - self._design_period_s) > PACE_TOLERANCE * self._design_period_s:
             self._design_period_s = period
             self._prefilters.design(1.0 / period)
@@ -321,6 +323,7 @@ class FusedFilter:
         if s.rest_gyro_std_radps > 0.0:
             self._rest_update(raw, time_s)
         r = rotation_matrix_parts(ekf.q)
+        down = (r[6], r[7], r[8])  # A(q) e_D: the field check's, the tilt's and the heading's, formed once
         acc, sigma_a2 = self._prefiltered(raw, r, time_s)
         acc_norm = math.sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
         mag = None if mag_uT is None else self._mag.corrected((float(mag_uT[0]), float(mag_uT[1]), float(mag_uT[2])))
@@ -330,16 +333,16 @@ class FusedFilter:
             mag = _carried(mag, rate, mag_age_s)
         d = mag_norm = math.inf
         if mag is not None:
-            d, mag_norm = self._check_field(mag, r, time_s)
+            d, mag_norm = self._check_field(mag, r, down, time_s)
         # Past half a radian of direction noise the accelerometer tells nothing the gyro does not know.
         sigma_a, sigma_max = math.sqrt(sigma_a2), _MAX_UNIT_STD * acc_norm
-        self._tilt_update(acc, acc_norm, sigma_max if sigma_max < sigma_a else sigma_a, r)
+        self._tilt_update(acc, acc_norm, sigma_max if sigma_max < sigma_a else sigma_a, r, down)
         if mag is not None and d < 1.0:
             sigma_m2 = self._mag_var * self._mag.sigma2_factor(d, time_s) + self._skew_var(mag, rate)
             sigma_max = _MAX_UNIT_STD * mag_norm
             sigma_max2 = sigma_max * sigma_max
             sigma_m2 = sigma_max2 if sigma_max2 < sigma_m2 else sigma_m2
-            if self._heading_update(mag, mag_norm, sigma_m2, r):
+            if self._heading_update(mag, mag_norm, sigma_m2, r, down):
                 self._heading_at_s = time_s
                 return
         self.counters["tilt_only_updates"] += 1
@@ -369,10 +372,11 @@ class FusedFilter:
         sigma_a2 = self._accel_var + norm_dev * norm_dev + self._lag_gain2 * (l0 * l0 + l1 * l1 + l2 * l2)
         return rotate_ned_to_body_parts(r_g, lp_m), sigma_a2
 
-    def _check_field(self, mag: Vec3, r: Sequence[float], time_s: float) -> tuple[float, float]:
-        """``(d, |m|)``; the disturbance tracked, the field learnt, the hard-iron offset gathered."""
+    def _check_field(self, mag: Vec3, r: Sequence[float], down: Vec3, time_s: float) -> tuple[float, float]:
+        """``(d, |m|)``; the disturbance tracked, the field learnt, the hard-iron offset gathered (``r``: R(q),
+        ``down``: A(q) e_D)."""
         p = self._ekf.p_tt
-        d, mag_norm, dip = self._mag.check(mag, (r[6], r[7], r[8]), p[0] + p[4] + p[8])
+        d, mag_norm, dip = self._mag.check(mag, down, p[0] + p[4] + p[8])
         # The counters written only when they count: a dict item's += costs as much as four float operations.
         if math.isfinite(d):
             if self._mag.observe(d, mag_norm, dip, time_s):
@@ -390,26 +394,29 @@ class FusedFilter:
         t0, t1, t2 = w1 * m2 - w2 * m1, w2 * m0 - w0 * m2, w0 * m1 - w1 * m0  # ω × m, written out as below
         return self._skew2 * (t0 * t0 + t1 * t1 + t2 * t2)
 
-    def _tilt_update(self, acc: Vec3, acc_norm: float, sigma_a: float, r: Sequence[float]) -> None:
-        """The accelerometer direction, along the two axes it measures; its gain is kept off the heading."""
-        # h = A(q) v_a: for the usual reference (up, −e_D) the last row of R(q) negated, the same floats.
-        h0, h1, h2 = h = (-r[6], -r[7], -r[8]) if self._acc_ref_up else rotate_ned_to_body_parts(r, self._v_acc)
-        d0, d1, d2 = acc[0] / acc_norm - h0, acc[1] / acc_norm - h1, acc[2] / acc_norm - h2  # u − h
+    def _tilt_update(self, acc: Vec3, acc_norm: float, sigma_a: float, r: Sequence[float], down: Vec3) -> None:
+        """The accelerometer direction, along the two axes it measures; its gain is kept off the heading
+        (``down``: A(q) e_D)."""
+        # g = −h = A(q) (−v_a), the reference's opposite in the body: for the usual reference (up, −e_D), A(q) e_D.
+        # Every sum and product below of g is the one of h negated, the same floats (IEEE rounding is symmetric),
+        # and the negations are spared.
+        g0, g1, g2 = g = down if self._acc_ref_up else rotate_ned_to_body_parts(r, self._v_acc_opposite)
+        d0, d1, d2 = acc[0] / acc_norm + g0, acc[1] / acc_norm + g1, acc[2] / acc_norm + g2  # u − h
         # The products written out: the cross and dot products cost as much as calls as in arithmetic.
-        v0, v1, v2 = (0.0, h2, -h1) if abs(h0) < 0.6 else (-h2, 0.0, h0)  # h × x̂, or h × ŷ near x̂
+        v0, v1, v2 = (0.0, -g2, g1) if -0.6 < g0 < 0.6 else (g2, 0.0, -g0)  # h × x̂, or h × ŷ near x̂
         n = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
         e1 = v0, v1, v2 = v0 / n, v1 / n, v2 / n
-        f0, f1, f2 = (h1 * v2 - h2 * v1, h2 * v0 - h0 * v2, h0 * v1 - h1 * v0)  # e₂ = h × e₁
+        w0, w1, w2 = w = (g1 * v2 - g2 * v1, g2 * v0 - g0 * v2, g0 * v1 - g1 * v0)  # g × e₁ = −e₂ (e₂ = h × e₁)
         std = sigma_a / acc_norm
         var = std * std
         # Along e: z = e · (u − h), h_θ = e × h; for the orthonormal e₁, e₂ = h × e₁, h: e₁ × h = −e₂, e₂ × h = e₁.
-        self._ekf.update(v0 * d0 + v1 * d1 + v2 * d2, (-f0, -f1, -f2), var, off=h)
-        self._ekf.update(f0 * d0 + f1 * d1 + f2 * d2, e1, var, off=h)
+        # The gain kept off g is the gain kept off h.
+        self._ekf.update(v0 * d0 + v1 * d1 + v2 * d2, w, var, off=g)
+        self._ekf.update(-(w0 * d0 + w1 * d1 + w2 * d2), e1, var, off=g)
 
-    def _heading_update(self, mag: Vec3, mag_norm: float, sigma_m2: float, r: Sequence[float]) -> bool:
-        """The field's horizontal direction against the reference's (``r``: R(q)): heading only. False if the
-        field is too close to vertical to give one."""
-        down_body = (r[6], r[7], r[8])  # A(q) e_D
+    def _heading_update(self, mag: Vec3, mag_norm: float, sigma_m2: float, r: Sequence[float], down: Vec3) -> bool:
+        """The field's horizontal direction against the reference's (``r``: R(q), ``down``: A(q) e_D): heading
+        only. False if the field is too close to vertical to give one."""
         mn = r[0] * mag[0] + r[1] * mag[1] + r[2] * mag[2]
         me = r[3] * mag[0] + r[4] * mag[1] + r[5] * mag[2]
         horizontal2 = mn * mn + me * me
@@ -419,7 +426,7 @@ class FusedFilter:
             return False
         n, e = self._mag.north
         z = math.atan2(mn * e - me * n, mn * n + me * e)
-        self._ekf.update(z, down_body, sigma_m2 / horizontal2, on=down_body)
+        self._ekf.update(z, down, sigma_m2 / horizontal2, on=down)
         return True
 
     def _rest_update(self, acc: Vec3, time_s: float) -> None:

@@ -15,11 +15,14 @@ ZERO3: Block = (0.0,) * 9  # type: ignore[assignment]
 matvec = rotate_body_to_ned_parts  # a x
 
 
-def propagated(r: Block, c: float, tt: Block, tb: Block, bb: Block, diag: float) -> tuple[Block, Block]:
-    """``P_θθ`` and ``P_θb`` propagated over an interval (``ekf.ErrorStateFilter.propagate``), written out in one
-    call: with ``A = R(Δq)ᵀ`` (``r`` = R(Δq), row-major), ``X_θ = A (P_θθ + c P_θbᵀ) + c P_θbᵀ``,
-    ``X_b = A (P_θb + c P_bb) + c P_bb`` (``P_bb`` symmetric), ``P_θb ← X_b`` and
-    ``P_θθ ← (X_θ + c X_b) Aᵀ + c X_b + diag I``, symmetric: its upper triangle mirrored, without averaging."""
+def propagated(
+    r: Block, c: float, tt: Block, tb: Block, bb: Block, diag: float, walk: float
+) -> tuple[Block, Block, Block]:
+    """``P_θθ``, ``P_θb`` and ``P_bb`` propagated over an interval (``ekf.ErrorStateFilter.propagate``), written
+    out in one call: with ``A = R(Δq)ᵀ`` (``r`` = R(Δq), row-major), ``X_θ = A (P_θθ + c P_θbᵀ) + c P_θbᵀ``,
+    ``X_b = A (P_θb + c P_bb) + c P_bb`` (``P_bb`` symmetric), ``P_θb ← X_b``,
+    ``P_θθ ← (X_θ + c X_b) Aᵀ + c X_b + diag I``, symmetric: its upper triangle mirrored, without averaging, and
+    ``P_bb ← P_bb + walk I`` (symmetric as it is: every update writes it so)."""
     r0, r1, r2, r3, r4, r5, r6, r7, r8 = r
     # X_θ, with P_θb read transposed in place
     e0, e3, e6, e1, e4, e7, e2, e5, e8 = tb
@@ -30,8 +33,8 @@ def propagated(r: Block, c: float, tt: Block, tb: Block, bb: Block, diag: float)
     t3, t4, t5 = r1 * z0 + r4 * z3 + r7 * z6 + e3, r1 * z1 + r4 * z4 + r7 * z7 + e4, r1 * z2 + r4 * z5 + r7 * z8 + e5
     t6, t7, t8 = r2 * z0 + r5 * z3 + r8 * z6 + e6, r2 * z1 + r5 * z4 + r8 * z7 + e7, r2 * z2 + r5 * z5 + r8 * z8 + e8
     # X_b
-    e0, e1, e2, e3, e4, e5, e6, e7, e8 = bb
-    e0, e1, e2, e3, e4, e5, e6, e7, e8 = c * e0, c * e1, c * e2, c * e3, c * e4, c * e5, c * e6, c * e7, c * e8
+    f0, f1, f2, f3, f4, f5, f6, f7, f8 = bb
+    e0, e1, e2, e3, e4, e5, e6, e7, e8 = c * f0, c * f1, c * f2, c * f3, c * f4, c * f5, c * f6, c * f7, c * f8
     y0, y1, y2, y3, y4, y5, y6, y7, y8 = tb
     z0, z1, z2, z3, z4, z5, z6, z7, z8 = y0 + e0, y1 + e1, y2 + e2, y3 + e3, y4 + e4, y5 + e5, y6 + e6, y7 + e7, y8 + e8
     x_b = b0, b1, b2, b3, b4, b5, b6, b7, b8 = (
@@ -57,7 +60,7 @@ def propagated(r: Block, c: float, tt: Block, tb: Block, bb: Block, diag: float)
         xy, z3 * r1 + z4 * r4 + z5 * r7 + e4 + diag, yz,
         xz, yz, z6 * r2 + z7 * r5 + z8 * r8 + e8 + diag,
     )  # fmt: skip
-    return p_tt, x_b
+    return p_tt, x_b, (f0 + walk, f1, f2, f3, f4 + walk, f5, f6, f7, f8 + walk)
 
 
 def plus_diagonal(a: Block, diag: float) -> Block:

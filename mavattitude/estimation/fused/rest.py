@@ -41,16 +41,15 @@ class RestDetector:
         l3, l4, l5 = l3 + k * (a0 - l3), l4 + k * (a1 - l4), l5 + k * (a2 - l5)
         self._lp = (l0, l1, l2, l3, l4, l5)
         # Squares written x * x, not x ** 2 (a libm pow call): they are only compared with thresholds. Each
-        # test only once the one before has passed: a moving sensor fails the first (the same outcome).
+        # test, and the difference it tests, only once the one before has passed: a moving sensor fails the
+        # first or the second (the same outcome).
         x0, x1, x2 = g0 - l0, g1 - l1, g2 - l2
-        rate = w0, w1, w2 = (l0 - bias[0], l1 - bias[1], l2 - bias[2])
-        y0, y1, y2 = a0 - l3, a1 - l4, a2 - l5
-        if not (
-            x0 * x0 + x1 * x1 + x2 * x2 < self._gyro2
-            and w0 * w0 + w1 * w1 + w2 * w2 < self._gyro2
-            and y0 * y0 + y1 * y1 + y2 * y2 < self._accel2
-        ):
-            self._still_since_s = math.inf
-            return None
-        self._still_since_s = min(self._still_since_s, time_s)
-        return rate if time_s - self._still_since_s >= self._min_s else None
+        if x0 * x0 + x1 * x1 + x2 * x2 < self._gyro2:
+            w0, w1, w2 = l0 - bias[0], l1 - bias[1], l2 - bias[2]
+            if w0 * w0 + w1 * w1 + w2 * w2 < self._gyro2:
+                y0, y1, y2 = a0 - l3, a1 - l4, a2 - l5
+                if y0 * y0 + y1 * y1 + y2 * y2 < self._accel2:
+                    self._still_since_s = min(self._still_since_s, time_s)
+                    return (w0, w1, w2) if time_s - self._still_since_s >= self._min_s else None
+        self._still_since_s = math.inf
+        return None
