@@ -70,8 +70,8 @@ class ErrorStateFilter:
 
     def integrate(self, dt: float, gx: float, gy: float, gz: float) -> None:
         """``Δq ← Δq ⊗ exp(ω Δt)`` with the sample's bias-corrected rate."""
-        b = self.bias
-        vx, vy, vz = dt * (gx - b[0]), dt * (gy - b[1]), dt * (gz - b[2])
+        b0, b1, b2 = self.bias
+        vx, vy, vz = dt * (gx - b0), dt * (gy - b1), dt * (gz - b2)
         angle = math.sqrt(vx * vx + vy * vy + vz * vz)
         # quat_from_rotvec_parts written out (the same floats), its angle also the scale-factor noise's
         half = 0.5 * angle

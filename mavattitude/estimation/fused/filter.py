@@ -102,6 +102,7 @@ PACE_TOLERANCE = 0.1
 # The timestamps' resolution (MAVLink's and the logs' microseconds): a scheduled time within it of a sample's is
 # the sample's time (the schedule's float rounding is ~1e-11 s; no two samples are closer than this).
 _SAME_TIME_S = 1e-6
+_SAME_TIME_BACK_S = -_SAME_TIME_S  # a tick this far before a sample is carried back to
 _MIN_HORIZONTAL = math.sin(math.radians(5.0))  # |m_h| / |m| below this: no heading from the field
 
 
@@ -161,6 +162,7 @@ class FusedFilter:
         # The squared settings the updates weigh with, once: a float's ** is a libm pow call, every update.
         self._accel_var, self._lag_gain2 = s.accel_std_mps2**2, s.accel_lag_gain**2
         self._mag_var, self._skew2 = s.mag_std_uT**2, s.mag_skew_s**2
+        self._min_accel_mps2 = 1e-3 * s.gravity_mps2  # a weaker specific force is no direction: no update
         self._p_bb_start = plus_diagonal(ZERO3, s.gyro_bias_init_radps**2)  # P_bb of a first start
         self._noise = NoiseModel(accel_std=(s.accel_std_mps2,) * 3, mag_std=(s.mag_std_uT,) * 3)
         self._t_last = 0.0
@@ -169,7 +171,9 @@ class FusedFilter:
         self._start_s = 0.0  # the schedule's origin: the last (re)start
         self._next_update_s = 0.0
         self._next_output_s = 0.0
-        self._ticks = 0  # output ticks since the start: the next is at _start_s + _ticks periods
+        # Output ticks since the start: the next is at _start_s + _ticks periods. A float (the same products):
+        # an int times a float takes CPython's slow mixed-type path, every tick.
+        self._ticks = 0.0
         self.set_mag_ref(mag_ref)
 
     # --- public state -------------------------------------------------------------------------------
@@ -316,19 +320,22 @@ class FusedFilter:
         """The update's measurements, each accumulated into the error state."""
         ekf, s = self._ekf, self.settings
         raw = r0, r1, r2 = (float(acc_mps2[0]), float(acc_mps2[1]), float(acc_mps2[2]))
-        if not math.isfinite(r0 + r1 + r2) or math.sqrt(r0 * r0 + r1 * r1 + r2 * r2) < 1e-3 * s.gravity_mps2:
+        if not math.isfinite(r0 + r1 + r2) or math.sqrt(r0 * r0 + r1 * r1 + r2 * r2) < self._min_accel_mps2:
             self.counters["skipped_updates"] += 1
             return
         self.counters["updates"] += 1
         if s.rest_gyro_std_radps > 0.0:
-            self._rest_update(raw, time_s)
+            rest_rate = self._rest.rate(self._gyr_last, raw, ekf.bias, time_s)
+            if rest_rate is not None:
+                self._rest_update(rest_rate)
         r = rotation_matrix_parts(ekf.q)
         down = (r[6], r[7], r[8])  # A(q) e_D: the field check's, the tilt's and the heading's, formed once
         acc, sigma_a2 = self._prefiltered(raw, r, time_s)
         acc_norm = math.sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
         mag = None if mag_uT is None else self._mag.corrected((float(mag_uT[0]), float(mag_uT[1]), float(mag_uT[2])))
-        b, g = ekf.bias, self._gyr_last  # ω (:meth:`_body_rate`, written out): the bias is the same until the reset
-        rate = (g[0] - b[0], g[1] - b[1], g[2] - b[2])
+        # ω (:meth:`_body_rate`, written out): the bias is the same until the reset
+        (b0, b1, b2), (g0, g1, g2) = ekf.bias, self._gyr_last
+        rate = (g0 - b0, g1 - b1, g2 - b2)
         if mag is not None and mag_age_s > 0.0:
             mag = _carried(mag, rate, mag_age_s)
         d = mag_norm = math.inf
@@ -429,11 +436,9 @@ class FusedFilter:
         self._ekf.update(z, down, sigma_m2 / horizontal2, on=down)
         return True
 
-    def _rest_update(self, acc: Vec3, time_s: float) -> None:
-        """Zero-rate update of the bias once the gyro and accelerometer have been still for ``rest_min_s``."""
-        rate = self._rest.rate(self._gyr_last, acc, self._ekf.bias, time_s)
-        if rate is None:
-            return
+    def _rest_update(self, rate: Vec3) -> None:
+        """Zero-rate update of the bias (``rate``: ``ḡ − b`` once the gyro and accelerometer have been still for
+        ``rest_min_s``, :class:`~.rest.RestDetector`)."""
         var = self.settings.rest_gyro_std_radps**2
         for axis, h in enumerate(_AXES):
             self._ekf.update(rate[axis], None, var, h)
@@ -470,7 +475,7 @@ class FusedFilter:
         self._gyr_last = gyr
         self._start_s = self._next_output_s = time_s
         self._next_update_s = time_s + self._update_period_s
-        self._ticks = 0
+        self._ticks = 0.0
         return self._outputs(time_s)
 
     def _tilt_start(self, acc: ArrayLike) -> tuple[Quat, tuple[float, ...]]:
@@ -484,22 +489,23 @@ class FusedFilter:
     def _outputs(self, time_s: float) -> list[FusedEstimate]:
         """Estimates for every output tick up to ``time_s`` (within 1 µs), the attitude carried back to the tick."""
         ekf = self._ekf
-        b, g = ekf.bias, self._gyr_last  # ω (:meth:`_body_rate`, written out)
-        wx, wy, wz = g[0] - b[0], g[1] - b[1], g[2] - b[2]
+        b = ekf.bias
+        (b0, b1, b2), (g0, g1, g2) = b, self._gyr_last  # ω (:meth:`_body_rate`, written out)
+        wx, wy, wz = g0 - b0, g1 - b1, g2 - b2
         rates = np.array((wx, wy, wz))  # numpy 2: np.array of a float tuple costs 5 % less than np.fromiter
         p_tt, disturbed, q_now = ekf.p_tt, self._mag.disturbed, ekf.current_q()
         start_s, period_s, ticks = self._start_s, self._output_period_s, self._ticks
         out = []
-        tick_s = self._next_output_s
-        while tick_s <= time_s + _SAME_TIME_S:
+        tick_s, until_s = self._next_output_s, time_s + _SAME_TIME_S
+        while tick_s <= until_s:
             back = tick_s - time_s
             q_tick = q_now
             # A tick within a microsecond of the sample (the timestamps' resolution) is the sample's: the
             # carry would turn it by less than |ω| × 1 µs, and costs a third of the tick.
-            if back < -_SAME_TIME_S:
+            if back < _SAME_TIME_BACK_S:
                 q_tick = rotated(q_now, wx * back, wy * back, wz * back)
             out.append(FusedEstimate(tick_s, np.array(q_tick), rates, disturbed, p_tt, b))
-            ticks += 1
+            ticks += 1.0
             tick_s = start_s + ticks * period_s
         self._ticks, self._next_output_s = ticks, tick_s
         return out

@@ -34,7 +34,8 @@ def propagated(
     t6, t7, t8 = r2 * z0 + r5 * z3 + r8 * z6 + e6, r2 * z1 + r5 * z4 + r8 * z7 + e7, r2 * z2 + r5 * z5 + r8 * z8 + e8
     # X_b
     f0, f1, f2, f3, f4, f5, f6, f7, f8 = bb
-    e0, e1, e2, e3, e4, e5, e6, e7, e8 = c * f0, c * f1, c * f2, c * f3, c * f4, c * f5, c * f6, c * f7, c * f8
+    e0, e1, e2, e4, e5, e8 = c * f0, c * f1, c * f2, c * f4, c * f5, c * f8
+    e3, e6, e7 = e1, e2, e5  # c P_bb: P_bb is symmetric (every update writes it so), its lower triangle mirrored
     y0, y1, y2, y3, y4, y5, y6, y7, y8 = tb
     z0, z1, z2, z3, z4, z5, z6, z7, z8 = y0 + e0, y1 + e1, y2 + e2, y3 + e3, y4 + e4, y5 + e5, y6 + e6, y7 + e7, y8 + e8
     x_b = b0, b1, b2, b3, b4, b5, b6, b7, b8 = (
