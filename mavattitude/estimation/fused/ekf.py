@@ -184,9 +184,9 @@ class ErrorStateFilter:
         dx = self.dx
         if not any(dx):
             return
-        self.q = rotated(self.q, dx[0], dx[1], dx[2])
-        b = self.bias
-        self.bias = (b[0] + dx[3], b[1] + dx[4], b[2] + dx[5])
+        (d0, d1, d2, d3, d4, d5), (b0, b1, b2) = dx, self.bias
+        self.q = rotated(self.q, d0, d1, d2)
+        self.bias = (b0 + d3, b1 + d4, b2 + d5)
         self.dx = _ZERO_DX
 
 

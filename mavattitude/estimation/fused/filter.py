@@ -158,6 +158,7 @@ class FusedFilter:
         self._gps = GpsCompensation(s, s.update_rate_hz) if s.gps_max_accel_mps2 > 0.0 else None
         self._prefilters = EarthFramePrefilters((s.accel_lowpass_s, s.accel_rejection_lowpass_s), s.update_rate_hz)
         self._design_period_s = self._update_period_s  # the update interval the per-update filters are for
+        self._design_tolerance_s = PACE_TOLERANCE * self._design_period_s  # how far the pace moves before a re-design
         self._update_times: deque[float] = deque(maxlen=PACE_WINDOW + 1)
         # The squared settings the updates weigh with, once: a float's ** is a libm pow call, every update.
         self._accel_var, self._lag_gain2 = s.accel_std_mps2**2, s.accel_lag_gain**2
@@ -308,8 +309,8 @@ class FusedFilter:
         if intervals < PACE_MIN_INTERVALS:
             return
         period = (time_s - times[0]) / intervals
-        if abs(period - self._design_period_s) > PACE_TOLERANCE * self._design_period_s:
-            self._design_period_s = period
+        if abs(period - self._design_period_s) > self._design_tolerance_s:
+            self._design_period_s, self._design_tolerance_s = period, PACE_TOLERANCE * period
             self._prefilters.design(1.0 / period)
             if self._gps is not None:
                 self._gps.design(1.0 / period)
@@ -386,9 +387,11 @@ class FusedFilter:
         d, mag_norm, dip = self._mag.check(mag, down, p[0] + p[4] + p[8])
         # The counters written only when they count: a dict item's += costs as much as four float operations.
         if math.isfinite(d):
-            if self._mag.observe(d, mag_norm, dip, time_s):
+            checks = self._mag
+            if checks.observe(d, mag_norm, dip, time_s):
                 self.counters["mag_relearned"] += 1
-            if self._mag.learn_offset(mag, r, time_s):
+            # The offset is gathered only while disturbed or in a window: the call spared on a clean field.
+            if (checks.disturbed or checks.gathering) and checks.learn_offset(mag, r, time_s):
                 self.counters["mag_offset_learned"] += 1
         if d >= 1.0:
             self.counters["mag_disturbed"] += 1

@@ -55,7 +55,7 @@ class GpsAcceleration:
         self.accepted = 0  # accelerations formed
         self.refused = 0  # velocities refused: no 3D fix, too few satellites, a gap, or an impossible step
         self._last: GpsVelocity | None = None
-        self._accel: Vec3 | None = None
+        self.accel: Vec3 | None = None  # the acceleration held (:meth:`at` drops it once stale)
         self._until_s = -math.inf
 
     def push(self, v: GpsVelocity, now_s: float) -> None:
@@ -81,17 +81,17 @@ class GpsAcceleration:
         self.interval_s = dt
         age = now_s - v.fix_time_s  # a fix time on the vehicle clock (MAVLink from ArduPilot) says how late it came
         self.age_s = age if 0.0 < age <= self.max_interval_s else 0.0
-        self._accel, self._until_s = a, now_s + self.max_interval_s
+        self.accel, self._until_s = a, now_s + self.max_interval_s
 
     def _refuse(self) -> None:
         self.refused += 1
-        self._accel = None
+        self.accel = None
 
     def at(self, time_s: float) -> Vec3 | None:
         """The acceleration to remove from a sample at ``time_s`` (NED, m/s²), or ``None``."""
-        if self._accel is not None and time_s > self._until_s:
-            self._accel = None  # stale: the receiver stopped
-        return self._accel
+        if self.accel is not None and time_s > self._until_s:
+            self.accel = None  # stale: the receiver stopped
+        return self.accel
 
 
 class GpsCompensation:
@@ -124,7 +124,9 @@ class GpsCompensation:
         ``r``, ``r_g``: ``R(q)`` and ``R(q_g)``."""
         history = self._history
         history.append(lp)
-        accel = self.source.at(time_s)
+        source = self.source
+        # No acceleration held, at() would answer None: its call spared every update without GPS.
+        accel = None if source.accel is None else source.at(time_s)
         if accel is None:
             self._active = False
             return None
@@ -133,7 +135,6 @@ class GpsCompensation:
             self._kinematic.step(_ZERO)
             self._active = True
         km, kr = self._kinematic.step(matvec(r_g, rotate_ned_to_body_parts(r, accel)))  # R(q_g) A(q) a
-        source = self.source
         back = round((self._latency_s + source.age_s + source.interval_s) / self._period_s)
         (m0, m1, m2), (j0, j1, j2) = history[-1 - back] if back < len(history) else history[0]
         return (m0 - km[0], m1 - km[1], m2 - km[2]), (j0 - kr[0], j1 - kr[1], j2 - kr[2])

@@ -68,7 +68,8 @@ class MagneticChecks:
         self._coast_s = 0.0
         self.offset_uT: Vec3 = (0.0, 0.0, 0.0)
         self._window = _OffsetWindow()  # one window from a disturbance on
-        self._window_start_s = math.inf
+        self._window_start_s = 0.0
+        self.gathering = False  # a window is open: learn_offset() does something only then or when disturbed
 
     def set_period(self, period_s: float) -> None:
         """The interval between updates, s (the filter keeps it to the measured one): the field learning's count
@@ -125,9 +126,9 @@ class MagneticChecks:
             self._coast_s = time_s - self._disturbed_since_s
         # A running mean over the first τ_ref, then a low-pass of time constant τ_ref: the count held there.
         n, held = self._field_n + 1.0, self._held_n
-        self._field_n = n if n < held else held  # not min(): the builtin parses its arguments, every update
-        self.norm_ref += (norm - self.norm_ref) / self._field_n
-        self.dip_ref += (dip - self.dip_ref) / self._field_n
+        self._field_n = n = n if n < held else held  # not min(): the builtin parses its arguments, every update
+        self.norm_ref += (norm - self.norm_ref) / n
+        self.dip_ref += (dip - self.dip_ref) / n
         return relearned
 
     def sigma2_factor(self, d: float, time_s: float) -> float:
@@ -154,14 +155,14 @@ class MagneticChecks:
 
     def learn_offset(self, mag: Vec3, r: Sequence[float], time_s: float) -> bool:
         """Gather ``e = m − o − A(q) B`` over windows (``r``: R(q)); True when a window's mean was added to ``o``."""
-        if time_s < self._window_start_s:  # no window open: one opens on a disturbance
+        if not self.gathering:  # no window open: one opens on a disturbance
             if not self.disturbed or self.s.mag_offset_window_s == 0.0:
                 return False
-            self._window, self._window_start_s = _OffsetWindow(), time_s
+            self._window, self._window_start_s, self.gathering = _OffsetWindow(), time_s, True
         self._window.add(mag, self.predicted_body(r), self.norm_ref, self.disturbed)
         if time_s - self._window_start_s < self.s.mag_offset_window_s:
             return False
-        self._window_start_s = math.inf
+        self.gathering = False
         mean = self._window.offset(self.s, self.norm_ref)
         if mean is None:
             return False
