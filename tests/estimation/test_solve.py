@@ -6,7 +6,7 @@ import contextlib
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
@@ -131,6 +131,7 @@ def test_vector_buried_in_noise_or_sigma_in_wrong_units_is_refused():
     st.sampled_from(SNAPSHOT_METHODS),
     st.floats(min_value=1e-12, max_value=1e12),
 )
+@example((0.0, 1.0, 0.0), (947.0, 0.0, 435.0), "ign", 1.0)  # σ as large as acc: the paths land 1.07e-9 rad apart
 def test_any_input_gives_an_answer_or_a_typed_error(acc, mag, method, sigma):
     # Arbitrary floats, NaN and ±inf included: either InputError (or its subclass) or a finite unit
     # quaternion with a finite covariance, the same from both paths. Never NaN, never another exception.
@@ -144,7 +145,15 @@ def test_any_input_gives_an_answer_or_a_typed_error(acc, mag, method, sigma):
     assert abs(np.linalg.norm(r.q) - 1.0) < 1e-12 and np.isfinite(r.covariance).all() and np.isfinite(r.loss)
     b = solve_batch([acc], [mag], MAG_REF_UT, noise, method=method, full_output=True)
     assert b.converged[0] == r.converged
-    assert not r.converged or cv.angle_between(b.q[0], r.q) < 1e-9
+    assert not r.converged or cv.angle_between(b.q[0], r.q) < agreement_bound_rad(r.covariance)
+
+
+def agreement_bound_rad(covariance: np.ndarray) -> float:
+    """How far the scalar and the array path may land apart: the project's 1e-9 rad, or, on an ill-conditioned
+    problem, what their different rounding allows. A rounding of ε in the normal equations moves the answer by
+    ~ε κ about the weakest axis (κ: the condition number of the normal matrix, the covariance's own); 100 ε κ
+    leaves margin (measured: 4.4 ε κ for a sensor with σ as large as its vector, κ 1.1e6)."""
+    return max(1e-9, 100.0 * np.finfo(float).eps * float(np.linalg.cond(covariance)))
 
 
 def test_nearly_collinear_references_beyond_floating_point_are_refused_by_both_paths():
