@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from mavattitude.cli import EXIT_INTERRUPTED, EXIT_USER_ERROR, main
+from mavattitude.commands import about, configure_logging
 
 CLI = [sys.executable, "-m", "mavattitude"]
 
@@ -98,3 +99,22 @@ def test_a_simulation_says_it_waits_and_interrupted_exits_130_with_its_summary()
     assert "waiting for a service to ask for the IMU stream on udpin:127.0.0.1:" in second
     assert proc.returncode == EXIT_INTERRUPTED
     assert "IMU messages sent: 0" in out
+
+
+def test_the_records_of_an_inputs_work_name_it_and_no_others(capsys, monkeypatch) -> None:
+    monkeypatch.delenv("JOURNAL_STREAM", raising=False)  # with the timestamp, as on a terminal
+    log = logging.getLogger("mavattitude.sensors.magref")
+    configure_logging("INFO")
+    with about("a.bin"):
+        log.info("no GPS position")
+        with about("b.tlog"):
+            log.info("inner")
+        log.warning("after the inner block")
+    log.info("outside")
+    said = [line.split(" ", 2)[2] for line in capsys.readouterr().err.splitlines()]  # past the timestamp
+    assert said == [
+        "INFO mavattitude.sensors.magref: a.bin: no GPS position",
+        "INFO mavattitude.sensors.magref: b.tlog: inner",
+        "WARNING mavattitude.sensors.magref: a.bin: after the inner block",
+        "INFO mavattitude.sensors.magref: outside",
+    ]

@@ -143,19 +143,17 @@ def write_outputs(path: str | Path, outputs: Sequence[AttitudeOutput]) -> int:
     return n
 
 
-def summarise_compass(
-    pipeline: AttitudePipeline, events: list[CompassEvent], source: str, logger: logging.Logger
-) -> None:
+def summarise_compass(pipeline: AttitudePipeline, events: list[CompassEvent], logger: logging.Logger) -> None:
     """The compass verdict's changes (vehicle time) and its figures, as the service reports them live."""
     from mavattitude.reports import compass_event_words, compass_summary
 
     for event in events:
         level, words = compass_event_words(event)
-        logger.log(level, "%s: t=%.1f s: %s", source, event.time_s, words)
+        logger.log(level, "t=%.1f s: %s", event.time_s, words)
     if pipeline.compass_seen:
-        logger.info("%s: %s", source, compass_summary(pipeline.compass.figures()))
+        logger.info("%s", compass_summary(pipeline.compass.figures()))
     else:
-        logger.info("%s: compass: no magnetometer reading: nothing to judge", source)
+        logger.info("compass: no magnetometer reading: nothing to judge")
 
 
 class Progress:
@@ -204,15 +202,15 @@ class Progress:
 
 
 def summarise(pipeline: AttitudePipeline, n_in: int, source: str, compass: list[CompassEvent]) -> None:
-    """Log the counters, the compass verdict's changes (``compass``) and its figures; nothing solved at all is a
-    failure, not an empty success."""
+    """Log the counters, the compass verdict's changes (``compass``) and its figures (the caller names ``source``
+    in the log: :func:`mavattitude.commands.about`); nothing solved at all is a failure, not an empty success."""
     from mavattitude.reports import pipeline_summary
 
     counters = pipeline.counters
     logger = logging.getLogger("mavattitude")
-    logger.info("%s: %d samples in; %s", source, n_in, pipeline_summary(counters))
+    logger.info("%d samples in; %s", n_in, pipeline_summary(counters))
     if pipeline.config.compass.enabled:
-        summarise_compass(pipeline, compass, source, logger)
+        summarise_compass(pipeline, compass, logger)
     if counters.emitted == 0:
         reasons = dict(counters.rejected) or dict(counters.frontend.rejected) or "no output tick"
         raise MavAttitudeError(f"{source}: no attitude could be computed ({reasons})")

@@ -61,6 +61,7 @@ from typing import Any
 import numpy as np
 
 from mavattitude import collector
+from mavattitude.commands import about
 from mavattitude.commands._offline import (
     Progress,
     add_config_arguments,
@@ -265,8 +266,9 @@ def replay_all(jobs: list[Job], workers: int) -> list[LogResult]:
 def replay_log(job: Job) -> LogResult:
     """Replay one log to its CSV (and plot); what went wrong is the result's status and note, not an exception.
 
-    The collector is paused until the log's outputs are written and freed (:mod:`mavattitude.collector`)."""
-    with collector.paused():
+    The collector is paused until the log's outputs are written and freed (:mod:`mavattitude.collector`); every
+    line logged meanwhile names the log."""
+    with collector.paused(), about(str(job.log)):
         return _replay_log(job)
 
 
@@ -283,11 +285,11 @@ def _replay_log(job: Job) -> LogResult:
         return dataclasses.replace(result, status="failed", note=str(exc))
     message = _telemetry_message(source, job.config)
     _fill(result, replayed, message or "IMU")
-    log.info("%s: %s", job.log, result.columns["rate_handling"])
+    log.info("%s", result.columns["rate_handling"])
     if message and not replayed.pipeline.compass_seen:  # a .bin's or .ulg's reader said it as it read the log
-        log.warning("%s: %s carries no magnetometer reading: %s", job.log, message, TILT_ONLY)
+        log.warning("%s carries no magnetometer reading: %s", message, TILT_ONLY)
     write_outputs(job.csv, replayed.outputs)
-    log.info("%s: wrote %d attitudes to %s", job.log, result.outputs, job.csv)
+    log.info("wrote %d attitudes to %s", result.outputs, job.csv)
     damage = getattr(source, "damage", None)
     if damage:
         result.status = "damaged"
@@ -300,7 +302,7 @@ def _replay_log(job: Job) -> LogResult:
     if replayed.autopilot:
         _compare(replayed, job, result)
     else:
-        log.info("%s holds no attitude from the autopilot: no comparison", job.log)
+        log.info("no attitude from the autopilot in the log: no comparison")
     return result
 
 
@@ -345,7 +347,7 @@ def _fill(result: LogResult, replayed: Any, imu_name: str) -> None:
         result.columns["heading_from_compass"] = round(1.0 - own["tilt_only_updates"] / updates, 3) if updates else ""
         lost = heading_lost(own)
         if lost:
-            log.warning("%s: %s", result.log, lost)
+            log.warning("%s", lost)
 
 
 def _compass_columns(figures: Any, result: LogResult) -> None:
@@ -368,9 +370,7 @@ def _compasses_columns(replayed: Any, job: Job, result: LogResult) -> None:
     for judged in replayed.compasses:
         warned = next((e for e in judged.events if e.inconsistent), None)
         if warned is not None:
-            log.warning(
-                "%s: magnetometer %d: t=%.1f s: %s", job.log, judged.instance, warned.time_s, warned.figures.describe()
-            )
+            log.warning("magnetometer %d: t=%.1f s: %s", judged.instance, warned.time_s, warned.figures.describe())
 
 
 def _report_cross_check(check: Any, events: list[Any], job: Job, result: LogResult) -> None:
@@ -378,14 +378,13 @@ def _report_cross_check(check: Any, events: list[Any], job: Job, result: LogResu
     for event in events:
         if event.disagree:
             log.warning(
-                "%s: t=%.1f s: our attitude and the autopilot's differ by %.1f° for %g s",
-                job.log,
+                "t=%.1f s: our attitude and the autopilot's differ by %.1f° for %g s",
                 event.time_s,
                 event.total_deg,
                 job.config.crosscheck.hold_s,
             )
         else:
-            log.info("%s: t=%.1f s: our attitude agrees with the autopilot's again", job.log, event.time_s)
+            log.info("t=%.1f s: our attitude agrees with the autopilot's again", event.time_s)
     rms_deg = round(check.rms_total_deg, 2)
     result.columns |= {"xc_pairs": check.pairs, "xc_rms_deg": rms_deg, "xc_warnings": check.warnings}
 
@@ -393,8 +392,7 @@ def _report_cross_check(check: Any, events: list[Any], job: Job, result: LogResu
 def _check_found(path: str, message: str, result: Any) -> None:
     if result.counters.ignored:
         log.info(
-            "%s: ignored %d message(s) not from the autopilot (other system or component, or before its HEARTBEAT)",
-            path,
+            "ignored %d message(s) not from the autopilot (other system or component, or before its HEARTBEAT)",
             result.counters.ignored,
         )
     if result.vehicle is None:
@@ -493,9 +491,9 @@ def _compare(replayed: Any, job: Job, result: LogResult) -> None:
         "not_compared": _reasons(check.unpaired),
     }
     if check.missed:
-        log.info("%s: %s", job.log, _pairing(check))
+        log.info("%s", _pairing(check))
     if not pairs:
-        log.warning("%s: no autopilot attitude falls within our output times: no comparison", job.log)
+        log.warning("no autopilot attitude falls within our output times: no comparison")
         return
     t = np.array([d.time_s for d in pairs])
     diff = np.array([(d.roll_deg, d.pitch_deg, d.yaw_deg, d.total_deg) for d in pairs])

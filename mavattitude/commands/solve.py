@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from mavattitude.commands import about
 from mavattitude.commands._offline import (
     PROGRESS_MIN_SAMPLES,
     Progress,
@@ -103,13 +104,14 @@ def run(args: argparse.Namespace) -> int:
     gyr = data["gyr"].tolist() if "gyr" in data else [[0.0] * 3] * n
     progress = Progress(f"solve {Path(args.input).name}", args.progress)
     outputs, compass = [], []
-    for i in range(n):
-        pushed = pipeline.push(ImuSample(t[i], tuple(acc[i]), tuple(gyr[i]), tuple(mag[i])))
-        outputs += pushed.outputs
-        compass += pushed.compass
-        if i % 1000 == 0 or i == n - 1:
-            progress(i + 1, n)
-    summarise(pipeline, n, args.input, compass)
+    with about(args.input):
+        for i in range(n):
+            pushed = pipeline.push(ImuSample(t[i], tuple(acc[i]), tuple(gyr[i]), tuple(mag[i])))
+            outputs += pushed.outputs
+            compass += pushed.compass
+            if i % 1000 == 0 or i == n - 1:
+                progress(i + 1, n)
+        summarise(pipeline, n, args.input, compass)
     write_outputs(args.output, outputs)
     log.info("wrote %d attitudes to %s", len(outputs), args.output)
     if args.save_mag_offset:
