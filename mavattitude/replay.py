@@ -272,6 +272,7 @@ def _judge_compasses(s: LogStreams, pipeline: AttitudePipeline, reference_after_
         if instance == s.compasses.used and s.compasses.why is not None:
             continue  # the pipeline judges it
         judge = AttitudePipeline(pipeline.config)
+        judge.magref.level = logging.DEBUG  # its field is its own verdict's business: the log says the replayed one's
         if pipeline.mag_ref_ned_uT is not None:  # else each measures its own field: its turn is judged all the same
             known = pipeline.frontend.expected_field_uT is not None
             judge.set_magnetic_reference(pipeline.mag_ref_ned_uT, known, pipeline.magref.measured)

@@ -193,6 +193,8 @@ class ReferenceTracker:
         # what describe() says: the first reference's label and the latest's, and how many came between
         self._labels: list[str] = [] if self.reference.waiting else [self.reference.label]
         self._between = 0
+        #: the level the reference's changes are said at (a compass judged beside the replayed one: DEBUG)
+        self.level = logging.INFO
 
     @property
     def waiting(self) -> bool:
@@ -236,7 +238,8 @@ class ReferenceTracker:
         dip, intensity = dip_sum / n, field_sum / n
         label = f"measured: dip {dip:.1f}°, {intensity:.1f} µT, magnetic north"
         self._use(ReferenceField(field_from_angles(0.0, dip, intensity), intensity, "measured", label))
-        log.info(
+        log.log(
+            self.level,
             "no GPS position: heading is magnetic north, field measured from the compass: dip %.1f°, %.1f µT "
             "(%d quiet ticks in %.1f s)",
             dip,
@@ -262,7 +265,8 @@ class ReferenceTracker:
         model = wmm_model(day).name
         label = f"{model} at {lat_deg:.4f}°, {lon_deg:.4f}° on {day}"
         self._use(ReferenceField(vec, math.hypot(*vec), "wmm", label))
-        log.info(
+        log.log(
+            self.level,
             "magnetic reference from %s (%s): N %.2f E %.2f D %.2f µT",
             label.replace(" on", f", {alt_m:.0f} m on"),
             "the vehicle's GPS date" if when is not None else "the companion's clock",

@@ -22,12 +22,16 @@ def measured(row: dict[str, str]) -> tuple[float, float]:
     return float(found[1]), float(found[2])
 
 
-def test_the_gps_less_sitl_flight_with_the_example_config(tmp_path):
+def test_the_gps_less_sitl_flight_with_the_example_config(tmp_path, capsys):
     """nogps.BIN, the example config and no flags: the field measured, fused within the targets of the
     autopilot's ATT (whose yaw is magnetic there too: COMPASS_DEC stayed 0)."""
     flight = shared_path("data", "ardupilot-sitl", "nogps.BIN")
     out = tmp_path / "out"
     assert main(["replay", str(flight), "-o", str(out), "--config", str(EXAMPLE_CONFIG), "--method", "fused"]) == 0
+    said = [line for line in capsys.readouterr().err.splitlines() if "no GPS position" in line]
+    # said once, of the replayed compass, naming the log: the log's two other compasses, judged beside it, each
+    # measure a field of their own without saying so (their verdicts are the summary's compasses column)
+    assert len(said) == 1 and f"{flight}: no GPS position: heading is magnetic north" in said[0]
     row = summary(out / "summary.csv")["nogps.BIN"]
     dip, intensity = measured(row)
     # the simulator's field is the WMM's at CMAC (README: inclination −65.77°, 58.0 µT); SITL's compass is exact
