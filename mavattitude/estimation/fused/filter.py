@@ -37,7 +37,9 @@ than ``max_gap_s`` restarts from IGN, keeping the bias. With no
 magnetometer reading for ``max_gap_s`` from the first sample (a vehicle without a compass), it starts on roll
 and pitch alone (:func:`~mavattitude.estimation.conventions.tilt_quat_parts`, yaw 0, ``P_θθ`` the tilt's σ
 with a heading uniform over ±180°): the gyro and the tilt updates carry roll and pitch, and the heading stays
-unknown (:attr:`FusedFilter.heading_known` false) until a reading comes, which restarts it from IGN.
+unknown (:attr:`FusedFilter.heading_known` false) until a reading comes, which turns the attitude about the
+vertical to the field's heading and keeps roll, pitch and the bias (the pipeline runs the filter so while it
+waits for a magnetic reference, its outputs dropped: the reference, when it comes, only gives it a heading).
 
 Schedule and output: update ``k`` is due at the start time plus ``k`` update periods and output tick ``k`` at
 the start time plus ``k`` output periods (a count, not a running sum of periods, whose rounding would put
@@ -266,7 +268,7 @@ class FusedFilter:
         gx, gy, gz = gyr = (float(gyr_radps[0]), float(gyr_radps[1]), float(gyr_radps[2]))
         if not math.isfinite(gx + gy + gz + time_s):
             raise InputError(f"non-finite gyro sample or time at t={time_s!r}")
-        if not self._started or (mag_uT is not None and not self.heading_known):
+        if not self._started:
             return self._start(time_s, gyr, acc_mps2, mag_uT)
         dt = time_s - self._t_last
         if dt <= 0.0:
@@ -277,6 +279,8 @@ class FusedFilter:
         self._ekf.integrate(dt, gx, gy, gz)
         self._t_last = time_s
         self._gyr_last = gyr
+        if mag_uT is not None and not self.heading_known:
+            self._acquire_heading(mag_uT, time_s)
         # A due update waits up to half a period for a sample that carries a magnetometer reading.
         due = self._next_update_s - _SAME_TIME_S
         if time_s >= due and (mag_uT is not None or time_s >= due + 0.5 * self._update_period_s):
@@ -480,6 +484,21 @@ class FusedFilter:
         self._next_update_s = time_s + self._update_period_s
         self._ticks = 0.0
         return self._outputs(time_s)
+
+    def _acquire_heading(self, mag_uT: ArrayLike, time_s: float) -> None:
+        """The first magnetometer reading of a filter running on roll and pitch alone: the attitude turned about
+        the vertical until the reading's horizontal part points along the reference's (the heading update's
+        innovation, taken whole), roll, pitch and the gyro bias kept. ``P_θθ`` still holds the heading as
+        unknown (a σ of ±180° uniform), so the heading updates that follow take the magnetometer's at full gain."""
+        mag = self._mag.corrected((float(mag_uT[0]), float(mag_uT[1]), float(mag_uT[2])))
+        r = rotation_matrix_parts(self._ekf.current_q())
+        mn = r[0] * mag[0] + r[1] * mag[1] + r[2] * mag[2]
+        me = r[3] * mag[0] + r[4] * mag[1] + r[5] * mag[2]
+        n, e = self._mag.north
+        self._ekf.turn_about_down(math.atan2(mn * e - me * n, mn * n + me * e))
+        self._mag.start(mag)
+        self.heading_known = True
+        self._heading_at_s = time_s
 
     def _tilt_start(self, acc: ArrayLike) -> tuple[Quat, tuple[float, ...]]:
         """Roll and pitch from the accelerometer, yaw 0; ``P_θθ``: the tilt's σ (σ_a / |a|) with the heading
