@@ -44,7 +44,7 @@ import logging
 import math
 from collections import Counter
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 import numpy as np
@@ -167,6 +167,11 @@ class Estimator(Protocol):
         """Forget the state (the pipeline calls it after an invalid output)."""
         ...
 
+    def wait(self, sample: ProcessedSample) -> None:
+        """A tick before the magnetic reference is known (nothing is emitted): what the estimator can learn from
+        it without a field."""
+        ...
+
     def counters(self) -> dict[str, float]:
         """The estimator's own counters since the start (name → number), for the counters line."""
         ...
@@ -198,6 +203,9 @@ class SnapshotEstimator:
 
     def reset(self) -> None:
         self._q0 = None
+
+    def wait(self, sample: ProcessedSample) -> None:
+        """A snapshot needs the field: nothing to carry to the ticks after it."""
 
     def counters(self) -> dict[str, float]:
         """With the noise measured at rest: the still time seen (s) and whether its σ are the ones in use."""
@@ -377,6 +385,13 @@ class FusedEstimator:
     def reset(self) -> None:
         self._drop_filter()
         self._slow.reset()
+
+    def wait(self, sample: ProcessedSample) -> None:
+        """The filter runs on roll and pitch alone (the reading left out), its outputs dropped: it tracks the tilt
+        and the gyro bias (at rest, the zero-rate updates) meanwhile, so the reference, when it comes, only gives
+        it a heading (:meth:`FusedFilter.push`), however the vehicle moves then."""
+        if not int(sample.flags) & _PER_SAMPLE:  # a slow input is solved tick by tick: nothing to carry
+            self.estimate(replace(sample, mag_uT=None), NO_FIELD_NED_UT)
 
     def _drop_filter(self) -> None:
         if self._filter is not None:
@@ -702,6 +717,7 @@ class AttitudePipeline:
         self._compass_seen_s, self.compass_seen = tick.time_s, True
         if self.mag_ref_ned_uT is None and not (judge and self._measure_reference(tick)):
             self.counters.waiting += 1
+            self.estimator.wait(tick)
             return
         if judge and self.compass.settings.enabled:
             tick = self._judge_compass(tick, tick.mag_uT, pushed)
