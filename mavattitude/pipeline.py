@@ -376,6 +376,10 @@ class FusedEstimator:
         self._filter: Any = None
         self._mag_ref: Array | None = None
         self._past: Counter[str] = Counter()  # counters of the filters dropped by a reset
+        # what the filter counted while the reference was awaited (its updates then are all without a heading: not
+        # the compass's doing, and no finding), and whether it is awaited now
+        self._waited: Counter[str] = Counter()
+        self._waiting = False
         self._slow = SnapshotEstimator(config, SLOW_INPUT_METHOD)
         rest_s = config.noise.rest_s
         self.rest_noise = RestNoise(rest_s) if rest_s > 0.0 else None
@@ -389,9 +393,14 @@ class FusedEstimator:
     def wait(self, sample: ProcessedSample) -> None:
         """The filter runs on roll and pitch alone (the reading left out), its outputs dropped: it tracks the tilt
         and the gyro bias (at rest, the zero-rate updates) meanwhile, so the reference, when it comes, only gives
-        it a heading (:meth:`FusedFilter.push`), however the vehicle moves then."""
-        if not int(sample.flags) & _PER_SAMPLE:  # a slow input is solved tick by tick: nothing to carry
-            self.estimate(replace(sample, mag_uT=None), NO_FIELD_NED_UT)
+        it a heading (:meth:`FusedFilter.push`), however the vehicle moves then. What it counts meanwhile is left
+        out of :meth:`counters`."""
+        if int(sample.flags) & _PER_SAMPLE:  # a slow input is solved tick by tick: nothing to carry
+            return
+        before = Counter(self._filter.counters) if self._filter is not None else Counter()
+        self.estimate(replace(sample, mag_uT=None), NO_FIELD_NED_UT)
+        self._waited += Counter(self._filter.counters) - before
+        self._waiting = True
 
     def _drop_filter(self) -> None:
         if self._filter is not None:
@@ -401,7 +410,7 @@ class FusedEstimator:
     def counters(self) -> dict[str, float]:
         """The filter's event counts (summed over resets), its learnt hard-iron offset, µT (body frame), and how
         long its heading has come from the gyro alone (``heading_gap_s``, whole seconds)."""
-        counts = self._past + Counter(self._filter.counters if self._filter is not None else {})
+        counts = self._past + Counter(self._filter.counters if self._filter is not None else {}) - self._waited
         out: dict[str, float] = {k: counts[k] for k in self._counter_names}
         rest = self.rest_noise
         if rest is not None:
@@ -410,7 +419,8 @@ class FusedEstimator:
         if self._filter is not None:
             x, y, z = self._filter.mag_offset_uT.tolist()
             out |= {"mag_offset_x_uT": x, "mag_offset_y_uT": y, "mag_offset_z_uT": z}
-            out["heading_gap_s"] = math.floor(self._filter.heading_gap_s)  # whole s: the line says what changed
+            # whole s: the line says what changed; none while the reference is awaited (the heading not yet sought)
+            out["heading_gap_s"] = 0 if self._waiting else math.floor(self._filter.heading_gap_s)
         return out
 
     def velocity(self, velocity: GpsVelocity) -> None:
@@ -454,6 +464,7 @@ class FusedEstimator:
         return filt.set_rest_noise(mag_std, rest.gyro_bias_radps, self._bias_std(rest, time_s))
 
     def estimate(self, sample: ProcessedSample, mag_ref_ned_uT: Array) -> list[AttitudeOutput]:
+        self._waiting = False
         if int(sample.flags) & _PER_SAMPLE:  # (plain int bits: an IntFlag operation costs 0.8 µs per sample)
             self._drop_filter()
             return self._slow.estimate(sample, mag_ref_ned_uT)

@@ -15,6 +15,7 @@ from mavattitude.estimation import solve as real_solve
 from mavattitude.estimation.compass import measured_dip_deg
 from mavattitude.estimation.conventions import angle_between, quat_from_euler, rotate_ned_to_body
 from mavattitude.pipeline import AttitudeOutput, AttitudePipeline
+from mavattitude.reports import heading_lost
 from mavattitude.sensors.frontend import SampleFlag
 from mavattitude.sensors.magref import field_from_angles, wmm_field_ned_uT
 from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2, ImuSample
@@ -165,6 +166,28 @@ def test_non_finite_rates_are_never_output():
     p.estimator = estimator = _NonFiniteRates()
     assert run(p, static_samples(n=40)) == []
     assert p.counters.rejected["invalid_rates"] == p.counters.ticks == estimator.resets > 0
+
+
+def test_the_fused_filter_awaiting_the_reference_tracks_the_tilt_and_counts_no_compass_finding():
+    """reference.magnetic auto, no position for 71 s (position_wait_s 600: no field measured either): the fused
+    filter runs on roll and pitch alone, its outputs dropped, and its counters leave that out, so the heading-lost
+    finding (a compass without a heading for 60 s) is not said of a compass nobody asked yet. When the position
+    comes, the outputs start at once on the tracked tilt, with the field's heading."""
+    p = AttitudePipeline(from_dict({"estimator": {"method": "fused"}, "reference": {"position_wait_s": 600.0}}))
+    when, (lat, lon, alt) = dt.date(2026, 6, 1), (48.14, 11.58, 520.0)
+    samples = static_samples(n=3600, rate_hz=50.0, field_ned_uT=np.array(wmm_field_ned_uT(lat, lon, alt, when)))
+    assert run(p, samples[:3550]) == []
+    own = p.counters.estimator()
+    assert own["updates"] == own["tilt_only_updates"] == own["heading_gap_s"] == 0
+    assert heading_lost(own) is None
+    assert p.set_position(lat, lon, alt, when)
+    out = run(p, samples[3550:])
+    # one sample's noise on the tilt the filter kept (σ_a / g = 0.29° per axis, averaged over a minute) and on
+    # the heading it takes from one reading (1.25°, test_static_attitude_at_the_output_rate): 4σ of the latter
+    assert np.degrees(angle_between(out[0].q, Q_TRUE)) < 5.0
+    assert np.degrees(angle_between(out[-1].q, Q_TRUE)) < MAX_ERR_DEG
+    own = p.counters.estimator()
+    assert own["updates"] > 0 and own["tilt_only_updates"] == 0 and heading_lost(own) is None
 
 
 def test_auto_reference_waits_for_a_position_then_uses_the_world_magnetic_model():
