@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any, TextIO
 import numpy as np
 
 from mavattitude.config import DEFAULTS, Config, load_config
-from mavattitude.errors import ConfigError, MavAttitudeError
+from mavattitude.errors import ConfigError, DataFileError, MavAttitudeError
 from mavattitude.estimation import METHODS
 from mavattitude.files import open_text
 
@@ -205,12 +205,20 @@ def summarise(pipeline: AttitudePipeline, n_in: int, source: str, compass: list[
     """Log the counters, the compass verdict's changes (``compass``) and its figures (the caller names ``source``
     in the log: :func:`mavattitude.commands.about`); nothing solved at all is a failure, not an empty success."""
     from mavattitude.reports import pipeline_summary
+    from mavattitude.sensors.magref import MIN_MEASURED_TICKS
 
     counters = pipeline.counters
     logger = logging.getLogger("mavattitude")
     logger.info("%d samples in; %s", n_in, pipeline_summary(counters))
     if pipeline.config.compass.enabled:
         summarise_compass(pipeline, compass, logger)
+    if counters.emitted == 0 and pipeline.waiting_for_reference:  # without a compass no field is needed
+        raise DataFileError(
+            f"{source}: reference.magnetic is auto, the input holds no position with a fix, and no field was "
+            f"measured from its compass ({pipeline.magref.position_wait_s:g} s of reference.position_wait_s from its "
+            f"start, then {MIN_MEASURED_TICKS} magnetometer ticks with the vehicle still): give --declination DEG "
+            "--inclination DEG or --mag-ref-ned N E D"
+        )
     if counters.emitted == 0:
         reasons = dict(counters.rejected) or dict(counters.frontend.rejected) or "no output tick"
         raise MavAttitudeError(f"{source}: no attitude could be computed ({reasons})")

@@ -77,7 +77,6 @@ from mavattitude.files import LOG_SUFFIXES
 from mavattitude.link.logstreams import TILT_ONLY
 from mavattitude.reports import heading_lost, rate_handling
 from mavattitude.sensors.frontend import SampleFlag
-from mavattitude.sensors.magref import MIN_MEASURED_TICKS
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
 
 NAME = "replay"
@@ -399,14 +398,6 @@ def _check_found(path: str, message: str, result: Any) -> None:
         raise DataFileError(f"{path}: no autopilot HEARTBEAT (from link.vehicle_system_id, if set)")
     if result.counters.received == 0:
         raise DataFileError(f"{path}: no {message} from the autopilot (set input.message, or --message)")
-    if result.pipeline.waiting_for_reference and not result.outputs:  # without a compass no field is needed
-        wait_s = result.pipeline.magref.position_wait_s
-        raise DataFileError(
-            f"{path}: reference.magnetic is auto, the log holds no position with a fix, and no field was measured "
-            f"from its compass ({wait_s:g} s of reference.position_wait_s from its start, then {MIN_MEASURED_TICKS} "
-            "magnetometer ticks with the vehicle still): give --declination DEG --inclination DEG or --mag-ref-ned "
-            "N E D"
-        )
     summarise(result.pipeline, result.counters.received, path, result.compass)
 
 

@@ -9,8 +9,11 @@ Output columns:
   the body-frame error angles, rad², upper triangle; nan where the geometry gives none).
 The samples go through the same pipeline as the service: with the filter (default) one row per output
 tick (50 Hz), with --no-filter one row per input row that could be solved. Rows that could not be solved
-are counted in the summary on stderr, never written. The magnetic reference must be given (a CSV has no
-position for the World Magnetic Model): --declination/--inclination, --mag-ref-ned, or the config.
+are counted in the summary on stderr, never written. The magnetic reference: --declination/--inclination,
+--mag-ref-ned, or the config's; with reference.magnetic auto (the default) a CSV, which holds no position for
+the World Magnetic Model, is treated as replay treats a log without GPS: after reference.position_wait_s the
+field is measured from the compass while the vehicle is still, heading is magnetic north, and the rows
+before it are not solved (the fused method tracks roll and pitch meanwhile).
 """
 
 from __future__ import annotations
@@ -77,11 +80,6 @@ def read_samples(path: str | Path) -> dict[str, np.ndarray]:
 
 def check_offline_config(config: Config, has_gyro: bool, source: str) -> None:
     """What an offline run needs beyond a valid config."""
-    if config.reference.magnetic.mode == "auto":
-        raise ConfigError(
-            f"reference.magnetic is auto (WMM at the vehicle's position), but {source} holds no position: give "
-            "--declination DEG --inclination DEG, or --mag-ref-ned N E D, or reference.magnetic in --config"
-        )
     if METHODS[config.estimator.method].needs_gyro and not has_gyro:
         raise ConfigError(
             f"estimator.method {config.estimator.method} needs a gyroscope, and {source} has no gyr_*_radps columns"

@@ -77,6 +77,22 @@ def test_solve_writes_the_documented_columns(tmp_path):
     assert np.all(variances > 0.0) and np.sqrt(variances).max() < np.radians(5.0)
 
 
+@pytest.mark.parametrize("method", ["ign", "fused"])
+def test_without_a_reference_the_field_is_measured_from_the_compass_after_the_wait(tmp_path, capsys, method):
+    """The default ``reference.magnetic: auto`` on a CSV (no position): replay's rule for a log without GPS. The
+    measured field has no declination, so the answer is the true attitude turned to magnetic north."""
+    out = tmp_path / "out.csv"
+    assert main(["solve", str(write_csv(tmp_path / "in.csv", n=1000)), "-o", str(out), "--method", method]) == 0
+    said = re.search(r"field measured from the compass: dip ([\d.]+)°, ([\d.]+) µT", capsys.readouterr().err)
+    dip, intensity = float(said[1]), float(said[2])
+    # the mean of ≥ 25 quiet ticks of a 0.5 µT noise on 48 µT: within 0.1° and 0.2 µT
+    assert dip == pytest.approx(INCL, abs=0.1) and intensity == pytest.approx(F_UT, abs=0.2)
+    _, rows = read_output(out)
+    assert rows[0, 0] >= 10.0 and len(rows) >= 200  # the samples start at 5 s, the field after 5 s more
+    q_magnetic = quat_from_euler(np.radians(-5.0), np.radians(30.0), np.radians(-100.0 - DECL))
+    assert np.degrees(angle_between(rows[10:, 1:5], q_magnetic)).max() < MAX_ERR_DEG
+
+
 def test_gzip_in_and_out_and_no_gyro_columns(tmp_path):
     out = tmp_path / "out.csv.gz"
     src = write_csv(tmp_path / "in.csv.gz", gyro=False)
@@ -156,7 +172,6 @@ def test_accel_and_mag_std_take_one_or_three_values(tmp_path):
 @pytest.mark.parametrize(
     ("make_args", "message"),
     [
-        (lambda src, out: [src, "-o", out], r"reference\.magnetic is auto .* holds no position"),
         (lambda src, out: [src, "-o", out, "--declination", "3"], r"--declination and --inclination go together"),
         (lambda src, out: [src, "-o", out, *REF, "--accel-std", "-1"], r"noise\.accel_std_mps2: -1.0 is out of range"),
         (lambda src, out: [src + ".missing", "-o", out, *REF], r"cannot open"),
@@ -209,6 +224,17 @@ def test_nothing_solvable_is_a_failure(tmp_path, capsys):
     bad.write_text("t_s,acc_x_mps2,acc_y_mps2,acc_z_mps2,mag_x_uT,mag_y_uT,mag_z_uT\n" + "\n".join(rows) + "\n")
     assert main(["solve", str(bad), "-o", str(tmp_path / "o.csv"), *REF]) == 2
     assert "no attitude could be computed ({'DegenerateGeometryError': 50})" in capsys.readouterr().err
+
+
+def test_an_input_shorter_than_the_wait_for_a_position_is_a_failure_that_says_what_to_give(tmp_path, capsys):
+    out = tmp_path / "o.csv"
+    assert main(["solve", str(write_csv(tmp_path / "in.csv")), "-o", str(out)]) == 2  # 2 s of samples
+    assert re.search(
+        r"error: .*in\.csv: reference\.magnetic is auto, the input holds no position with a fix, and no field was "
+        r"measured from its compass \(5 s of reference\.position_wait_s .* give --declination DEG --inclination DEG",
+        capsys.readouterr().err,
+    )
+    assert not out.exists()
 
 
 def test_progress_goes_to_stderr(tmp_path, capsys):
