@@ -44,7 +44,6 @@ class DispatchCounters:
     ignored: int = 0  # items from other senders, or before locking on
     rejected: dict[str, int] = field(default_factory=lambda: dict.fromkeys(DISPATCH_REJECTS, 0))
     positions: int = 0  # vehicle positions handed to the pipeline (magnetic reference ``auto``)
-    autopilot_attitudes: int = 0  # the autopilot's own attitude estimates seen
 
 
 class SampleSink(Protocol):
@@ -116,7 +115,6 @@ class Dispatcher:
         if kind is ImuSample:
             self._on_sample(item, t_rx)
         elif kind is AutopilotAttitude:
-            self.counters.autopilot_attitudes += 1
             self.listener.on_autopilot_attitude(item, t_rx)
         elif kind is PositionFix:
             if self.wants_position:

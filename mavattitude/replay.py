@@ -238,7 +238,6 @@ def _replay_arrays(s: LogStreams, result: Replayed, vehicle: Sender) -> Replayed
     result.autopilot = [
         AutopilotAttitude(t, tuple(q)) for t, q in zip(s.attitude_t_s.tolist(), s.attitude_q.tolist(), strict=True)
     ]
-    counters.autopilot_attitudes = len(result.autopilot)
     return result
 
 

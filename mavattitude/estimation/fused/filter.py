@@ -338,7 +338,7 @@ class FusedFilter:
         acc, sigma_a2 = self._prefiltered(raw, r, time_s)
         acc_norm = math.sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
         mag = None if mag_uT is None else self._mag.corrected((float(mag_uT[0]), float(mag_uT[1]), float(mag_uT[2])))
-        # ω (:meth:`_body_rate`, written out): the bias is the same until the reset
+        # ω, the body's rate: the last gyro sample less the estimated bias (the same until the reset)
         (b0, b1, b2), (g0, g1, g2) = ekf.bias, self._gyr_last
         rate = (g0 - b0, g1 - b1, g2 - b2)
         if mag is not None and mag_age_s > 0.0:
@@ -358,11 +358,6 @@ class FusedFilter:
                 self._heading_at_s = time_s
                 return
         self.counters["tilt_only_updates"] += 1
-
-    def _body_rate(self) -> Vec3:
-        """The body's rate ``ω``, rad/s: the last gyro sample with the estimated bias removed."""
-        b, g = self._ekf.bias, self._gyr_last
-        return (g[0] - b[0], g[1] - b[1], g[2] - b[2])
 
     def _prefiltered(self, raw: Vec3, r: Sequence[float], time_s: float) -> tuple[Vec3, float]:
         """``ã`` (the long pre-filter, body frame) and ``σ_a'²`` (module docstring); with a GPS acceleration,
@@ -403,7 +398,7 @@ class FusedFilter:
 
     def _skew_var(self, mag: Vec3, rate: Vec3) -> float:
         """``(τ_m ‖ω × m‖)²``: the field error a sample-time skew ``τ_m`` between gyro and magnetometer makes
-        while the body turns at ``rate`` (``ω``, :meth:`_body_rate`)."""
+        while the body turns at ``rate`` (``ω``, the gyro less its bias)."""
         (w0, w1, w2), (m0, m1, m2) = rate, mag
         t0, t1, t2 = w1 * m2 - w2 * m1, w2 * m0 - w0 * m2, w0 * m1 - w1 * m0  # ω × m, written out as below
         return self._skew2 * (t0 * t0 + t1 * t1 + t2 * t2)
@@ -512,7 +507,7 @@ class FusedFilter:
         """Estimates for every output tick up to ``time_s`` (within 1 µs), the attitude carried back to the tick."""
         ekf = self._ekf
         b = ekf.bias
-        (b0, b1, b2), (g0, g1, g2) = b, self._gyr_last  # ω (:meth:`_body_rate`, written out)
+        (b0, b1, b2), (g0, g1, g2) = b, self._gyr_last  # ω: the gyro less its bias
         wx, wy, wz = g0 - b0, g1 - b1, g2 - b2
         rates = np.array((wx, wy, wz))  # numpy 2: np.array of a float tuple costs 5 % less than np.fromiter
         p_tt, disturbed, q_now = ekf.p_tt, self._mag.disturbed, ekf.current_q()
