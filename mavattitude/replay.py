@@ -106,8 +106,9 @@ class _Collector:
         self.result = result
 
     def on_lock(self, vehicle: Sender) -> None:
-        self.result.vehicle = vehicle
-        log.info("following the autopilot at system %d, component %d", *vehicle)
+        if self.result.vehicle != vehicle:
+            self.result.vehicle = vehicle
+            log.info("following the autopilot at system %d, component %d", *vehicle)
 
     def on_input(self, sample: ImuSample, t_rx: float) -> None:
         r = self.result
@@ -151,17 +152,20 @@ def _replay(source: LogSource, config: Config, progress: Callable[[int, int], No
     if not at_once:
         return _replay_items(source, result, progress)
     streams = source.streams_for(_dispatcher(source, None, result))  # the dispatcher's rules choose the rows
-    if result.vehicle is not None and _one_reference(streams, pipeline):
-        return _replay_arrays(streams, result, result.vehicle)
+    vehicle = result.vehicle
+    if vehicle is None:  # a .tlog without an autopilot's HEARTBEAT: no row is the vehicle's
+        return result
+    if _one_reference(streams, pipeline):
+        return _replay_arrays(streams, result, vehicle)
     from mavattitude.link.logstreams import StreamSource  # the vehicle's streams, one by one
 
     c = result.counters
     counters = DispatchCounters(c.rejected["decode"], c.ignored, dict(c.rejected))  # what reading the log counted
-    result = Replayed([], [], counters, AttitudePipeline(config), None)
+    result = Replayed([], [], counters, AttitudePipeline(config), vehicle)  # locked on already, and said so
     undecided = streams.compasses is not None and streams.compasses.why is None
     others = _judge_compasses(streams, result.pipeline, -math.inf) if undecided else []  # each on its own field
     streams = _chosen_compass(streams, others, result)
-    result = _replay_items(StreamSource(source.name, streams), result, progress)
+    result = _replay_items(StreamSource(source.name, streams, vehicle), result, progress)
     if not undecided:  # the others on the reference the replay ended with
         others = _judge_compasses(streams, result.pipeline, -math.inf)
     _collect_compasses(streams, others, result)

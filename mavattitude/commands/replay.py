@@ -395,7 +395,12 @@ def _check_found(path: str, message: str, result: Any) -> None:
             result.counters.ignored,
         )
     if result.vehicle is None:
-        raise DataFileError(f"{path}: no autopilot HEARTBEAT (from link.vehicle_system_id, if set)")
+        if not result.counters.ignored:
+            raise DataFileError(f"{path}: not one MAVLink message could be read from it")
+        raise DataFileError(
+            f"{path}: no autopilot HEARTBEAT (from link.vehicle_system_id, if set) among its "
+            f"{result.counters.ignored} MAVLink messages: none of them is taken to be the vehicle's"
+        )
     if result.counters.received == 0:
         raise DataFileError(f"{path}: no {message} from the autopilot (set input.message, or --message)")
     summarise(result.pipeline, result.counters.received, path, result.compass)

@@ -175,10 +175,9 @@ def mag_for_imu(imu_t_s: Array, mag_t_s: Array, mag_uT: Array) -> NDArray[np.int
 class StreamSource:
     """:class:`LogStreams` as a finite message source (see the module docstring)."""
 
-    vehicle: Sender | None = LOG_VEHICLE
-
-    def __init__(self, name: str, streams: LogStreams) -> None:
+    def __init__(self, name: str, streams: LogStreams, vehicle: Sender = LOG_VEHICLE) -> None:
         self.name = name
+        self.vehicle: Sender | None = vehicle  # the streams are this sender's (a .tlog's autopilot, as it locked)
         self.streams = streams
         self.damage = streams.damage
         self.finished = False

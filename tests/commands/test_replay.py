@@ -45,10 +45,12 @@ def write_tlog(
     second_vehicle: bool = True,
     gimbal_first: bool = False,
     mag_every: int = 1,
+    heartbeats: bool = True,
 ) -> Path:
     """A ground station's recording: its own heartbeat, the autopilot(s') heartbeats, RAW_IMU at 100 Hz
     (ArduPilot units, seeded noise; each compass reading repeated in ``mag_every`` messages, as ArduPilot
-    sends a slower compass), ATTITUDE at 10 Hz, optionally GLOBAL_POSITION_INT at 5 Hz from ``position_from_s``."""
+    sends a slower compass), ATTITUDE at 10 Hz, optionally GLOBAL_POSITION_INT at 5 Hz from ``position_from_s``;
+    without ``heartbeats``, the station's alone."""
     field = field_from_angles(DECL, INCL, F_UT) if field_ned_uT is None else field_ned_uT
     rng = np.random.default_rng(3)
     profile = PROFILES["ardupilot"]
@@ -64,7 +66,7 @@ def write_tlog(
         add(0.0005, 3, gimbal)
     for k in range(int(seconds) + 1):
         add(k + 0.001, 255, links[255].heartbeat_encode(6, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0))
-        for s in vehicles:
+        for s in vehicles if heartbeats else ():
             add(k + 0.002, s, links[s].heartbeat_encode(2, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4))
     t = np.arange(1, int(seconds * 100)) / 100.0
     for s in vehicles:
@@ -80,9 +82,9 @@ def write_tlog(
             if attitude and i % 10 == 5:
                 r, p, y = rpy[i] + [0.0, 0.0, np.radians(AUTOPILOT_YAW_OFFSET_DEG)]
                 add(ti, s, links[s].attitude_encode(round(ti * 1e3), r, p, y, 0.0, 0.0, 0.0))
-    if position:
+    for s in vehicles if position else ():
         for ti in np.arange(position_from_s, seconds, 0.2):
-            add(ti, 1, links[1].global_position_int_encode(round(ti * 1e3), 474000000, 85000000, 450000, 0, 0, 0, 0, 0))
+            add(ti, s, links[s].global_position_int_encode(round(ti * 1e3), 474000000, 85000000, 450000, 0, 0, 0, 0, 0))
     records.sort(key=lambda r: r[0])
     with path.open("wb") as f:
         for t_s, buf in records:
@@ -157,6 +159,39 @@ def test_a_gimbal_heartbeat_is_not_taken_for_the_autopilot(tmp_path, capsys):
     assert main(["replay", str(log), "-o", str(out), *REF]) == 0
     assert errors_deg(read_rows(out)[10:]).max() < MAX_ERR_DEG
     assert "following the autopilot at system 1, component 1" in capsys.readouterr().err
+
+
+def test_a_log_without_an_autopilot_heartbeat_follows_nobody_and_says_so(tmp_path, capsys):
+    log = write_tlog(tmp_path / "station.tlog", seconds=1.0, second_vehicle=False, heartbeats=False)
+    assert main(["replay", str(log), "-o", str(tmp_path / "s.csv"), *REF]) == 2
+    err = capsys.readouterr().err
+    # the station's 2 HEARTBEATs, 99 RAW_IMU and 10 ATTITUDE of vehicle 1
+    assert "no autopilot HEARTBEAT (from link.vehicle_system_id, if set) among its 111 MAVLink messages" in err
+    assert "following" not in err
+
+
+def test_an_empty_log_is_said_to_hold_no_message(tmp_path, capsys):
+    log = tmp_path / "empty.tlog"
+    log.write_bytes(b"")
+    assert main(["replay", str(log), "-o", str(tmp_path / "e.csv"), *REF]) == 2
+    assert f"{log}: not one MAVLink message could be read from it" in capsys.readouterr().err
+
+
+def test_replayed_one_by_one_the_vehicle_followed_is_the_one_locked_on(tmp_path, capsys):
+    """A reference that changes mid-log is replayed sample by sample (as live), from the rows of the autopilot
+    the log's reading locked on: vehicle 2 here, said once."""
+    config = tmp_path / "c.yaml"
+    config.write_text(yaml.safe_dump({"link": {"vehicle_system_id": 2}}))
+    log = write_tlog(tmp_path / "two.tlog", 10.0, position=True, position_from_s=7.5, attitude=False)
+    out = tmp_path / "two.csv"
+    assert main(["replay", str(log), "-o", str(out), "--config", str(config)]) == 0
+    err = capsys.readouterr().err
+    assert err.count("following the autopilot") == 1 and "following the autopilot at system 2, component 1" in err
+    assert "magnetic reference from WMM2025" in err  # the position came after the measured field: one by one
+    rows = read_rows(out)
+    assert len(rows) > 100
+    tilt = np.degrees(np.arccos(np.clip(np.cos(np.radians(rows[:, 5])) * np.cos(np.radians(rows[:, 6])), -1, 1)))
+    assert np.abs(tilt - 40.0).max() < MAX_ERR_DEG  # vehicle 2 sits rolled 40°; vehicle 1 at 8° and -4°
 
 
 def test_auto_reference_from_the_logged_position_and_date(tmp_path):
