@@ -76,9 +76,11 @@ def detect_format(path: Path) -> LogFormat:
     for fmt in FORMATS:
         if head.startswith(fmt.magic) if fmt.magic is not None else path.suffix.lower() == fmt.suffix:
             return fmt
+    csv = path.name.lower().endswith((".csv", ".csv.gz"))
+    samples = " (a CSV of samples is for `mavattitude solve`)" if csv else ""
     raise DataFileError(
         f"{path}: not a flight log this reads (byte 0: {head[:4].hex(' ') or 'empty file'}): expected a DataFlash "
-        ".bin (starts a3 95 80), a ULog .ulg (starts 'ULog') or a telemetry log named .tlog"
+        f".bin (starts a3 95 80), a ULog .ulg (starts 'ULog') or a telemetry log named .tlog{samples}"
     )
 
 

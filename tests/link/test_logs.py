@@ -155,6 +155,10 @@ def test_unknown_formats_are_named_with_their_first_bytes(tmp_path):
     empty.write_bytes(b"")
     with pytest.raises(DataFileError, match="empty file"):
         open_log(empty, make_config())
+    samples = tmp_path / "samples.csv"
+    samples.write_text("t_s,acc_x_mps2\n")
+    with pytest.raises(DataFileError, match=r"\(a CSV of samples is for `mavattitude solve`\)$"):
+        detect_format(samples)
 
 
 def test_the_shared_sitl_flight_as_dataflash():
