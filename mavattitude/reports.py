@@ -173,17 +173,22 @@ def compass_summary(f: CompassFigures) -> str:
     if f.samples == 0:
         return "compass: no quiet sample (the vehicle never rested): dip and |B| not judged"
     field = (
-        f"|B| {f.field_ratio:.2f} of the {f.expected} (spread {f.field_std:.2f}, "
+        f"|B| {f.field_ratio:.2f} of the {f.expected} ({_spread(f.field_std, '.2f', '')}, "
         f"first minute {f.first_field_ratio:.2f})"
         if f.field_ratio == f.field_ratio
         else "|B| not compared (the magnetic reference gives no field strength: reference.magnetic.intensity_uT "
         "or a position for the World Magnetic Model)"
     )
     return (
-        f"compass: dip {f.dip_deg:.1f}° (spread {f.dip_std_deg:.1f}°, first minute {f.first_dip_deg:.1f}°) vs "
+        f"compass: dip {f.dip_deg:.1f}° ({_spread(f.dip_std_deg, '.1f', '°')}, first minute {f.first_dip_deg:.1f}°) vs "
         f"{f.expected} {f.expected_dip_deg:.1f}°, {field}, {f.samples} quiet samples, judged inconsistent "
         f"{f.warnings} time(s)"
     )
+
+
+def _spread(std: float, spec: str, unit: str) -> str:
+    """A window's spread, or why there is none (one quiet sample in the window: a slow input)."""
+    return f"spread {std:{spec}}{unit}" if std == std else "one sample in the window, no spread"
 
 
 #: A share of slow samples said as "all", and its complement said as none: a stream's first sample comes

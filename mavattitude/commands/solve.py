@@ -88,6 +88,8 @@ def check_offline_config(config: Config, has_gyro: bool, source: str) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from mavattitude.pipeline import AttitudePipeline
+    from mavattitude.reports import rate_handling
+    from mavattitude.sensors.frontend import median_rate_hz
     from mavattitude.sensors.units import ImuSample
 
     config = config_from_args(args)
@@ -110,6 +112,8 @@ def run(args: argparse.Namespace) -> int:
             if i % 1000 == 0 or i == n - 1:
                 progress(i + 1, n)
         summarise(pipeline, n, args.input, compass)
+        frontend = pipeline.counters.frontend
+        log.info("%s", rate_handling(config, "samples", median_rate_hz(data["t_s"]), frontend.per_sample, n))
     write_outputs(args.output, outputs)
     log.info("wrote %d attitudes to %s", len(outputs), args.output)
     if args.save_mag_offset:

@@ -93,6 +93,23 @@ def test_without_a_reference_the_field_is_measured_from_the_compass_after_the_wa
     assert np.degrees(angle_between(rows[10:, 1:5], q_magnetic)).max() < MAX_ERR_DEG
 
 
+def test_a_time_column_in_milliseconds_shows_as_a_slow_input_in_plain_words(tmp_path, capsys):
+    """Times written in ms instead of s: 100 Hz samples read as 0.1 Hz. Solve says the rate it read and what it
+    did at it, and the compass line has no ``nan`` for the spread one sample per window cannot give."""
+    src = write_csv(tmp_path / "in.csv", n=50)
+    lines = src.read_text().splitlines()
+    header = lines[0].split(",")
+    column = header.index("t_s")
+    rows = [line.split(",") for line in lines[1:]]
+    for row in rows:
+        row[column] = repr(float(row[column]) * 1000.0)
+    src.write_text("\n".join([lines[0], *(",".join(r) for r in rows)]) + "\n")
+    assert main(["solve", str(src), "-o", str(tmp_path / "o.csv"), *REF]) == 0
+    err = capsys.readouterr().err
+    assert "samples at 0.1 Hz: one attitude per sample, no filtering" in err
+    assert "nan" not in err and "one sample in the window, no spread" in err
+
+
 def test_gzip_in_and_out_and_no_gyro_columns(tmp_path):
     out = tmp_path / "out.csv.gz"
     src = write_csv(tmp_path / "in.csv.gz", gyro=False)
