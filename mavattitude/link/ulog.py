@@ -2,13 +2,16 @@
 
 Both topic layouts are read: the current one (``sensor_combined`` for the IMU, ``vehicle_magnetometer``
 for the magnetometer) and the old one (the magnetometer inside ``sensor_combined``, ``magnetometer_ga``).
-Units by :mod:`mavattitude.sensors.ulog_units`. pyulog reads a damaged or cut-off file as far as it can
-and says so (``file_corruption``); that becomes :attr:`LogStreams.damage`.
+Units by :mod:`mavattitude.sensors.ulog_units`. pyulog reads a damaged or cut-off file as far as it can; it
+says so of a damaged one (``file_corruption``) but stops at a cut-off one's incomplete last message without a
+word, so the messages' own sizes are walked to find it (:func:`cut_at`). Either becomes
+:attr:`LogStreams.damage`.
 """
 
 from __future__ import annotations
 
 import datetime as dt
+import struct
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +31,8 @@ TOPICS = [
     "vehicle_gps_position",
     "vehicle_global_position",
 ]
+FILE_HEADER_BYTES = 16  # "ULog", its version and its start time; then every message: size (u16), type (u8), payload
+_MESSAGE_HEADER = struct.Struct("<HB")
 
 
 def _open(path: Path) -> Any:
@@ -72,12 +77,26 @@ def read_ulog(path: str | Path, imu_instance: int = 0, mag_instance: int | None 
         gps_t, gps_velocity = uu.gps_velocity(gps) if gps is not None else (np.empty(0), [])
     except KeyError as exc:
         raise DataFileError(f"{path}: a topic lacks a field replay reads: {exc}") from exc
-    damage = "damaged or cut off: pyulog skipped what it could not read" if ulog.file_corruption else None
+    damage = "damaged: pyulog skipped what it could not read" if ulog.file_corruption else None
+    if damage is None and not ulog.has_data_appended:  # appended data is placed by offsets, not walked to
+        damage = cut_at(path.read_bytes())
     streams = LogStreams(t, acc, gyr, mag_t, mag, att_t, att_q, pos_t, positions, date, None, damage)
     streams.check(str(path), f"sensor_combined[{imu_instance}]", mag_name)
     streams.gps_t_s, streams.gps_velocity = gps_t, gps_velocity
     streams.compasses = _compasses(ulog)
     return streams
+
+
+def cut_at(data: bytes) -> str | None:
+    """Where a ULog file ends inside its last message, from each message's size (None: it ends on a message's
+    end). ~0.1 s for 20 MB."""
+    unpack, pos, end = _MESSAGE_HEADER.unpack_from, FILE_HEADER_BYTES, len(data)
+    while pos + _MESSAGE_HEADER.size <= end:
+        after = pos + _MESSAGE_HEADER.size + unpack(data, pos)[0]
+        if after > end:
+            break
+        pos = after
+    return None if pos == end else f"truncated: the message at byte {pos} is incomplete ({end - pos} bytes)"
 
 
 def _compasses(ulog: Any) -> Compasses | None:

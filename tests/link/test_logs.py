@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as dt
+import struct
 
 import numpy as np
 import pytest
@@ -14,7 +15,7 @@ from mavattitude.link.dataflash import read_dataflash
 from mavattitude.link.logs import FORMATS, detect_format, open_log
 from mavattitude.link.logstreams import LOG_VEHICLE, StreamSource
 from mavattitude.link.source import AutopilotAttitude, PositionFix
-from mavattitude.link.ulog import read_ulog
+from mavattitude.link.ulog import cut_at, read_ulog
 from mavattitude.sensors.units import ImuSample
 from mavattitude.sim.logwriter import LAYOUTS, static_log, write_dataflash
 from tests.shared import shared_path
@@ -181,6 +182,32 @@ def test_both_ulog_generations(name, mag):
     assert np.median(np.linalg.norm(s.acc_mps2, axis=1)) == pytest.approx(9.81, rel=0.02)
     assert 20.0 < np.median(np.linalg.norm(s.mag_uT, axis=1)) < 70.0  # gauss × 100: an Earth field
     assert np.allclose(np.linalg.norm(s.attitude_q, axis=1), 1.0, atol=1e-5)
+    assert s.damage is None  # both end on a message's end
+
+
+def ulog_bytes(*payload_sizes: int) -> bytes:
+    """A file header and messages of these payload sizes (type 'D', zero payloads): the framing alone."""
+    return b"ULog\x01\x125\x01" + bytes(8) + b"".join(struct.pack("<HB", n, ord("D")) + bytes(n) for n in payload_sizes)
+
+
+def test_a_ulog_cut_inside_its_last_message_is_found_by_walking_the_message_sizes():
+    whole = ulog_bytes(40, 7, 300, 12)
+    assert cut_at(whole) is None
+    last = 16 + (3 + 40) + (3 + 7) + (3 + 300)  # where the 12-byte message starts
+    assert cut_at(whole[:-5]) == f"truncated: the message at byte {last} is incomplete (10 bytes)"
+    assert cut_at(whole[: last + 2]) == f"truncated: the message at byte {last} is incomplete (2 bytes)"  # its header
+    assert cut_at(whole[:16]) is None  # a header alone: no message begun
+
+
+def test_a_cut_off_px4_log_is_replayed_up_to_the_cut_and_said_damaged(tmp_path):
+    data = shared_path("data", "px4", "sample.ulg").read_bytes()
+    cut = tmp_path / "cut.ulg"
+    cut.write_bytes(data[: len(data) * 3 // 4])  # as a pulled battery leaves it: mid-message
+    s = read_ulog(cut)
+    assert s.damage is not None and s.damage.startswith("truncated: the message at byte ")
+    whole = read_ulog(shared_path("data", "px4", "sample.ulg"))
+    assert 0.6 < len(s.imu_t_s) / len(whole.imu_t_s) < 0.9  # what came before the cut is there
+    assert np.array_equal(s.imu_t_s, whole.imu_t_s[: len(s.imu_t_s)])
 
 
 def test_a_telemetry_log_record_that_fails_its_crc_is_skipped_and_said(tmp_path):
