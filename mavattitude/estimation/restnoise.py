@@ -150,7 +150,7 @@ class RestNoise:
             return False
         accel_std = tuple(math.sqrt(s / p.dof_acc) for s in p.acc)
         mag_std = tuple(math.sqrt(s / p.dof_mag) for s in p.mag)
-        if not (_measured(accel_std) and _measured(mag_std)):
+        if not (_measured(accel_std, MIN_ACCEL_STD_MPS2) and _measured(mag_std, MIN_MAG_STD_UT)):
             return False
         self.measured = NoiseModel(accel_std=accel_std, mag_std=mag_std)
         n_gyr = p.dof_acc + p.blocks  # every block's ticks: the gyro and accelerometer come together
@@ -170,9 +170,14 @@ class RestNoise:
 #: An axis whose σ is this far below the sensor's largest is no noise measured but the arithmetic's rounding
 #: (a simulator's noise-free axis: 2e-14 m/s² beside 3e-3), and IGN would take it as a vector known exactly
 MIN_AXIS_FRACTION = 1e-6
+#: Nor is a σ below this, on any axis: a billionth of gravity and of a weak Earth's field (25 µT), where a
+#: navigation-grade sensor's noise is a millionth, and a constant input's rounding (a stream with no noise at all)
+#: is 1e-15 of the value: IGN's weights would be ~1e30 and its solve would fail
+MIN_ACCEL_STD_MPS2 = 1e-9 * 9.80665
+MIN_MAG_STD_UT = 1e-9 * 25.0
 
 
-def _measured(std: tuple[float, ...]) -> bool:
-    """Whether a sensor's per-axis σ are all noise: none zero (a quantised sensor that never moved) nor lost in
-    rounding beside the others (:data:`MIN_AXIS_FRACTION`)."""
-    return min(std) > MIN_AXIS_FRACTION * max(std)
+def _measured(std: tuple[float, ...], floor: float) -> bool:
+    """Whether a sensor's per-axis σ are all noise: none below ``floor`` (a quantised sensor that never moved, a
+    noise-free stream) nor lost in rounding beside the others (:data:`MIN_AXIS_FRACTION`)."""
+    return min(std) > max(MIN_AXIS_FRACTION * max(std), floor)

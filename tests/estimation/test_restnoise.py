@@ -96,6 +96,24 @@ def test_an_axis_without_noise_is_no_sigma_measured() -> None:
     assert rest.still_s >= 10.0 and rest.measured is None
 
 
+def test_a_stream_without_noise_is_no_sigma_measured_and_ign_keeps_solving() -> None:
+    """Every axis constant but for arithmetic rounding (a noise-free simulator's stream through the low-pass): σ of
+    1e-12 on all axes alike (a few hundred ulps of 45 µT) passes the axes' ratio, but is no sensor's noise. Taken as
+    R, IGN's weights would be ~1e24 and its solves refused; the config's prior stays and every tick is solved."""
+    rest = RestNoise(rest_s=10.0)
+    rng = np.random.default_rng(SEED)
+    for k in range(round(12.0 * RATE_HZ)):
+        acc = tuple(np.array([0.01, -0.02, -9.8]) + rng.normal(0.0, 1e-12, 3))
+        mag = tuple(np.array([20.0, 1.0, 45.0]) + rng.normal(0.0, 1e-12, 3))
+        rest.add(k / RATE_HZ, acc, mag, (0.001, -0.002, 0.003))
+    assert rest.still_s >= 10.0 and rest.measured is None
+    config = from_dict({"reference": {"magnetic": {"field_ned_uT": [20.0, 1.0, 45.0]}}})
+    p = pipeline.AttitudePipeline(config)
+    still = ((0.01, -0.02, -9.8), (0.001, -0.002, 0.003), (20.0, 1.0, 45.0))
+    outputs = [o for k in range(4000) for o in p.push(ImuSample(k / 200.0, *still)).outputs]
+    assert len(outputs) == p.counters.ticks == 1000 and not p.counters.rejected  # 20 s at 50 Hz, none refused
+
+
 def _fused_at_rest(rest_s: float, seconds: float = 20.0) -> tuple[pipeline.AttitudePipeline, np.ndarray]:
     """The fake vehicle still for ``seconds`` (consumer sensors at 100 Hz, gyro bias (2, −1, 1.5) mrad/s, σ 3 mrad/s)
     through the pipeline with ``method: fused``; the pipeline and the sensor model's true gyro bias."""
