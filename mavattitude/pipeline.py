@@ -73,6 +73,7 @@ from mavattitude.sensors.units import GpsVelocity, ImuSample
 log = logging.getLogger(__name__)
 
 COMPASS_PERIOD_S = 0.0199  # the monitor takes one tick per 20 ms (50 Hz) at most; just under: ticks jitter
+PROGRESS_TICKS = 5000  # push_batch says its progress this often: ~0.1 s of the fused filter's work
 
 
 def _compass_skips(since_s: float) -> bool:
@@ -580,17 +581,17 @@ class AttitudePipeline:
         self._apply_reference()
         return True
 
-    def _measure_reference_rows(self, batch: BatchOutput) -> float:
+    def _measure_reference_rows(self, batch: BatchOutput) -> int:
         """:meth:`_measure_reference` of a batch's ticks in order, up to the one that made the measured field the
-        reference: the time of the tick before it (the ticks after it take the reference); ``inf`` if none did."""
+        reference: its row (it and the ticks after it take the reference); the batch's length if none did."""
         rows = np.flatnonzero(batch.mag_uT[:, 0] == batch.mag_uT[:, 0])  # NaN: no reading
         dips, norms = self.compass.quiet_dip_field_rows(batch.acc_mps2[rows], batch.mag_uT[rows], batch.gyr_radps[rows])
         times = batch.time_s[rows].tolist()
         for i, t, dip, norm in zip(rows.tolist(), times, dips.tolist(), norms.tolist(), strict=True):
             if self.magref.observe(t, dip, norm):
                 self._apply_reference()
-                return float(batch.time_s[i - 1]) if i else -math.inf
-        return math.inf
+                return i
+        return len(batch)
 
     def set_position(self, lat_deg: float, lon_deg: float, alt_m: float, when: dt.date | None = None) -> bool:
         """A vehicle position (``reference.magnetic: auto``): the WMM field there on ``when`` (default today)
@@ -650,45 +651,56 @@ class AttitudePipeline:
         mag_repeats: bool = False,
         gps: tuple[Array, list[GpsVelocity]] = (np.empty(0), []),
         attitudes: bool = True,
+        progress: Callable[[int, int], None] | None = None,
     ) -> Pushed:
         """:meth:`push` for a whole run of samples at once: what ``push`` gives fed them one by one, as one value.
 
         The front end runs vectorised (:func:`~mavattitude.sensors.frontend.process_batch`, ~20× faster per
         sample, ticks equal to rounding), then every tick takes the same estimator step as in :meth:`push`.
         For offline replay, where the per-sample front end is the cost. The magnetic reference is the one
-        set now, for every tick after ``reference_after_s`` (the ticks up to it wait, as before a position), or,
+        set now, for every tick from the first after ``reference_after_s`` on (the ticks before it wait, as before a
+        position; a reboot's clock going back later does not undo it), or,
         with none set, the field the ticks measure (:meth:`_measure_reference`, the same rule as one by one);
         ``mag_new`` marks rows with a new magnetometer reading, ``mag_repeats`` that the messages repeat the newest
         one (:attr:`~mavattitude.sensors.units.ImuSample.mag_repeats`). ``gps``: the receiver's velocities and the
         times they are handed in at, each before the first tick at or after its time, as :meth:`set_velocity`.
         ``attitudes=False``: the compass monitor alone, no estimator (how a log's other magnetometers are judged).
+        ``progress(done, total)``: ticks estimated, every :data:`PROGRESS_TICKS` and at the end.
         """
         fe = self.frontend
         inputs = (fe.settings, time_s, acc_mps2, gyr_radps, mag_uT)
         options = {"mag_new": mag_new, "mag_repeats": mag_repeats, "wrap_period_s": time_wrap_s}
         batch = process_batch(*inputs, **options, expected_field_uT=fe.expected_field_uT)
+        # the first tick with the reference: the first after reference_after_s, in order (a reboot later in the
+        # batch takes the clock back, not the reference), or the one whose field was measured
+        after = batch.time_s > reference_after_s
+        first = int(np.argmax(after)) if after.any() else len(batch)
         if self.mag_ref_ned_uT is None:
             # the field measured from the ticks themselves: the batch again with its |B| screening them
-            reference_after_s = max(reference_after_s, self._measure_reference_rows(batch))
+            first = max(first, self._measure_reference_rows(batch))
             if self.mag_ref_ned_uT is not None:
-                batch = process_batch(*inputs, **options, expected_field_uT=fe.expected_field_uT)
+                batch = process_batch(*inputs, **options, expected_field_uT=fe.expected_field_uT, say_reboots=False)
         fe.counters.add(batch.counters)
         pushed = Pushed()
         reference = self.mag_ref_ned_uT
         if reference is not None and self.compass.settings.enabled:
-            pushed.compass = self._judge_compass_rows(batch, batch.time_s > reference_after_s)
+            pushed.compass = self._judge_compass_rows(batch, np.arange(len(batch)) >= first)
         if not attitudes:
             return pushed
         gps_t, velocities = gps[0].tolist(), gps[1]
         next_gps = 0
         with collector.paused():
-            for tick in batch.samples():
+            for done, tick in enumerate(batch.samples()):
                 while next_gps < len(gps_t) and gps_t[next_gps] <= tick.time_s:
                     self.estimator.velocity(velocities[next_gps])
                     next_gps += 1
                 self.counters.ticks += 1
-                self.mag_ref_ned_uT = reference if tick.time_s > reference_after_s else None
+                self.mag_ref_ned_uT = reference if done >= first else None
                 self._estimate(tick, pushed, judge=False)
+                if progress is not None and done % PROGRESS_TICKS == 0:
+                    progress(done, len(batch))
+        if progress is not None:
+            progress(len(batch), len(batch))
         self.mag_ref_ned_uT = reference
         return pushed
 

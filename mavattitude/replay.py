@@ -156,7 +156,7 @@ def _replay(source: LogSource, config: Config, progress: Callable[[int, int], No
     if vehicle is None:  # a .tlog without an autopilot's HEARTBEAT: no row is the vehicle's
         return result
     if _one_reference(streams, pipeline):
-        return _replay_arrays(streams, result, vehicle)
+        return _replay_arrays(streams, result, vehicle, progress)
     from mavattitude.link.logstreams import StreamSource  # the vehicle's streams, one by one
 
     c = result.counters
@@ -216,8 +216,11 @@ def _one_reference(streams: LogStreams, pipeline: AttitudePipeline) -> bool:
     return all(distance_km(lat0, lon0, lat, lon) <= limit_km for lat, lon, _ in streams.position.tolist())
 
 
-def _replay_arrays(s: LogStreams, result: Replayed, vehicle: Sender) -> Replayed:
-    """The arrays of a log through :meth:`AttitudePipeline.push_batch`, as the items would go one by one."""
+def _replay_arrays(
+    s: LogStreams, result: Replayed, vehicle: Sender, progress: Callable[[int, int], None] | None
+) -> Replayed:
+    """The arrays of a log through :meth:`AttitudePipeline.push_batch`, as the items would go one by one
+    (``progress`` in output ticks)."""
     pipeline, counters = result.pipeline, result.counters
     result.vehicle = vehicle
     log.info("%d IMU samples of the autopilot at once", len(s.imu_t_s))
@@ -231,7 +234,12 @@ def _replay_arrays(s: LogStreams, result: Replayed, vehicle: Sender) -> Replayed
     others = _judge_compasses(s, pipeline, reference_after_s)
     s = _chosen_compass(s, others, result)
     pushed = pipeline.push_batch(
-        *_batch_arrays(s), s.time_wrap_s, reference_after_s, s.mag_repeats, (s.gps_t_s, s.gps_velocity)
+        *_batch_arrays(s),
+        s.time_wrap_s,
+        reference_after_s,
+        s.mag_repeats,
+        (s.gps_t_s, s.gps_velocity),
+        progress=progress,
     )
     result.outputs, result.compass = pushed.outputs, pushed.compass
     _collect_compasses(s, others, result)

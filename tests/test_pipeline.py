@@ -354,6 +354,27 @@ def test_without_a_position_one_by_one_and_at_once_measure_the_same_field(method
     assert dip == pytest.approx(60.0, abs=0.3) and one.frontend.expected_field_uT == pytest.approx(50.0, abs=0.3)
 
 
+def test_a_reboot_after_the_measured_field_keeps_it_one_by_one_and_at_once(caplog):
+    """The clock going back (an autopilot reboot) after the field was measured: the ticks after it are solved with
+    that field, live and in replay alike; the reboot is said once."""
+    config = from_dict({"reference": {"position_wait_s": 1.0}})
+    first, second = static_samples(n=600, t0_s=10.0), static_samples(n=600, t0_s=2.0, seed=2)  # 3 s, then 3 s from 2 s
+    samples = first + second
+    by_one = run(AttitudePipeline(config), samples)
+    rows = {k: np.array([getattr(s, k) for s in samples]) for k in ("time_s", "acc_mps2", "gyr_radps", "mag_uT")}
+    caplog.clear()
+    at_once = (
+        AttitudePipeline(config)
+        .push_batch(rows["time_s"], rows["acc_mps2"], rows["gyr_radps"], rows["mag_uT"], np.ones(1200, dtype=bool))
+        .outputs
+    )
+    # 2 s after the 1 s wait, then the 3 s after the reboot (its first tick at the first sample: 2.0 s)
+    assert sum(o.time_s < 5.0 for o in by_one) == 150 and len(by_one) == 250
+    assert [o.time_s for o in at_once] == pytest.approx([o.time_s for o in by_one], abs=1e-9)
+    assert np.allclose([o.q for o in by_one], [o.q for o in at_once], atol=1e-9)
+    assert sum("vehicle clock went back" in r.getMessage() for r in caplog.records) == 1
+
+
 def test_a_position_after_the_measured_field_turns_the_fused_heading_to_true_north_at_once():
     """Measured field (magnetic north), then a position: the WMM's field, and the fused filter's heading turned by
     the declination with it from the next output on (the state kept, no restart)."""

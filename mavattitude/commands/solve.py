@@ -90,7 +90,6 @@ def run(args: argparse.Namespace) -> int:
     from mavattitude.pipeline import AttitudePipeline
     from mavattitude.reports import rate_handling
     from mavattitude.sensors.frontend import median_rate_hz
-    from mavattitude.sensors.units import ImuSample
 
     config = config_from_args(args)
     data = read_samples(args.input)
@@ -98,24 +97,20 @@ def run(args: argparse.Namespace) -> int:
     if args.save_mag_offset and not METHODS[config.estimator.method].learns_mag_offset:
         raise ConfigError("--save-mag-offset needs --method fused: only the fused filter learns a hard-iron offset")
     pipeline = AttitudePipeline(config)
-    n = len(data["t_s"])
-    t, acc, mag = data["t_s"].tolist(), data["acc"].tolist(), data["mag"].tolist()
+    t = data["t_s"]
+    n = len(t)
     # Without gyro columns: zero rates (the snapshot solve does not use them, and the CSV output has none).
-    gyr = data["gyr"].tolist() if "gyr" in data else [[0.0] * 3] * n
-    progress = Progress(f"solve {Path(args.input).name}", args.progress)
-    outputs, compass = [], []
+    gyr = data.get("gyr", np.zeros((n, 3)))
+    wanted = n >= PROGRESS_MIN_SAMPLES if args.progress is None else args.progress
+    progress = Progress(f"solve {Path(args.input).name}, output ticks", wanted)
     with about(args.input):
-        for i in range(n):
-            pushed = pipeline.push(ImuSample(t[i], tuple(acc[i]), tuple(gyr[i]), tuple(mag[i])))
-            outputs += pushed.outputs
-            compass += pushed.compass
-            if i % 1000 == 0 or i == n - 1:
-                progress(i + 1, n)
-        summarise(pipeline, n, args.input, compass)
+        # every row its own magnetometer reading: the samples as push() takes them one by one, all at once
+        pushed = pipeline.push_batch(t, data["acc"], gyr, data["mag"], np.ones(n, dtype=bool), progress=progress)
+        summarise(pipeline, n, args.input, pushed.compass)
         frontend = pipeline.counters.frontend
-        log.info("%s", rate_handling(config, "samples", median_rate_hz(data["t_s"]), frontend.per_sample, n))
-    write_outputs(args.output, outputs)
-    log.info("wrote %d attitudes to %s", len(outputs), args.output)
+        log.info("%s", rate_handling(config, "samples", median_rate_hz(t), frontend.per_sample, n))
+    write_outputs(args.output, pushed.outputs)
+    log.info("wrote %d attitudes to %s", len(pushed.outputs), args.output)
     if args.save_mag_offset:
         save_mag_offset(args.save_mag_offset, config, pipeline.estimator.counters())
     return 0

@@ -510,7 +510,7 @@ class FrontEnd:
         c = self.counters
         if event is ClockEvent.REBOOT:
             c.reboots += 1
-            log.warning("vehicle clock went back from the newest sample to %.3f s: reboot, front end restarted", t)
+            _say_reboot(t)
             self._imu.reboot()
             self._mag.reboot()
             self.per_sample = False
@@ -744,11 +744,14 @@ def process_batch(
     saturated: dict[str, NDArray[np.bool_]] | None = None,
     wrap_period_s: float | None = None,
     expected_field_uT: float | None = None,
+    say_reboots: bool = True,
 ) -> BatchOutput:
     """The front end over whole arrays (sensor/board frame, SI): what :meth:`FrontEnd.push` gives, sample
     by sample, for the same input. ``mag_new`` marks rows with a new magnetometer reading (default: rows
     where ``mag_uT`` is given), ``mag_repeats`` the rows (or all) whose message repeats the newest one
     (:attr:`ImuSample.mag_repeats`); ``saturated`` maps ``"acc"``/``"gyr"``/``"mag"`` to rows at an integer limit.
+    A reboot in the times is logged as :meth:`FrontEnd.push` logs it, unless ``say_reboots`` is false (a second
+    pass over the same samples).
     """
     s = settings
     t = np.asarray(time_s, dtype=float)
@@ -760,7 +763,7 @@ def process_batch(
         mag_new = np.zeros(n, dtype=bool) if mag_uT is None else np.ones(n, dtype=bool)
     sat = {k: np.zeros(n, dtype=bool) for k in ("acc", "gyr", "mag")} | dict(saturated or {})
     c = FrontEndCounters(received=n)
-    t, kept, epoch = _batch_clock(t, wrap_period_s, s.reorder_window_s, c)
+    t, kept, epoch = _batch_clock(t, wrap_period_s, s.reorder_window_s, c, say_reboots)
     b0 = expected_field_uT if expected_field_uT is not None else s.expected_field_uT
     acc_floor2, mag_floor2 = dead_floors2(s, b0)
 
@@ -841,8 +844,12 @@ def _apply_batch(affine: tuple[Array, Array], v: Array) -> Array:
     return np.stack([a[i, 0] * x + a[i, 1] * y + a[i, 2] * z - c[i] for i in range(3)])
 
 
+def _say_reboot(t_s: float) -> None:
+    log.warning("vehicle clock went back from the newest sample to %.3f s: reboot, front end restarted", t_s)
+
+
 def _batch_clock(
-    t: Array, wrap_s: float | None, reorder_window_s: float, c: FrontEndCounters
+    t: Array, wrap_s: float | None, reorder_window_s: float, c: FrontEndCounters, say_reboots: bool
 ) -> tuple[Array, NDArray[np.bool_], NDArray[np.int64]]:
     """Unwrapped times, the rows the clock keeps, and each row's boot epoch."""
     n = len(t)
@@ -860,6 +867,8 @@ def _batch_clock(
             continue
         if event is ClockEvent.REBOOT:
             c.reboots += 1
+            if say_reboots:
+                _say_reboot(ti)
             e += 1
         elif event is ClockEvent.WRAP:
             c.wraps += 1
