@@ -375,6 +375,26 @@ def test_a_reboot_after_the_measured_field_keeps_it_one_by_one_and_at_once(caplo
     assert sum("vehicle clock went back" in r.getMessage() for r in caplog.records) == 1
 
 
+@pytest.mark.parametrize(
+    ("reference", "yaw_deg"),
+    [(ANGLES["reference"], 135.0), ({"position_wait_s": 1.0}, 133.0)],  # measured: magnetic, the 2° declination off
+)
+def test_after_a_reboot_the_fused_filter_goes_on_at_once(reference, yaw_deg):
+    """The autopilot rebooted 10 s into its clock (the clock starts again at 2 s): the fused filter restarts there,
+    with the field given or while it still waits to measure it, as the snapshot methods go on, and as it does after
+    a gap; not one tick refused until the new clock passes the old."""
+    config = from_dict({"reference": reference, "estimator": {"method": "fused"}})
+    p = AttitudePipeline(config)
+    first, second = static_samples(n=1000, t0_s=10.0), static_samples(n=1000, t0_s=2.0, seed=2)  # 5 s each
+    for s in first:
+        p.push(s)
+    after = [o for s in second for o in p.push(s).outputs]
+    assert not p.counters.rejected
+    assert len(after) == 250 and after[0].time_s == pytest.approx(2.0)  # 5 s at 50 Hz from the first sample
+    truth = quat_from_euler(np.radians(10.0), np.radians(-20.0), np.radians(yaw_deg))
+    assert np.degrees(angle_between(after[-1].q, truth)) < MAX_ERR_DEG
+
+
 def test_a_position_after_the_measured_field_turns_the_fused_heading_to_true_north_at_once():
     """Measured field (magnetic north), then a position: the WMM's field, and the fused filter's heading turned by
     the declination with it from the next output on (the state kept, no restart)."""

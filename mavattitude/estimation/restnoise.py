@@ -80,8 +80,9 @@ class RestNoise:
 
     def add(self, time_s: float, acc: Vec3, mag: Vec3 | None, gyr: Vec3) -> bool:
         """One tick; True when it closed a still block that changed :attr:`measured`."""
-        if not time_s - self._start_s < BLOCK_S:  # NaN at the first tick: a block starts
-            changed = self._close(time_s - self._start_s)
+        elapsed = time_s - self._start_s
+        if not 0.0 <= elapsed < BLOCK_S:  # NaN at the first tick, a block's end, or the clock gone back (a reboot)
+            changed = elapsed >= BLOCK_S and self._close(elapsed)  # a block a reboot cut is dropped
             self._start_s = time_s
             self._new_block(acc, gyr)
             if changed:

@@ -226,6 +226,26 @@ def test_vehicle_reboot(link: Flight) -> None:
     assert_healthy(v, HEALTHY_DEG)
 
 
+def test_the_fused_method_goes_on_right_after_a_reboot() -> None:
+    """The gyro-aided filter holds a time of its own: after the autopilot's clock starts again it restarts there
+    (as the snapshot methods and the front end do), not refuse every sample until the new clock passes the old.
+    Outputs within the next 25 (0.5 s), all healthy, none refused."""
+    service = {"input": {"input_timeout_s": INPUT_TIMEOUT_S}, "estimator": {"method": "fused"}}
+    with flight(
+        scenarios.static(3600.0), scenarios.paper_sensors(RATE_HZ), service, profile="px4", message=MESSAGE
+    ) as (v, svc):
+        v.jump_clock(UPTIME_BEFORE_REBOOT_S)  # up long enough for its clock's restart to read as a reboot
+        assert_healthy(v, HEALTHY_DEG, settle=25)  # the filter restarted after the hole in vehicle time
+        requests = counter(svc, "interval_requests")
+        v.reboot()
+        wait_counter(svc, "interval_requests", requests + 1)
+        wait_counter(svc, "reboots", 1)
+        assert_healthy(v, HEALTHY_DEG)
+        assert not any(k.startswith("rejected.") and value for k, value in svc.latest_counters().items())
+        assert svc.stop() == 0
+        assert_all_outputs_valid(v)
+
+
 def test_5khz_burst(link: Flight) -> None:
     v, svc = link
     port = v.peers()[0][1]  # the service's socket

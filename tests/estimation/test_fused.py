@@ -509,6 +509,21 @@ def test_time_must_advance_and_the_gyro_must_be_finite() -> None:
         f.push(1.01, (math.nan, 0.0, 0.0), acc, mag)
 
 
+def test_a_clock_that_starts_again_restarts_the_filter_with_its_bias() -> None:
+    """An autopilot's reboot: its clock starts again below the last sample's. The filter restarts there, as after a
+    gap, rather than refuse every sample until the new clock passes the old one; the bias it learnt is kept."""
+    f = FusedFilter(FusedSettings(), MAG_NED_UT)
+    acc, mag = (0.0, 0.0, -9.81), (21.9, 0.0, 44.9)
+    for k in range(500):
+        f.push(100.0 + k / 100.0, (0.01, 0.0, 0.0), acc, mag)
+    bias = f.bias_radps.copy()
+    assert bias[0] > 0.005  # the 0.01 rad/s the gyro reads at rest, learnt in part
+    out = f.push(2.0, (0.01, 0.0, 0.0), acc, mag)
+    assert f.counters["restarts"] == 1 and np.array_equal(f.bias_radps, bias)
+    out += [e for k in range(1, 100) for e in f.push(2.0 + k / 100.0, (0.01, 0.0, 0.0), acc, mag)]
+    assert len(out) == 50  # 1 s at 50 Hz from the first sample after it
+
+
 def test_no_attitude_before_a_sample_with_both_vectors() -> None:
     f = FusedFilter(FusedSettings(), MAG_NED_UT)
     assert f.push(0.0, (0.0, 0.0, 0.0), (0.0, 0.0, -9.81), None) == []

@@ -96,6 +96,18 @@ def test_an_axis_without_noise_is_no_sigma_measured() -> None:
     assert rest.still_s >= 10.0 and rest.measured is None
 
 
+def test_a_reboot_starts_a_block_and_the_rest_after_it_counts() -> None:
+    """6 s still, the autopilot reboots (its clock from 100 s back to 2 s), 6 s still again: the block the reboot
+    cut is dropped and a new one starts, so the blocks after it close as before (else none would until the new
+    clock passed 100 s) and the σ come from 10 still seconds."""
+    rest = RestNoise(rest_s=10.0)
+    _still(rest, 100.0, 6.0, np.random.default_rng(SEED))
+    _still(rest, 2.0, 6.0, np.random.default_rng(SEED + 1))
+    assert rest.still_s == pytest.approx(10.0)  # 5 closed blocks each side: the last of each is still open or cut
+    # 500 ticks: each σ's relative sampling error 1/√(2n) ≈ 3 %; 15 % is 5 of it
+    assert rest.measured is not None and rest.measured.accel_std == pytest.approx(ACC_STD, rel=0.15)
+
+
 def test_a_stream_without_noise_is_no_sigma_measured_and_ign_keeps_solving() -> None:
     """Every axis constant but for arithmetic rounding (a noise-free simulator's stream through the low-pass): σ of
     1e-12 on all axes alike (a few hundred ulps of 45 µT) passes the axes' ratio, but is no sensor's noise. Taken as

@@ -33,7 +33,8 @@ nothing else, so a wrong or disturbed field can never move roll and pitch. ``σ_
 
 Start-up and gaps: the first sample with both vectors initialises ``q`` from IGN and ``P_θθ`` from its
 covariance, ``P_bb = σ_b0² I`` (or the bias measured at rest: :meth:`FusedFilter.set_rest_noise`); a gap longer
-than ``max_gap_s`` restarts from IGN, keeping the bias. With no
+than ``max_gap_s``, or a time before the last (the autopilot rebooted: its clock starts again), restarts from
+IGN, keeping the bias. With no
 magnetometer reading for ``max_gap_s`` from the first sample (a vehicle without a compass), it starts on roll
 and pitch alone (:func:`~mavattitude.estimation.conventions.tilt_quat_parts`, yaw 0, ``P_θθ`` the tilt's σ
 with a heading uniform over ±180°): the gyro and the tilt updates carry roll and pitch, and the heading stays
@@ -271,9 +272,9 @@ class FusedFilter:
         if not self._started:
             return self._start(time_s, gyr, acc_mps2, mag_uT)
         dt = time_s - self._t_last
-        if dt <= 0.0:
+        if dt == 0.0:
             raise InputError(f"sample time {time_s!r} s does not advance past {self._t_last!r} s")
-        if dt > self._max_gap_s:
+        if not 0.0 < dt <= self._max_gap_s:  # a gap, or the clock started again (an autopilot's reboot)
             self.counters["restarts"] += 1
             return self._start(time_s, gyr, acc_mps2, mag_uT)
         self._ekf.integrate(dt, gx, gy, gz)
