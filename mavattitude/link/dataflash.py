@@ -125,20 +125,24 @@ def _silenced() -> Iterator[None]:
 
 
 def _unindexed(df: Any, size: int) -> str | None:
-    """Where DFReader's index leaves bytes out: skipped (damaged) bytes, or the rest of the file unread."""
+    """Where DFReader's index leaves bytes out: skipped (damaged) bytes, the rest of the file unread, or a last
+    record the file's end cuts (whatever its type: the tables read say so of their own, :meth:`_Reader.table`)."""
     spans = []
     for mtype, offsets in enumerate(df.offsets):
         if len(offsets) and mtype in df.formats:
-            spans.append(np.column_stack([offsets, np.asarray(offsets) + df.formats[mtype].len]))
+            start = np.asarray(offsets, dtype=np.int64)
+            spans.append(np.column_stack([start, start + df.formats[mtype].len, np.full(len(start), mtype)]))
     if not spans:
         return None
     span = np.concatenate(spans)
     span = span[np.argsort(span[:, 0], kind="stable")]
     gaps = np.flatnonzero(span[1:, 0] > span[:-1, 1])
-    end = int(span[-1, 1])
+    start, end, mtype = (int(v) for v in span[-1])
     if len(gaps):
         skipped = int(np.sum(span[1:, 0][gaps] - span[:-1, 1][gaps]))
         return f"damaged: {skipped} byte(s) skipped, the first at byte {int(span[gaps[0], 1])}"
+    if end > size:
+        return f"truncated: the {df.formats[mtype].name} record at byte {start} is incomplete"
     if end < size:
         return f"unreadable from byte {end} ({size - end} bytes are not records DFReader could read)"
     return None

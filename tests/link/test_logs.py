@@ -102,6 +102,22 @@ def test_a_truncated_log_is_read_up_to_the_cut_and_says_where(tmp_path):
     assert 0.6 * 800 < len(s.imu_t_s) < 0.7 * 800  # two thirds of the samples
 
 
+def test_a_log_cut_inside_a_record_replay_does_not_read_is_said_truncated(tmp_path):
+    """A cut inside the last record whatever its type (here a RATE record: no table replay reads), not only inside
+    the IMU, MAG, ATT, GPS or PARM records."""
+    from pymavlink import DFReader
+
+    whole = shared_path("data", "ardupilot-sitl", "lowrate.BIN")
+    index = DFReader.DFReader_binary(str(whole), zero_time_base=False)
+    offsets = index.offsets[index.name_to_id["RATE"]]
+    at = int(offsets[len(offsets) // 2])
+    cut = tmp_path / "cut.bin"
+    cut.write_bytes(whole.read_bytes()[: at + 5])
+    s = read_dataflash(cut)
+    assert s.damage == f"truncated: the RATE record at byte {at} is incomplete"
+    assert read_dataflash(whole).damage is None
+
+
 def test_damaged_bytes_are_skipped_and_said(tmp_path):
     path = write_dataflash(tmp_path / "d.bin", static_log(2.0))
     data = bytearray(path.read_bytes())
