@@ -10,7 +10,10 @@ word, so the messages' own sizes are walked to find it (:func:`cut_at`). Either 
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
+import io
+import logging
 import struct
 from pathlib import Path
 from typing import Any
@@ -31,17 +34,26 @@ TOPICS = [
     "vehicle_gps_position",
     "vehicle_global_position",
 ]
+log = logging.getLogger(__name__)
+
 FILE_HEADER_BYTES = 16  # "ULog", its version and its start time; then every message: size (u16), type (u8), payload
 _MESSAGE_HEADER = struct.Struct("<HB")
 
 
 def _open(path: Path) -> Any:
+    """pyulog's reading of the file; what it prints of a damaged one (on stdout, where a command's table goes)
+    is logged at debug level, the damage itself said by :attr:`LogStreams.damage`."""
     from pyulog import ULog
 
+    said = io.StringIO()
     try:
-        return ULog(str(path), TOPICS)
+        with contextlib.redirect_stdout(said):
+            return ULog(str(path), TOPICS)
     except Exception as exc:  # pyulog raises plain Exception (and struct, index, decode errors) on bad input
         raise DataFileError(f"{path}: not a readable ULog file: {exc}") from exc
+    finally:
+        for line in said.getvalue().splitlines():
+            log.debug("pyulog: %s", line)
 
 
 def _topic(ulog: Any, name: str, instance: int = 0) -> dict[str, np.ndarray] | None:

@@ -102,6 +102,19 @@ def test_a_truncated_log_is_read_up_to_the_cut_and_says_where(tmp_path):
     assert 0.6 * 800 < len(s.imu_t_s) < 0.7 * 800  # two thirds of the samples
 
 
+def test_what_pyulog_prints_of_a_damaged_log_goes_to_the_log_not_to_stdout(tmp_path, capsys, caplog):
+    """33 bytes missing from the middle of sample.ulg: pyulog prints a warning on stdout, where `replay` writes
+    its table; it is logged at debug level instead, and the damage is the log's."""
+    data = shared_path("data", "px4", "sample.ulg").read_bytes()
+    damaged = tmp_path / "damaged.ulg"
+    damaged.write_bytes(data[:2_648_952] + data[2_648_952 + 33 :])
+    caplog.set_level("DEBUG", logger="mavattitude.link.ulog")
+    s = read_ulog(damaged)
+    assert capsys.readouterr().out == ""
+    assert s.damage == "damaged: pyulog skipped what it could not read"
+    assert any(r.getMessage().startswith("pyulog: Warning: no subscription found") for r in caplog.records)
+
+
 def test_a_log_cut_inside_a_record_replay_does_not_read_is_said_truncated(tmp_path):
     """A cut inside the last record whatever its type (here a RATE record: no table replay reads), not only inside
     the IMU, MAG, ATT, GPS or PARM records."""
