@@ -10,11 +10,11 @@ autopilot's at +179° differ by 2°) and the total rotation angle between the tw
 
 Every autopilot attitude is either paired or counted in :attr:`CrossCheck.unpaired` by why it was not:
 ``outside`` our output span (before our first output, or still waiting after our last), ``gap`` (our outputs
-around it are further apart than a gap), ``reset`` (before our first output since our clock went back: a
-reboot), ``late`` (ours around it already forgotten, ``KEEP_S`` behind the newest) or ``overflow`` (more than
-``MAX_WAITING`` waiting for our outputs). All but ``outside`` are misses inside our span
-(:attr:`CrossCheck.share`). The live service runs it on every output and autopilot attitude, so it works on plain floats
-(numpy's per-call overhead on four-element arrays was most of its cost).
+around it are further apart than a gap), ``reset`` (before our first output since our clock went back, or
+waiting when the autopilot's did: a reboot), ``late`` (ours around it already forgotten, ``KEEP_S`` behind the
+newest) or ``overflow`` (more than ``MAX_WAITING`` waiting for our outputs). All but ``outside`` are misses inside
+our span (:attr:`CrossCheck.share`). The live service runs it on every output and autopilot attitude, so it works
+on plain floats (numpy's per-call overhead on four-element arrays was most of its cost).
 
 The verdict: *disagreeing* once the total stays above ``threshold_deg`` for ``hold_s`` of vehicle time,
 *agreeing* again once it stays below ``CLEAR_FRACTION · threshold_deg`` for ``hold_s`` (hysteresis, so a
@@ -46,6 +46,9 @@ from .conventions import (
 CLEAR_FRACTION = 0.8
 KEEP_S = 5.0  # our outputs kept for pairing, s of vehicle time
 MAX_WAITING = 100  # autopilot attitudes waiting for our output (10 s at 10 Hz)
+#: An autopilot attitude this far behind the newest waiting one is its clock started again (a reboot), as the
+#: front end's clock takes an IMU time (``FrontEndSettings.reorder_window_s``); less is a datagram reordered
+REBOOT_BACK_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -152,6 +155,7 @@ class CrossCheck:
             self._headings.clear()
             self._resets += 1
             self._first_s, self._dropped_s = time_s, -math.inf
+            self._since = None  # a verdict's hold is timed on one clock
         if not self._times:
             self._first_s = min(self._first_s, time_s)
         self._times.append(time_s)
@@ -163,7 +167,11 @@ class CrossCheck:
             self._headings.popleft()
 
     def add_autopilot(self, time_s: float, q: Iterable[float]) -> None:
-        if len(self._waiting) == MAX_WAITING:  # the oldest goes
+        waiting = self._waiting
+        if waiting and time_s < waiting[-1][0] - REBOOT_BACK_S:  # its clock started again: those wait for nothing
+            self.unpaired["reset"] += len(waiting)
+            waiting.clear()
+        if len(waiting) == MAX_WAITING:  # the oldest goes
             dropped_s = self._waiting.popleft()[0]
             self.unpaired["outside" if dropped_s < self._first_s else "overflow"] += 1
         self._waiting.append((time_s, _quat(q)))

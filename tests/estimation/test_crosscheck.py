@@ -90,6 +90,23 @@ def test_an_attitude_before_our_restart_is_counted_as_a_reset():
     assert check.unpaired == {"reset": 1} and check.pairs == 1
 
 
+def test_after_both_clocks_start_again_the_pairing_goes_on_at_once():
+    """A reboot: the autopilot's attitude that was waiting ahead of our outputs (10.05 s) would wait for ours to
+    reach 10.05 s again on the new clock, and every attitude after it with it; it is counted a reset instead."""
+    check = CrossCheck(CrossCheckSettings())
+    q = truth(np.array([0.0]))[0]
+    for t in (10.0, 10.02, 10.04):
+        check.add_ours(t, q)
+    check.add_autopilot(10.05, q)
+    for t in (1.0, 1.02, 1.04):
+        check.add_ours(t, q)
+        check.add_autopilot(t + 0.01, q)
+    check.update()
+    assert check.pairs == 2 and check.unpaired == {"reset": 1}  # 1.05 waits for our next output
+    check.add_autopilot(0.6, q)  # 0.45 s behind the waiting 1.05 s: reordered, not a reboot
+    assert check.unpaired == {"reset": 1}
+
+
 def test_differences_are_wrapped_to_180_degrees():
     """Upside down: ours at roll −179°, the autopilot's at +179°: 2° apart, in roll as in total."""
     ours = tuple(quat_from_euler(np.radians(-179.0), np.radians(10.0), np.radians(-178.0)).tolist())
