@@ -172,9 +172,9 @@ class CrossCheck:
             self.unpaired["reset"] += len(waiting)
             waiting.clear()
         if len(waiting) == MAX_WAITING:  # the oldest goes
-            dropped_s = self._waiting.popleft()[0]
+            dropped_s = waiting.popleft()[0]
             self.unpaired["outside" if dropped_s < self._first_s else "overflow"] += 1
-        self._waiting.append((time_s, _quat(q)))
+        waiting.append((time_s, _quat(q)))
 
     def finish(self) -> None:
         """The end of the stream (a log's): what still waits for our outputs lies after our last one."""

@@ -67,11 +67,7 @@ class _Reader:
             return {}
         fmt = self.df.formats[self.df.name_to_id[name]]
         offsets = np.asarray(self.df.offsets[fmt.type], dtype=np.int64)
-        complete = offsets + fmt.len <= self.size
-        if not complete.all():
-            first_cut = int(offsets[~complete][0])
-            self.damage = self.damage or f"truncated: the {name} record at byte {first_cut} is incomplete"
-            offsets = offsets[complete]
+        offsets = offsets[offsets + fmt.len <= self.size]  # a record the file's end cuts (said: _unindexed)
         body = sliding_window_view(self._bytes, fmt.len - 3)[offsets + 3]  # no (n, len) index array
         records = body.view(struct_dtype(fmt.columns, fmt.msg_struct)).ravel()
         return {
@@ -126,7 +122,7 @@ def _silenced() -> Iterator[None]:
 
 def _unindexed(df: Any, size: int) -> str | None:
     """Where DFReader's index leaves bytes out: skipped (damaged) bytes, the rest of the file unread, or a last
-    record the file's end cuts (whatever its type: the tables read say so of their own, :meth:`_Reader.table`)."""
+    record the file's end cuts, whatever its type (:meth:`_Reader.table` leaves it out)."""
     spans = []
     for mtype, offsets in enumerate(df.offsets):
         if len(offsets) and mtype in df.formats:
