@@ -439,14 +439,15 @@ class TlogSource:
         order = np.argsort(index[keep], kind="stable")
         return index[keep][order], unix_s[keep][order]
 
-    def _date_at(self, record: int, t_rx: float) -> dt.date:
+    def _date_at(self, record: int, t_rx: float) -> dt.date | None:
         """The date a position at ``record`` (received at ``t_rx``) is given, as :class:`MavlinkDecoder`
-        gives it: the vehicle's latest GPS date at or before it, else the day the log recorded it."""
+        gives it: the vehicle's latest GPS date at or before it, else the day the log recorded it (``None``
+        when the log's own clock is no date either)."""
         index, unix_s = self._vehicle_times
         before = int(np.searchsorted(index, record, side="right")) - 1
-        return _utc_date(float(unix_s[before]) if before >= 0 else t_rx)
+        return units.unix_date(float(unix_s[before]) if before >= 0 else t_rx)
 
-    def _dates(self, table: _Table) -> list[dt.date]:
+    def _dates(self, table: _Table) -> list[dt.date | None]:
         return [self._date_at(i, t) for i, t in zip(table.index.tolist(), table.t_rx.tolist(), strict=True)]
 
 
@@ -471,10 +472,6 @@ def _parameters(table: _Table | None) -> dict[str, float]:
         return {}
     names = [n.split(b"\0")[0].decode("ascii", "replace") for n in table.fields["param_id"].tolist()]
     return dict(zip(names, np.asarray(table.fields["param_value"], dtype=float).tolist(), strict=True))
-
-
-def _utc_date(unix_s: float) -> dt.date:
-    return dt.datetime.fromtimestamp(unix_s, dt.timezone.utc).date()
 
 
 def _heartbeat_items(table: _Table) -> Iterator[tuple[int, Received]]:

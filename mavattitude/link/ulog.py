@@ -150,8 +150,7 @@ def _positions(ulog: Any) -> tuple[np.ndarray, np.ndarray, dt.date | None]:
     if gps is not None:
         t, rows = uu.gps_position(gps)
         utc = np.asarray(gps.get("time_utc_usec", np.zeros(0)))
-        known = utc[utc > 0]
-        return t, rows, uu.utc_date(int(known[0])) if len(known) else None
+        return t, rows, next(filter(None, map(uu.utc_date, utc[utc > 0].tolist())), None)
     fused = _topic(ulog, "vehicle_global_position")
     if fused is not None:
         return (*uu.global_position(fused), None)

@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mavattitude.estimation.conventions import Array
-from mavattitude.sensors.units import GAUSS_UT, GpsVelocity
+from mavattitude.sensors.units import GAUSS_UT, GpsVelocity, unix_date
 
 Topic = dict[str, NDArray]
 
@@ -100,9 +100,9 @@ def global_position(topic: Topic) -> tuple[Array, Array]:
     return times_s(topic), rows
 
 
-def utc_date(time_utc_usec: int) -> dt.date:
-    """The UTC date of a GPS receiver's µs since 1970."""
-    return dt.datetime.fromtimestamp(int(time_utc_usec) * TIMESTAMP_S, dt.timezone.utc).date()
+def utc_date(time_utc_usec: int) -> dt.date | None:
+    """The UTC date of a GPS receiver's µs since 1970 (``None`` when it is no date: :func:`units.unix_date`)."""
+    return unix_date(int(time_utc_usec) * TIMESTAMP_S)
 
 
 def gps_velocity(topic: Topic) -> tuple[Array, list[GpsVelocity]]:

@@ -437,8 +437,9 @@ def time_boot_ms(time_s: float) -> int:
 
 
 def time_usec(time_s: float) -> int:
-    """A vehicle-clock time as MAVLink's ``time_usec`` (uint64 µs since boot)."""
-    return max(round(time_s * 1e6), 0)
+    """A vehicle-clock time as MAVLink's ``time_usec`` (uint64 µs since boot; the largest a uint64 holds, as it
+    came in, when the float's rounding takes it past)."""
+    return min(max(round(time_s * 1e6), 0), (1 << 64) - 1)
 
 
 @dataclass(frozen=True)
@@ -515,29 +516,33 @@ def decode_gps_velocity_columns(fields: Mapping[str, NDArray[Any]]) -> tuple[NDA
     return valid, rows
 
 
-# A Unix time before this is not a GPS date: ArduPilot's GPS_RAW_INT.time_usec counts from boot, and
-# SYSTEM_TIME.time_unix_usec is 0 until the autopilot knows the time.
+# A Unix time outside these is not a GPS date: ArduPilot's GPS_RAW_INT.time_usec counts from boot,
+# SYSTEM_TIME.time_unix_usec is 0 until the autopilot knows the time, and a later one is a garbled field
+# (a year past 9999 is not even a date Python can hold).
 EARLIEST_UNIX_S = 1_420_070_400  # 2015-01-01
+LATEST_UNIX_S = 4_102_444_800  # 2100-01-01
 
 
 #: The messages that may carry the vehicle's GPS time, and the field (µs since 1970, or since boot).
 UTC_TIME_FIELDS = {"SYSTEM_TIME": "time_unix_usec", "GPS_RAW_INT": "time_usec"}
 
 
+def unix_date(unix_s: float) -> dt.date | None:
+    """The UTC day of a Unix time, ``None`` when it cannot be a GPS date (see :data:`EARLIEST_UNIX_S`)."""
+    if not EARLIEST_UNIX_S <= unix_s < LATEST_UNIX_S:  # NaN too
+        return None
+    return dt.datetime.fromtimestamp(unix_s, dt.timezone.utc).date()
+
+
 def decode_utc_date(msg: Any) -> dt.date | None:
     """The UTC date the vehicle's GPS gives: SYSTEM_TIME.time_unix_usec, or GPS_RAW_INT.time_usec when it is
     a Unix time (µs) rather than a time since boot; ``None`` when the message carries no such date."""
     name = UTC_TIME_FIELDS.get(msg.get_type())
-    if name is None:
-        return None
-    usec = getattr(msg, name)
-    if usec < EARLIEST_UNIX_S * 1_000_000:
-        return None
-    return dt.datetime.fromtimestamp(usec * 1e-6, dt.timezone.utc).date()
+    return None if name is None else unix_date(getattr(msg, name) * 1e-6)
 
 
 def utc_time_columns(kind: str, fields: Mapping[str, NDArray[Any]]) -> NDArray[np.float64]:
     """:func:`decode_utc_date` for many messages of ``kind`` (one of :data:`UTC_TIME_FIELDS`): each row's
-    Unix time in s, NaN where it is a time since boot."""
-    usec = fields[UTC_TIME_FIELDS[kind]]
-    return np.where(usec >= EARLIEST_UNIX_S * 1_000_000, usec * 1e-6, np.nan)
+    Unix time in s, NaN where it is not a date (a time since boot, a garbled field)."""
+    unix_s = np.asarray(fields[UTC_TIME_FIELDS[kind]], dtype=float) * 1e-6
+    return np.where((unix_s >= EARLIEST_UNIX_S) & (unix_s < LATEST_UNIX_S), unix_s, np.nan)

@@ -174,6 +174,7 @@ def test_attitude_frames_are_pymavlinks_bytes():
     link = MemoryLink(source_system=5)
     reference = mavlink2.MAVLink(None, srcSystem=5, srcComponent=mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER)
     cases = [(12.0, [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0] * 9), (0.0, [0.0] * 4, [0.0] * 3, None)]
+    cases.append(((2**64 - 1) * 1e-6, [1.0, 0.0, 0.0, 0.0], [0.0] * 3, [0.0] * 9))  # the latest an IMU time can be
     for _ in range(20):
         q = rng.normal(size=4)
         cov = [float("nan")] + [0.0] * 8 if rng.random() < 0.3 else rng.normal(0, 1e-3, 9).tolist()

@@ -174,6 +174,21 @@ def test_each_record_is_the_live_decoders_item(tmp_path: Path) -> None:
     assert streams.date == dates[0] and len(streams.position_t_s) == 7
 
 
+def test_a_log_clock_that_is_no_date_leaves_the_positions_undated(tmp_path: Path) -> None:
+    """Records stamped past any date (a garbled or uninitialised recorder clock) and no GPS time: the positions
+    carry no date (the companion's clock decides, as live before a GPS time), one by one and as arrays."""
+    path = tmp_path / "garbled-clock.tlog"
+    mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    position = mav.global_position_int_encode(0, 474000000, 85000000, 450000, 0, 0, 0, 0, 0)
+    records = [mav.heartbeat_encode(**HEARTBEAT), position, *(mav.raw_imu_encode(**_raw(i)) for i in range(20))]
+    path.write_bytes(b"".join(struct.pack(">Q", 2**63) + r.pack(mav) for r in records))
+    config = _config(**{"reference.magnetic": "auto"})
+    source = _source(path, config)
+    fixes = [item for _, _, item in source.recv(0.0) if isinstance(item, PositionFix)]
+    assert len(fixes) == 1 and fixes[0].date is None
+    assert _source(path, config).streams_for(Dispatcher(None, _Locked(), system_id=1)).date is None
+
+
 class _Locked:
     def on_lock(self, vehicle: tuple[int, int]) -> None:
         """Only the lock-on is heard."""

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import datetime as dt
 
+import numpy as np
+import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavattitude.link.source import MavlinkDecoder, PositionFix
@@ -33,6 +35,16 @@ def test_system_time_and_a_unix_stamped_gps_raw_int_give_the_date():
     # ArduPilot stamps GPS_RAW_INT with the time since boot, and SYSTEM_TIME is 0 until it knows the time
     assert units.decode_utc_date(_gps_raw(62_173_000)) is None
     assert units.decode_utc_date(_decoded(mavlink2.MAVLink_system_time_message(0, 1000))) is None
+
+
+@pytest.mark.parametrize("time_usec", [units.LATEST_UNIX_S * 1_000_000, 2**63, 2**64 - 1])
+def test_a_garbled_gps_time_is_no_date(time_usec):
+    """A time past 2100 (the largest a uint64 holds is in the year 586 524, past any date Python can hold) is a
+    garbled field: no date, in a message and in a log's columns alike, rather than an exception."""
+    assert units.decode_utc_date(_decoded(mavlink2.MAVLink_system_time_message(time_usec, 0))) is None
+    assert units.decode_utc_date(_gps_raw(time_usec)) is None
+    columns = units.utc_time_columns("SYSTEM_TIME", {"time_unix_usec": np.array([time_usec, UNIX_2027_03_01_US])})
+    assert np.isnan(columns[0]) and columns[1] == UNIX_2027_03_01_US * 1e-6
 
 
 def test_positions_carry_the_vehicles_date_over_the_logs_and_none_before_it_is_known():

@@ -80,3 +80,4 @@ def test_ulog_gps_position_both_generations(fields: dict) -> None:
 
 def test_ulog_utc_date() -> None:
     assert uu.utc_date(1_618_963_200_000_000) == dt.date(2021, 4, 21)
+    assert uu.utc_date(2**63) is None  # a garbled receiver time: past any date Python holds

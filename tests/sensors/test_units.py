@@ -150,6 +150,12 @@ def test_time_boot_ms_wraps_at_2_to_the_32() -> None:
     assert units.time_boot_ms(12.3456) == 12346
 
 
+def test_time_usec_stays_within_a_uint64() -> None:
+    """The latest RAW_IMU time_usec, 2⁶⁴ − 1 µs, rounds to 2⁶⁴ as a float: sent back as it came, not past it."""
+    assert units.time_usec((2**64 - 1) * 1e-6) == 2**64 - 1
+    assert units.time_usec(-1.0) == 0 and units.time_usec(1.5) == 1_500_000
+
+
 def test_positions_need_a_3d_fix_and_are_degrees_and_metres() -> None:
     gpi = _packed("GLOBAL_POSITION_INT", dict(time_boot_ms=1, lat=473_977_420, lon=85_455_940, alt=488_000,
                                               relative_alt=0, vx=0, vy=0, vz=0, hdg=0))  # fmt: skip
