@@ -12,7 +12,8 @@ Every autopilot attitude is either paired or counted in :attr:`CrossCheck.unpair
 ``outside`` our output span (before our first output, or still waiting after our last), ``gap`` (our outputs
 around it are further apart than a gap), ``reset`` (before our first output since our clock went back, or
 waiting when the autopilot's did: a reboot), ``late`` (ours around it already forgotten, ``KEEP_S`` behind the
-newest) or ``overflow`` (more than ``MAX_WAITING`` waiting for our outputs). All but ``outside`` are misses inside
+newest), ``overflow`` (more than ``MAX_WAITING`` waiting for our outputs) or ``invalid`` (not an attitude: a
+quaternion not finite or shorter than ``MIN_NORM``; any other is normalised). All but ``outside`` are misses inside
 our span (:attr:`CrossCheck.share`). The live service runs it on every output and autopilot attitude, so it works
 on plain floats (numpy's per-call overhead on four-element arrays was most of its cost).
 
@@ -49,6 +50,7 @@ MAX_WAITING = 100  # autopilot attitudes waiting for our output (10 s at 10 Hz)
 #: An autopilot attitude this far behind the newest waiting one is its clock started again (a reboot), as the
 #: front end's clock takes an IMU time (``FrontEndSettings.reorder_window_s``); less is a datagram reordered
 REBOOT_BACK_S = 1.0
+MIN_NORM = 0.5  # an autopilot quaternion shorter than this is not a rotation gone slightly off unit length
 
 
 @dataclass(frozen=True)
@@ -167,6 +169,11 @@ class CrossCheck:
             self._headings.popleft()
 
     def add_autopilot(self, time_s: float, q: Iterable[float]) -> None:
+        w, x, y, z = map(float, q)
+        norm = math.sqrt(w * w + x * x + y * y + z * z)
+        if not MIN_NORM < norm < math.inf:  # NaN too
+            self.unpaired["invalid"] += 1
+            return
         waiting = self._waiting
         if waiting and time_s < waiting[-1][0] - REBOOT_BACK_S:  # its clock started again: those wait for nothing
             self.unpaired["reset"] += len(waiting)
@@ -174,7 +181,7 @@ class CrossCheck:
         if len(waiting) == MAX_WAITING:  # the oldest goes
             dropped_s = waiting.popleft()[0]
             self.unpaired["outside" if dropped_s < self._first_s else "overflow"] += 1
-        waiting.append((time_s, _quat(q)))
+        waiting.append((time_s, (w / norm, x / norm, y / norm, z / norm)))
 
     def finish(self) -> None:
         """The end of the stream (a log's): what still waits for our outputs lies after our last one."""

@@ -22,6 +22,7 @@ DataFlash ``.bin``, ULog ``.ulg``: :func:`mavattitude.link.logs.open_log`) all p
 from __future__ import annotations
 
 import datetime as dt
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -94,7 +95,10 @@ class MessageSource(Protocol):
 
 
 def euler_attitude(time_s: float, roll_rad: float, pitch_rad: float, yaw_rad: float) -> AutopilotAttitude:
-    """An autopilot attitude given as ZYX Euler angles (MAVLink ATTITUDE, DataFlash ATT)."""
+    """An autopilot attitude given as ZYX Euler angles (MAVLink ATTITUDE, DataFlash ATT); an angle that is not
+    finite gives a NaN quaternion, which the cross-check counts as no attitude."""
+    if not math.isfinite(roll_rad + pitch_rad + yaw_rad):
+        return AutopilotAttitude(time_s, (math.nan,) * 4)
     return AutopilotAttitude(time_s, quat_from_euler_parts(roll_rad, pitch_rad, yaw_rad))
 
 

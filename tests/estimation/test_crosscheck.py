@@ -184,3 +184,16 @@ def test_a_hole_in_our_outputs_longer_than_kept_is_a_gap_not_late():
     check, _, _ = cross_check_log(ours_t, truth(ours_t), theirs_t, truth(theirs_t), CrossCheckSettings())
     in_hole = int(np.count_nonzero((theirs_t > ours_t[499]) & (theirs_t < 20.0)))
     assert check.unpaired == {"gap": in_hole} and check.pairs == len(theirs_t) - in_hole
+
+
+def test_an_autopilot_quaternion_that_is_no_rotation_is_counted_invalid_and_one_off_unit_length_normalised():
+    check = CrossCheck(CrossCheckSettings())
+    ours_t = np.arange(0.0, 1.0, 0.02)
+    for t, q in zip(ours_t, truth(ours_t), strict=True):
+        check.add_ours(t, q)
+    nan, zero, infinite = np.full(4, np.nan), np.zeros(4), np.array([np.inf, 0.0, 0.0, 0.0])
+    for t, q in ((0.1, nan), (0.2, zero), (0.3, infinite), (0.5, 0.9 * truth(np.array([0.5]))[0])):
+        check.add_autopilot(t, q)
+    (d,), _ = check.update()
+    assert check.unpaired == {"invalid": 3} and check.pairs == 1
+    assert d.total_deg < 1e-3  # 0.9 × ours, normalised: the same attitude
