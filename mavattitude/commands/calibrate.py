@@ -116,6 +116,16 @@ def run(args: argparse.Namespace) -> int:
         fit = magfit.fit_ellipsoid(mag, field_uT=args.field_uT, min_coverage=args.min_coverage)
     except CalibrationError as exc:
         raise CalibrationError(f"{source}: {exc}") from None
+    unlike = None if args.field_uT is not None else magfit.unlike_earth(fit.radius_uT)
+    if unlike is not None:  # written all the same: a sensor whose scale is off is calibrated, --field-uT fixes it
+        units_from = "the CSV's units (µT)" if source.endswith((".csv", ".csv.gz")) else "--profile"
+        log.warning(
+            "%s: %s: readings in gauss (100 µT) or milligauss (0.1 µT)? Check %s; if right, the sensor's scale is "
+            "off: give the local field with --field-uT",
+            source,
+            unlike,
+            units_from,
+        )
     Path(args.output).write_text(
         "# magnetometer calibration written by `mavattitude calibrate mag`: mag = soft_iron (raw − hard_iron_uT)\n"
         + yaml.safe_dump(mag_block(fit.hard_iron_uT, fit.soft_iron), sort_keys=False)

@@ -30,6 +30,10 @@ MIN_COVERAGE = 0.6  # fraction of the 26 direction cells holding a sample
 MIN_PER_CELL = 2
 MAX_AXIS_RATIO = 3.0  # a soft-iron matrix stretching one axis 3× the others is a bad fit or bad data
 MIN_TURN_SPAN = 0.2  # readings spanning less than this fraction of |B| on every axis: the vehicle stayed put
+#: The Earth's field at the surface lies between about 22 and 67 µT (the World Magnetic Model's total intensity);
+#: a fitted |B| more than half as far again outside it is not a local disturbance but the wrong units
+EARTH_FIELD_UT = (22.0, 67.0)
+UNITS_MARGIN = 1.5
 MAX_ITERATIONS = 50
 TOLERANCE = 1e-10
 
@@ -199,3 +203,11 @@ def fit_ellipsoid(
         iterations=iterations,
         samples=len(m),
     )
+
+
+def unlike_earth(radius_uT: float) -> str | None:
+    """Why ``radius_uT`` (a fitted |B|) cannot be the Earth's field in µT, or ``None`` when it can."""
+    low, high = EARTH_FIELD_UT
+    if low / UNITS_MARGIN <= radius_uT <= high * UNITS_MARGIN:
+        return None
+    return f"the fitted field is {radius_uT:.3g} µT, where the Earth's is {low:g}-{high:g} µT"

@@ -115,6 +115,19 @@ def test_poor_coverage_is_refused_with_exit_2(tmp_path: Path, capsys: pytest.Cap
     assert "cover" in capsys.readouterr().err and not (tmp_path / "x.yaml").exists()
 
 
+@pytest.mark.parametrize(("scale", "field", "warned"), [(0.01, None, True), (0.01, "48", False), (1.0, None, False)])
+def test_readings_whose_field_is_not_the_earths_in_uT_are_warned_about(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], scale: float, field: str | None, warned: bool
+) -> None:
+    """A CSV in gauss fits |B| ≈ 0.5, far below the Earth's 22-67 µT: said, with the units to check, and still
+    written (a sensor whose scale is off is calibrated too); not with --field-uT, which scales it to µT."""
+    src = tmp_path / "turns.csv"
+    src.write_text("mag_x_uT,mag_y_uT,mag_z_uT\n" + "\n".join(",".join(map(str, r)) for r in scale * _distorted(1000)))
+    out = tmp_path / "mag.yaml"
+    assert main(["calibrate", "mag", str(src), "-o", str(out), *(["--field-uT", field] if field else [])]) == 0
+    assert out.exists() and ("gauss (100 µT)" in capsys.readouterr().err) == warned
+
+
 def test_missing_columns_are_a_user_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     src = tmp_path / "bad.csv"
     src.write_text("t_s,mx,my,mz\n0,1,2,3\n")
