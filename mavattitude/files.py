@@ -62,18 +62,25 @@ def first_bad_row(path: str | Path, columns: Sequence[int]) -> str:
     """
     with reading(path), open_text(path, "r") as f:
         reader = csv.reader(f)
-        next(reader, None)
+        header = next(reader, [])
         for row in reader:
             if not row:
                 continue
-            try:
-                for i in columns:
-                    float(row[i])
-            except IndexError:
+            if len(row) <= max(columns):
                 return f"{path}:{reader.line_num}: {len(row)} field(s), the header has more"
-            except ValueError as exc:
-                return f"{path}:{reader.line_num}: {exc}"
+            for i in columns:
+                if not _is_number(row[i]):
+                    what = f"{row[i]!r} is not a number" if row[i].strip() else "empty (write nan for a missing value)"
+                    return f"{path}:{reader.line_num}: column {header[i].strip()}: {what}"
     return f"{path}: not a numeric CSV"
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def load_numbers(f: IO[str], path: str | Path, usecols: Sequence[int]) -> np.ndarray:

@@ -214,16 +214,20 @@ def test_missing_columns_are_named(tmp_path, capsys):
     assert "missing column(s) mag_y_uT, mag_z_uT" in capsys.readouterr().err
 
 
-def test_a_bad_row_is_named_by_the_files_own_line_number(tmp_path, capsys):
+@pytest.mark.parametrize(
+    ("cell", "said"), [("x", "'x' is not a number"), ("", "empty (write nan for a missing value)")]
+)
+def test_a_bad_row_is_named_by_the_files_own_line_number_and_column(tmp_path, capsys, cell, said):
     src = write_csv(tmp_path / "in.csv", n=20)
     lines = src.read_text().splitlines()
     fields = lines[5].split(",")
-    lines[5] = ",".join([fields[0], "x", *fields[2:]])  # line 6 of the file (header = line 1)
+    lines[5] = ",".join([fields[0], cell, *fields[2:]])  # line 6 of the file (header = line 1)
     lines.insert(3, "")  # a blank line 4: counted by an editor, skipped by numpy
     src.write_text("\n".join(lines) + "\n")
     assert main(["solve", str(src), "-o", str(tmp_path / "o.csv"), *REF]) == 2
     err = capsys.readouterr().err.splitlines()
-    assert err == [f"mavattitude solve: error: {src}:7: could not convert string to float: 'x'"]
+    column = lines[0].split(",")[1]
+    assert err == [f"mavattitude solve: error: {src}:7: column {column}: {said}"]
 
 
 def test_a_header_only_file_is_refused_without_a_numpy_warning(tmp_path, capsys):

@@ -112,7 +112,7 @@ def test_bad_files_are_data_file_errors(tmp_path) -> None:
         load_recording(wrong)
     broken = tmp_path / "broken.csv"
     broken.write_text("t_s,acc_x_mps2\n0,1\n\n0,x\n")
-    with pytest.raises(DataFileError, match=r"broken\.csv:4: could not convert string to float: 'x'"):
+    with pytest.raises(DataFileError, match=r"broken\.csv:4: column acc_x_mps2: 'x' is not a number"):
         load_recording(broken)  # the file's own line: header 1, blank line 3 counted
 
 
