@@ -40,7 +40,7 @@ from numpy.typing import NDArray
 
 from mavattitude.estimation.conventions import Array, quat_from_euler
 from mavattitude.estimation.velocity import GPS_FIX_3D
-from mavattitude.sensors.units import BOOT_MS_WRAP_S, MILLIGAUSS_UT, GpsVelocity
+from mavattitude.sensors.units import BOOT_MS_WRAP_S, MILLIGAUSS_UT, GpsVelocity, is_position
 
 Table = dict[str, NDArray]
 
@@ -97,15 +97,18 @@ def attitude(table: Table) -> tuple[Array, Array]:
 
 
 def position(table: Table) -> tuple[Array, Array]:
-    """POS records → times (s) and (latitude °, longitude °, altitude m AMSL) rows."""
-    return time_s(table)[0], _vectors(table, POS_FIELDS, 1.0)
+    """POS records → the times (s) and (latitude °, longitude °, altitude m AMSL) rows of those that are a place
+    (:func:`~mavattitude.sensors.units.is_position`)."""
+    pos = _vectors(table, POS_FIELDS, 1.0)
+    place = is_position(pos[:, 0], pos[:, 1])
+    return time_s(table)[0][place], pos[place]
 
 
 def gps_fixes(table: Table) -> tuple[Array, Array]:
     """GPS records → the times (s) and (latitude °, longitude °, altitude m AMSL) rows of those with a 3D fix
-    and a position (0°, 0° is none)."""
+    and a place."""
     pos = _vectors(table, POS_FIELDS, 1.0)
-    fixed = (np.asarray(table["Status"]) >= GPS_FIX_3D) & np.any(pos[:, :2] != 0.0, axis=1)
+    fixed = (np.asarray(table["Status"]) >= GPS_FIX_3D) & is_position(pos[:, 0], pos[:, 1])
     return time_s(table)[0][fixed], pos[fixed]
 
 

@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mavattitude.estimation.conventions import Array
-from mavattitude.sensors.units import GAUSS_UT, GpsVelocity, unix_date
+from mavattitude.sensors.units import GAUSS_UT, GpsVelocity, is_position, unix_date
 
 Topic = dict[str, NDArray]
 
@@ -83,21 +83,23 @@ def attitude(vehicle_attitude: Topic) -> tuple[Array, Array]:
 
 
 def gps_position(topic: Topic) -> tuple[Array, Array]:
-    """vehicle_gps_position rows with a 3D fix → times (s) and (latitude °, longitude °, altitude m) rows."""
+    """vehicle_gps_position rows with a 3D fix and a place (:func:`~mavattitude.sensors.units.is_position`) →
+    times (s) and (latitude °, longitude °, altitude m) rows."""
     for lat, lon, alt, deg, metres in GPS_FIELDS:
         if lat in topic:
-            fixed = np.asarray(topic["fix_type"]) >= GPS_FIX_3D
             rows = np.column_stack(
                 [np.asarray(topic[lat]) * deg, np.asarray(topic[lon]) * deg, np.asarray(topic[alt]) * metres]
-            )
-            return times_s(topic)[fixed], rows[fixed].astype(float)
+            ).astype(float)
+            fixed = (np.asarray(topic["fix_type"]) >= GPS_FIX_3D) & is_position(rows[:, 0], rows[:, 1])
+            return times_s(topic)[fixed], rows[fixed]
     raise KeyError("lat/latitude_deg")
 
 
 def global_position(topic: Topic) -> tuple[Array, Array]:
-    """vehicle_global_position → times (s) and (latitude °, longitude °, altitude m) rows."""
+    """vehicle_global_position rows that are a place → times (s) and (latitude °, longitude °, altitude m) rows."""
     rows = np.column_stack([np.asarray(topic[f], dtype=float) for f in ("lat", "lon", "alt")])
-    return times_s(topic), rows
+    place = is_position(rows[:, 0], rows[:, 1])
+    return times_s(topic)[place], rows[place]
 
 
 def utc_date(time_utc_usec: int) -> dt.date | None:

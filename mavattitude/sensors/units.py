@@ -36,7 +36,7 @@ from functools import cached_property
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from mavattitude.errors import SensorError
 from mavattitude.estimation.conventions import STANDARD_GRAVITY_MPS2, Vec3
@@ -456,16 +456,20 @@ POSITION_MESSAGES = ("GLOBAL_POSITION_INT", "GPS_RAW_INT")  # what decode_positi
 COMPASS_INSTANCES = {"RAW_IMU": 0, "SCALED_IMU": 0, "SCALED_IMU2": 1, "SCALED_IMU3": 2}
 
 
-def decode_position(msg: Any) -> Position | None:
-    """GLOBAL_POSITION_INT, or GPS_RAW_INT with a 3D fix or better, → :class:`Position`; ``None`` otherwise.
+def is_position(lat_deg: ArrayLike, lon_deg: ArrayLike) -> Any:
+    """Whether each latitude, longitude (°) is a place: on the globe (a garbled field is not, and the magnetic
+    model would answer it all the same), and not exactly 0°, 0°, what an autopilot without a position sends."""
+    lat, lon = np.asarray(lat_deg, dtype=float), np.asarray(lon_deg, dtype=float)
+    return (np.abs(lat) <= 90.0) & (np.abs(lon) <= 180.0) & ((lat != 0.0) | (lon != 0.0))  # NaN is no place
 
-    Both carry degrees × 10⁷ and millimetres. A GLOBAL_POSITION_INT at exactly 0°, 0° is what an autopilot
-    without a position sends, so it counts as no position.
-    """
+
+def decode_position(msg: Any) -> Position | None:
+    """GLOBAL_POSITION_INT, or GPS_RAW_INT with a 3D fix or better, → :class:`Position`; ``None`` otherwise,
+    and where it is no place (:func:`is_position`). Both carry degrees × 10⁷ and millimetres."""
     kind = msg.get_type()
     if kind == "GPS_RAW_INT" and msg.fix_type < GPS_FIX_3D:
         return None
-    if kind not in POSITION_MESSAGES or (msg.lat == 0 and msg.lon == 0):
+    if kind not in POSITION_MESSAGES or not is_position(msg.lat * 1e-7, msg.lon * 1e-7):
         return None
     return Position(lat_deg=msg.lat * 1e-7, lon_deg=msg.lon * 1e-7, alt_m=msg.alt * 1e-3)
 
@@ -478,11 +482,10 @@ def encode_position(position: Position) -> tuple[int, int, int]:
 def decode_position_columns(kind: str, fields: Mapping[str, NDArray[Any]]) -> tuple[NDArray[np.bool_], NDArray[Any]]:
     """:func:`decode_position` for many messages of ``kind``: which rows are a position, and every row's
     latitude °, longitude °, altitude m (n, 3)."""
-    lat, lon = fields["lat"], fields["lon"]
-    valid = ~((lat == 0) & (lon == 0))
+    position = np.column_stack([fields["lat"] * 1e-7, fields["lon"] * 1e-7, fields["alt"] * 1e-3])
+    valid = is_position(position[:, 0], position[:, 1])
     if kind == "GPS_RAW_INT":
         valid &= fields["fix_type"] >= GPS_FIX_3D
-    position = np.column_stack([lat * 1e-7, lon * 1e-7, fields["alt"] * 1e-3])
     return valid, position
 
 

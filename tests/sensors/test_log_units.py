@@ -78,6 +78,28 @@ def test_ulog_gps_position_both_generations(fields: dict) -> None:
     assert uu.gps_position({**topic, "fix_type": np.array([2])})[0].size == 0  # no 3D fix: no position
 
 
+PLACES = {"lat": np.array([47.4, 214.7, 0.0, 47.4]), "lon": np.array([8.5, 8.5, 0.0, 190.0])}  # one place
+DF_PLACES = {"Lat": PLACES["lat"], "Lng": PLACES["lon"]}
+PX4_GPS = {"latitude_deg": PLACES["lat"], "longitude_deg": PLACES["lon"]}
+
+
+@pytest.mark.parametrize(
+    ("reader", "table"),
+    [
+        (du.position, {"TimeUS": np.arange(4) * 1e6, **DF_PLACES, "Alt": np.ones(4)}),
+        (du.gps_fixes, {"TimeUS": np.arange(4) * 1e6, "Status": np.full(4, 3), **DF_PLACES, "Alt": np.ones(4)}),
+        (uu.global_position, {"timestamp": np.arange(4) * 1e6, **PLACES, "alt": np.ones(4)}),
+        (
+            uu.gps_position,
+            {"timestamp": np.arange(4) * 1e6, "fix_type": np.full(4, 3), **PX4_GPS, "altitude_msl_m": np.ones(4)},
+        ),
+    ],
+)
+def test_log_positions_off_the_globe_or_at_zero_zero_are_none(reader, table: dict) -> None:
+    t, rows = reader(table)
+    assert t.tolist() == [0.0] and rows.tolist() == [[47.4, 8.5, 1.0]]
+
+
 def test_ulog_utc_date() -> None:
     assert uu.utc_date(1_618_963_200_000_000) == dt.date(2021, 4, 21)
     assert uu.utc_date(2**63) is None  # a garbled receiver time: past any date Python holds

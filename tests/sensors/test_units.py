@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -165,6 +166,20 @@ def test_positions_need_a_3d_fix_and_are_degrees_and_metres() -> None:
     gps = dict(time_usec=1, lat=10_000_000, lon=20_000_000, alt=5000, eph=0, epv=0, vel=0, cog=0, satellites_visible=9)
     assert decode_position(_packed("GPS_RAW_INT", {**gps, "fix_type": 2})) is None  # 2D fix
     assert decode_position(_packed("GPS_RAW_INT", {**gps, "fix_type": 3})) == units.Position(1.0, 2.0, 5.0)
+
+
+def test_a_position_off_the_globe_is_none_as_one_message_and_as_columns() -> None:
+    """A garbled latitude of 2³¹ − 1 × 10⁻⁷ = 214.7°, or a longitude of 190°, is no place: the magnetic model
+    would give a field for it all the same."""
+    lat = np.array([473_977_420, 2**31 - 1, 0, 473_977_420])
+    lon = np.array([85_455_940, 85_455_940, 0, 1_900_000_000])
+    valid, _ = units.decode_position_columns("GLOBAL_POSITION_INT", {"lat": lat, "lon": lon, "alt": np.zeros(4)})
+    assert valid.tolist() == [True, False, False, False]
+    one_by_one = [
+        decode_position(_msg("GLOBAL_POSITION_INT", lat=int(a), lon=int(b), alt=0)) is not None
+        for a, b in zip(lat, lon, strict=True)
+    ]
+    assert one_by_one == valid.tolist()
 
 
 @pytest.mark.parametrize(
