@@ -100,7 +100,7 @@ def position(table: Table) -> tuple[Array, Array]:
     """POS records → the times (s) and (latitude °, longitude °, altitude m AMSL) rows of those that are a place
     (:func:`~mavattitude.sensors.units.is_position`)."""
     pos = _vectors(table, POS_FIELDS, 1.0)
-    place = is_position(pos[:, 0], pos[:, 1])
+    place = is_position(pos)
     return time_s(table)[0][place], pos[place]
 
 
@@ -108,7 +108,7 @@ def gps_fixes(table: Table) -> tuple[Array, Array]:
     """GPS records → the times (s) and (latitude °, longitude °, altitude m AMSL) rows of those with a 3D fix
     and a place."""
     pos = _vectors(table, POS_FIELDS, 1.0)
-    fixed = (np.asarray(table["Status"]) >= GPS_FIX_3D) & is_position(pos[:, 0], pos[:, 1])
+    fixed = (np.asarray(table["Status"]) >= GPS_FIX_3D) & is_position(pos)
     return time_s(table)[0][fixed], pos[fixed]
 
 

@@ -90,7 +90,7 @@ def gps_position(topic: Topic) -> tuple[Array, Array]:
             rows = np.column_stack(
                 [np.asarray(topic[lat]) * deg, np.asarray(topic[lon]) * deg, np.asarray(topic[alt]) * metres]
             ).astype(float)
-            fixed = (np.asarray(topic["fix_type"]) >= GPS_FIX_3D) & is_position(rows[:, 0], rows[:, 1])
+            fixed = (np.asarray(topic["fix_type"]) >= GPS_FIX_3D) & is_position(rows)
             return times_s(topic)[fixed], rows[fixed]
     raise KeyError("lat/latitude_deg")
 
@@ -98,7 +98,7 @@ def gps_position(topic: Topic) -> tuple[Array, Array]:
 def global_position(topic: Topic) -> tuple[Array, Array]:
     """vehicle_global_position rows that are a place → times (s) and (latitude °, longitude °, altitude m) rows."""
     rows = np.column_stack([np.asarray(topic[f], dtype=float) for f in ("lat", "lon", "alt")])
-    place = is_position(rows[:, 0], rows[:, 1])
+    place = is_position(rows)
     return times_s(topic)[place], rows[place]
 
 

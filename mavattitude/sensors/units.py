@@ -456,11 +456,18 @@ POSITION_MESSAGES = ("GLOBAL_POSITION_INT", "GPS_RAW_INT")  # what decode_positi
 COMPASS_INSTANCES = {"RAW_IMU": 0, "SCALED_IMU": 0, "SCALED_IMU2": 1, "SCALED_IMU3": 2}
 
 
-def is_position(lat_deg: ArrayLike, lon_deg: ArrayLike) -> Any:
-    """Whether each latitude, longitude (°) is a place: on the globe (a garbled field is not, and the magnetic
-    model would answer it all the same), and not exactly 0°, 0°, what an autopilot without a position sends."""
-    lat, lon = np.asarray(lat_deg, dtype=float), np.asarray(lon_deg, dtype=float)
-    return (np.abs(lat) <= 90.0) & (np.abs(lon) <= 180.0) & ((lat != 0.0) | (lon != 0.0))  # NaN is no place
+#: The World Magnetic Model's altitudes (m above the ellipsoid): a position outside is a garbled field
+WMM_ALT_RANGE_M = (-1_000.0, 850_000.0)
+
+
+def is_position(lat_lon_alt: ArrayLike) -> Any:
+    """Whether each (latitude °, longitude °, altitude m) row is a place: on the globe and within the magnetic
+    model's altitudes (a garbled field is not, and the model would answer it all the same), and not exactly
+    0°, 0°, what an autopilot without a position sends. NaN is no place."""
+    lat, lon, alt = np.moveaxis(np.asarray(lat_lon_alt, dtype=float), -1, 0)
+    low, high = WMM_ALT_RANGE_M
+    on_globe = (np.abs(lat) <= 90.0) & (np.abs(lon) <= 180.0) & (alt >= low) & (alt <= high)
+    return on_globe & ((lat != 0.0) | (lon != 0.0))
 
 
 def decode_position(msg: Any) -> Position | None:
@@ -469,7 +476,7 @@ def decode_position(msg: Any) -> Position | None:
     kind = msg.get_type()
     if kind == "GPS_RAW_INT" and msg.fix_type < GPS_FIX_3D:
         return None
-    if kind not in POSITION_MESSAGES or not is_position(msg.lat * 1e-7, msg.lon * 1e-7):
+    if kind not in POSITION_MESSAGES or not is_position((msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3)):
         return None
     return Position(lat_deg=msg.lat * 1e-7, lon_deg=msg.lon * 1e-7, alt_m=msg.alt * 1e-3)
 
@@ -483,7 +490,7 @@ def decode_position_columns(kind: str, fields: Mapping[str, NDArray[Any]]) -> tu
     """:func:`decode_position` for many messages of ``kind``: which rows are a position, and every row's
     latitude °, longitude °, altitude m (n, 3)."""
     position = np.column_stack([fields["lat"] * 1e-7, fields["lon"] * 1e-7, fields["alt"] * 1e-3])
-    valid = is_position(position[:, 0], position[:, 1])
+    valid = is_position(position)
     if kind == "GPS_RAW_INT":
         valid &= fields["fix_type"] >= GPS_FIX_3D
     return valid, position

@@ -78,20 +78,25 @@ def test_ulog_gps_position_both_generations(fields: dict) -> None:
     assert uu.gps_position({**topic, "fix_type": np.array([2])})[0].size == 0  # no 3D fix: no position
 
 
-PLACES = {"lat": np.array([47.4, 214.7, 0.0, 47.4]), "lon": np.array([8.5, 8.5, 0.0, 190.0])}  # one place
-DF_PLACES = {"Lat": PLACES["lat"], "Lng": PLACES["lon"]}
-PX4_GPS = {"latitude_deg": PLACES["lat"], "longitude_deg": PLACES["lon"]}
+# one place; then off the globe, at 0°, 0°, off the globe, 2147 km down (outside the magnetic model)
+PLACES = {
+    "lat": np.array([47.4, 214.7, 0.0, 47.4, 47.4]),
+    "lon": np.array([8.5, 8.5, 0.0, 190.0, 8.5]),
+    "alt": np.array([1.0, 1.0, 1.0, 1.0, -2.147e6]),
+}
+DF_PLACES = {"Lat": PLACES["lat"], "Lng": PLACES["lon"], "Alt": PLACES["alt"]}
+PX4_GPS = {"latitude_deg": PLACES["lat"], "longitude_deg": PLACES["lon"], "altitude_msl_m": PLACES["alt"]}
 
 
 @pytest.mark.parametrize(
     ("reader", "table"),
     [
-        (du.position, {"TimeUS": np.arange(4) * 1e6, **DF_PLACES, "Alt": np.ones(4)}),
-        (du.gps_fixes, {"TimeUS": np.arange(4) * 1e6, "Status": np.full(4, 3), **DF_PLACES, "Alt": np.ones(4)}),
-        (uu.global_position, {"timestamp": np.arange(4) * 1e6, **PLACES, "alt": np.ones(4)}),
+        (du.position, {"TimeUS": np.arange(5) * 1e6, **DF_PLACES}),
+        (du.gps_fixes, {"TimeUS": np.arange(5) * 1e6, "Status": np.full(5, 3), **DF_PLACES}),
+        (uu.global_position, {"timestamp": np.arange(5) * 1e6, **PLACES}),
         (
             uu.gps_position,
-            {"timestamp": np.arange(4) * 1e6, "fix_type": np.full(4, 3), **PX4_GPS, "altitude_msl_m": np.ones(4)},
+            {"timestamp": np.arange(5) * 1e6, "fix_type": np.full(5, 3), **PX4_GPS},
         ),
     ],
 )

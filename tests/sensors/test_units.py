@@ -169,15 +169,17 @@ def test_positions_need_a_3d_fix_and_are_degrees_and_metres() -> None:
 
 
 def test_a_position_off_the_globe_is_none_as_one_message_and_as_columns() -> None:
-    """A garbled latitude of 2³¹ − 1 × 10⁻⁷ = 214.7°, or a longitude of 190°, is no place: the magnetic model
-    would give a field for it all the same."""
-    lat = np.array([473_977_420, 2**31 - 1, 0, 473_977_420])
-    lon = np.array([85_455_940, 85_455_940, 0, 1_900_000_000])
-    valid, _ = units.decode_position_columns("GLOBAL_POSITION_INT", {"lat": lat, "lon": lon, "alt": np.zeros(4)})
-    assert valid.tolist() == [True, False, False, False]
+    """A garbled latitude of 2³¹ − 1 × 10⁻⁷ = 214.7°, a longitude of 190°, or an altitude of −2³¹ mm (2147 km
+    down, outside the magnetic model's −1 to 850 km) is no place: the model would give a field for it all the
+    same (174 µT at that depth)."""
+    lat = np.array([473_977_420, 2**31 - 1, 0, 473_977_420, 473_977_420])
+    lon = np.array([85_455_940, 85_455_940, 0, 1_900_000_000, 85_455_940])
+    alt = np.array([488_000, 488_000, 0, 488_000, -(2**31)])
+    valid, _ = units.decode_position_columns("GLOBAL_POSITION_INT", {"lat": lat, "lon": lon, "alt": alt})
+    assert valid.tolist() == [True, False, False, False, False]
     one_by_one = [
-        decode_position(_msg("GLOBAL_POSITION_INT", lat=int(a), lon=int(b), alt=0)) is not None
-        for a, b in zip(lat, lon, strict=True)
+        decode_position(_msg("GLOBAL_POSITION_INT", lat=int(a), lon=int(b), alt=int(h))) is not None
+        for a, b, h in zip(lat, lon, alt, strict=True)
     ]
     assert one_by_one == valid.tolist()
 
