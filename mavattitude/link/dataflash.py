@@ -191,14 +191,13 @@ def _gps_tables(reader: _Reader) -> list[dict[str, np.ndarray]]:
 
 
 def _positions(reader: _Reader) -> tuple[np.ndarray, np.ndarray]:
-    """The vehicle's positions in time order: the autopilot's POS records where it logged them (0°, 0° is
-    none), else every GPS receiver's records with a 3D fix."""
+    """The vehicle's positions in time order: the autopilot's POS records that are a place where it logged
+    any, else every GPS receiver's records with a 3D fix."""
     pos = reader.table("POS")
     if pos:
         t, rows = du.position(pos)
-        known = np.any(rows[:, :2] != 0.0, axis=1)
-        if known.any():
-            return t[known], rows[known]
+        if len(t):
+            return t, rows
     fixes = [du.gps_fixes(gps) for gps in _gps_tables(reader)]
     if not fixes:
         return np.empty(0), np.empty((0, 3))
