@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
     source = args.input
     if source.endswith((".csv", ".csv.gz")):
         mag = read_csv_mag(Path(source))
-    elif source.lower().endswith(LOG_SUFFIXES):
+    elif source.lower().endswith(LOG_SUFFIXES) or Path(source).is_file():  # a serial port is no regular file
         mag = _collect(_log_samples(Path(source), args), args, sys.stderr, live=False)
     else:
         from mavattitude.link.connection import MavlinkLink

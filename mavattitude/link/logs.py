@@ -1,10 +1,10 @@
 """Flight logs as message sources: the table of formats a log is recognised by.
 
 :func:`open_log` recognises a log by its first bytes (ULog's magic, DataFlash's FMT header; otherwise a
-telemetry log if its name ends in ``.tlog``), the rows of :data:`FORMATS`, and returns its reader's
-:class:`~mavattitude.link.source.MessageSource`: a DataFlash or ULog reader's
-:class:`~mavattitude.link.logstreams.LogStreams` as a :class:`~mavattitude.link.logstreams.StreamSource`, a
-telemetry log's :class:`~mavattitude.link.tlog.TlogSource`.
+telemetry log if its name ends in ``.tlog`` or its first records frame with their CRCs right), the rows of
+:data:`FORMATS`, and returns its reader's :class:`~mavattitude.link.source.MessageSource`: a DataFlash or
+ULog reader's :class:`~mavattitude.link.logstreams.LogStreams` as a
+:class:`~mavattitude.link.logstreams.StreamSource`, a telemetry log's :class:`~mavattitude.link.tlog.TlogSource`.
 
 What cannot be used is a :class:`~mavattitude.errors.DataFileError` naming the file and where: unknown
 format, no IMU, no magnetometer, a magnetometer reading only zero. A log cut short (the last record
@@ -23,7 +23,7 @@ from mavattitude.errors import DataFileError
 from mavattitude.link.dataflash import read_dataflash
 from mavattitude.link.logstreams import Follower, LogStreams, StreamSource
 from mavattitude.link.source import MavlinkDecoder, MessageSource
-from mavattitude.link.tlog import TlogSource
+from mavattitude.link.tlog import SNIFF_BYTES, TlogSource, looks_like_tlog
 from mavattitude.link.ulog import read_ulog
 
 
@@ -38,9 +38,10 @@ class LogFormat:
     """One row of :data:`FORMATS`: how a format is recognised, and its reader."""
 
     name: str
-    magic: bytes | None  # the file starts so; None: recognised by ``suffix`` (a .tlog has no magic)
+    magic: bytes | None  # the file starts so; None: recognised by ``suffix`` or ``sniff`` (a .tlog has no magic)
     suffix: str  # the usual name's suffix (lower case)
     open: Callable[[Path, Config, int, int | None, Sequence[str], int | None], LogSource]
+    sniff: Callable[[bytes], bool] | None = None  # without magic: the file's first bytes are the format's
 
 
 def _stream_reader(read: Callable[[Path, int, int | None], LogStreams]) -> Callable[..., LogSource]:
@@ -61,26 +62,29 @@ FORMATS = (
     LogFormat("ulog", b"ULog\x01\x12\x35", ".ulg", _stream_reader(read_ulog)),
     # a message header and the FMT message's type: every DataFlash log starts so
     LogFormat("dataflash", b"\xa3\x95\x80", ".bin", _stream_reader(read_dataflash)),
-    LogFormat("tlog", None, ".tlog", _tlog),
+    LogFormat("tlog", None, ".tlog", _tlog, looks_like_tlog),
 )
 
 
 def detect_format(path: Path) -> LogFormat:
-    """The row of :data:`FORMATS` the file's first bytes (a .tlog's name: it has no magic) say it is."""
-    longest = max(len(f.magic or b"") for f in FORMATS)
+    """The row of :data:`FORMATS` the file's first bytes (or a .tlog's name: it has no magic) say it is."""
     try:
         with path.open("rb") as f:
-            head = f.read(longest)
+            head = f.read(SNIFF_BYTES)
     except OSError as exc:
         raise DataFileError(f"{path}: cannot open: {exc.strerror or exc}") from exc
     for fmt in FORMATS:
         if head.startswith(fmt.magic) if fmt.magic is not None else path.suffix.lower() == fmt.suffix:
             return fmt
+    known = next((f for f in FORMATS if f.sniff is not None and f.sniff(head)), None)
+    if known is not None:
+        return known
     csv = path.name.lower().endswith((".csv", ".csv.gz"))
     samples = " (a CSV of samples is for `mavattitude solve`)" if csv else ""
     raise DataFileError(
         f"{path}: not a flight log this reads (byte 0: {head[:4].hex(' ') or 'empty file'}): expected a DataFlash "
-        f".bin (starts a3 95 80), a ULog .ulg (starts 'ULog') or a telemetry log named .tlog{samples}"
+        f".bin (starts a3 95 80), a ULog .ulg (starts 'ULog') or a telemetry log (.tlog: MAVLink frames, each "
+        f"after an 8-byte time){samples}"
     )
 
 

@@ -63,9 +63,12 @@ def test_from_csv_writes_the_mag_block_and_reports(tmp_path: Path, capsys: pytes
     assert "1200 samples" in text and "|B| spread" in text and "before" in text and "residual" in text
 
 
-@pytest.mark.parametrize("message", ["RAW_IMU", "SCALED_IMU2"])
-def test_from_a_tlog(tmp_path: Path, message: str) -> None:
-    """Without --message, the first of the profile's IMU messages that the autopilot's log holds."""
+@pytest.mark.parametrize(
+    ("message", "name"), [("RAW_IMU", "turns.tlog"), ("SCALED_IMU2", "turns.tlog"), ("RAW_IMU", "turns.mavlink")]
+)
+def test_from_a_tlog(tmp_path: Path, message: str, name: str) -> None:
+    """Without --message, the first of the profile's IMU messages that the autopilot's log holds; a telemetry log
+    under another name is known by its frames, not opened as a serial port."""
     profile = get_profile("ardupilot")
     packets = [(2, message, encode(ImuSample(0.0, (0.0, 0.0, -9.8), (0.0,) * 3, (99.0,) * 3), profile, message))]
     packets += [(1, "HEARTBEAT", HEARTBEAT)]  # the autopilot, locked onto as the service does: not system 2
@@ -73,7 +76,7 @@ def test_from_a_tlog(tmp_path: Path, message: str) -> None:
         (1, message, encode(ImuSample(i * 0.01, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), tuple(m)), profile, message))
         for i, m in enumerate(_distorted(1000))
     ]
-    log = tmp_path / "turns.tlog"
+    log = tmp_path / name
     write_tlog(log, packets)
     out = tmp_path / "mag.yaml"
     assert main(["calibrate", "mag", str(log), "-o", str(out), "--profile", "ardupilot"]) == 0

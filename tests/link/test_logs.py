@@ -18,6 +18,7 @@ from mavattitude.link.source import AutopilotAttitude, PositionFix
 from mavattitude.link.ulog import cut_at, read_ulog
 from mavattitude.sensors.units import ImuSample
 from mavattitude.sim.logwriter import LAYOUTS, static_log, write_dataflash
+from tests.link.test_tlog import HEARTBEAT, _raw, write_tlog
 from tests.shared import shared_path
 from tests.test_service import make_config
 
@@ -189,6 +190,26 @@ def test_unknown_formats_are_named_with_their_first_bytes(tmp_path):
     samples.write_text("t_s,acc_x_mps2\n")
     with pytest.raises(DataFileError, match=r"\(a CSV of samples is for `mavattitude solve`\)$"):
         detect_format(samples)
+
+
+def test_a_telemetry_log_under_another_name_is_known_by_its_frames(tmp_path):
+    """A .tlog has no magic: saved as .mavlink, or with no suffix, its first records (framed from byte 0, CRCs
+    right) say what it is; the same bytes with one byte flipped, or random bytes, are refused as before."""
+    tlog = tmp_path / "flight.tlog"
+    write_tlog(tlog, [(1, "HEARTBEAT", HEARTBEAT), *((1, "RAW_IMU", _raw(i)) for i in range(30))])
+    data = tlog.read_bytes()
+    for name in ("flight.mavlink", "flight"):
+        (tmp_path / name).write_bytes(data)
+        assert detect_format(tmp_path / name).name == "tlog"
+        assert open_log(tmp_path / name, make_config()).count == 31
+    broken = bytearray(data)
+    broken[len(data) // 2] ^= 0xFF  # a CRC or the framing fails
+    (tmp_path / "broken.mavlink").write_bytes(bytes(broken))
+    noise = np.random.default_rng(3).integers(0, 256, 4096, dtype=np.uint8).tobytes()
+    (tmp_path / "noise.dat").write_bytes(noise)
+    for name in ("broken.mavlink", "noise.dat"):
+        with pytest.raises(DataFileError, match="not a flight log this reads"):
+            detect_format(tmp_path / name)
 
 
 def test_the_shared_sitl_flight_as_dataflash():
