@@ -377,7 +377,7 @@ def test_a_reboot_after_the_measured_field_keeps_it_one_by_one_and_at_once(caplo
     assert sum("vehicle clock went back" in r.getMessage() for r in caplog.records) == 1
 
 
-DAMAGE = ("reboot", "gap", "nan", "duplicate", "back", "no_mag", "saturated", "dead", "slow")
+DAMAGE = ("reboot", "gap", "nan", "duplicate", "back", "no_mag", "saturated", "dead", "slow", "no_time")
 
 
 def _damaged_stream(seed: int) -> tuple[np.ndarray, ...]:
@@ -412,6 +412,8 @@ def _damaged_stream(seed: int) -> tuple[np.ndarray, ...]:
             acc[i, 0] = 1000.0
         elif fault == "dead":
             acc[i:j] = 0.0
+        elif fault == "no_time":  # a CSV's nan or inf, anywhere (the last row too: the batch's fast path)
+            t[rng.choice([i, n - 1])] = rng.choice([np.nan, np.inf])
         else:  # a slow spell: the samples 0.2 s apart for a while
             t[i:] += np.minimum(np.arange(n - i), j - i) * 0.2
     return t, mag_new, acc, gyr, np.where(mag_new[:, None], mag, np.nan)
@@ -425,8 +427,8 @@ def _damaged_stream(seed: int) -> tuple[np.ndarray, ...]:
     filtered=st.booleans(),
 )
 def test_one_by_one_and_at_once_agree_on_damaged_streams(seed, method, measured, filtered):
-    """Live (push, sample by sample) and replay (push_batch, the arrays) on reboots, gaps, NaN, duplicate and
-    stale times, compass dropouts, saturated and dead samples and slow spells: the same outputs (to rounding:
+    """Live (push, sample by sample) and replay (push_batch, the arrays) on reboots, gaps, NaN, duplicate, stale
+    and non-finite times, compass dropouts, saturated and dead samples and slow spells: the same outputs (to rounding:
     the batch front end's ticks), refusals and compass verdicts; neither raises."""
     reference = {"position_wait_s": 1.0} if measured else ANGLES["reference"]
     config = from_dict({"estimator": {"method": method}, "reference": reference, "filter": {"enabled": filtered}})

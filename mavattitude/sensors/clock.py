@@ -4,12 +4,13 @@ Message times come from the autopilot (``time_usec``, ``time_boot_ms``), never f
 clock keeps them increasing: a uint32 millisecond field that wraps (after ≈ 49.7 days) is unwrapped; a
 time that goes back by more than ``reorder_window_s`` is a reboot (the caller resets what depends on
 time); a repeated time is a duplicate and a time slightly behind the newest is a reordered datagram, both
-dropped. Gaps are the front end's business (it knows the input time-out).
+dropped, as is a time that is no finite number. Gaps are the front end's business (it knows the input time-out).
 """
 
 from __future__ import annotations
 
 import enum
+import math
 
 
 class ClockEvent(enum.Enum):
@@ -18,6 +19,7 @@ class ClockEvent(enum.Enum):
     REBOOT = "reboot"  # time restarted; the returned time starts a new epoch
     DUPLICATE = "duplicate"  # same time as the newest sample: dropped
     OUT_OF_ORDER = "out_of_order"  # slightly behind the newest sample: dropped
+    NO_TIME = "no_time"  # not a finite number (a CSV's nan or inf): dropped, the clock unchanged
 
 
 class VehicleClock:
@@ -30,6 +32,8 @@ class VehicleClock:
 
     def update(self, raw_time_s: float, wrap_period_s: float | None) -> tuple[float | None, ClockEvent]:
         """The message time on the unwrapped vehicle clock, or ``None`` when the sample must be dropped."""
+        if not -math.inf < raw_time_s < math.inf:  # NaN too: taken, it would make every later time a reboot
+            return None, ClockEvent.NO_TIME
         last = self._last_raw_s
         if last is None or raw_time_s > last:
             self._last_raw_s = raw_time_s

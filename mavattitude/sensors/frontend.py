@@ -853,7 +853,7 @@ def _batch_clock(
 ) -> tuple[Array, NDArray[np.bool_], NDArray[np.int64]]:
     """Unwrapped times, the rows the clock keeps, and each row's boot epoch."""
     n = len(t)
-    if n < 2 or np.all(np.diff(t) > 0.0):
+    if n == 0 or (np.all(np.diff(t) > 0.0) and np.isfinite(t[[0, -1]]).all()):  # increasing, ends finite: all are
         return t, np.ones(n, dtype=bool), np.zeros(n, dtype=np.int64)
     # irregular times are rare: the streaming clock, sample by sample, is then the reference
     clock = VehicleClock(reorder_window_s)

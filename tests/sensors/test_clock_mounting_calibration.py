@@ -33,6 +33,19 @@ def test_clock_drops_duplicates_and_reordered_and_restarts_on_reboot() -> None:
     assert clock.update(2.01, None) == (2.01, ClockEvent.OK)
 
 
+@pytest.mark.parametrize("first", [True, False])
+def test_a_time_that_is_no_number_is_dropped_and_leaves_the_clock_as_it_was(first: bool) -> None:
+    """A CSV's nan or inf: taken, NaN would make every later time a reboot (no comparison with it holds) and
+    inf every later one a step back."""
+    clock = VehicleClock()
+    if not first:
+        clock.update(100.0, None)
+    for bad in (np.nan, np.inf, -np.inf):
+        assert clock.update(bad, None) == (None, ClockEvent.NO_TIME)
+    assert clock.update(100.01, None) == (100.01, ClockEvent.OK)
+    assert clock.update(100.02, None) == (100.02, ClockEvent.OK)
+
+
 def test_uint64_time_never_wraps_but_reboots() -> None:
     clock = VehicleClock()
     clock.update(5000.0, None)
