@@ -201,7 +201,7 @@ def rate_handling(config: Config, message: str, rate_hz: float, per_sample: int,
     """How the input was processed at its rate, one line (the service's log, replay's ``rate_handling``):
     ``per_sample`` of the accepted ``samples`` gave one attitude each, unfiltered (the input slower than about
     twice the low-pass cutoff; :func:`~mavattitude.sensors.frontend.pace_intervals_s`)."""
-    head = f"{message} at {rate_hz:.1f} Hz"
+    head = f"{message} at {rate_hz:.1f} Hz" if math.isfinite(rate_hz) else f"{message} at a rate unknown (one sample)"
     integrates = METHODS[config.estimator.method].needs_gyro
     if per_sample > (1.0 - MOSTLY) * samples:
         what = "one attitude per sample, no filtering"

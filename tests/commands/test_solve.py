@@ -110,6 +110,13 @@ def test_a_time_column_in_milliseconds_shows_as_a_slow_input_in_plain_words(tmp_
     assert "nan" not in err and "one sample in the window, no spread" in err
 
 
+def test_one_sample_is_solved_and_its_unknown_rate_said_in_words(tmp_path, capsys):
+    src = write_csv(tmp_path / "in.csv", n=1)
+    assert main(["solve", str(src), "-o", str(tmp_path / "o.csv"), *REF]) == 0
+    err = capsys.readouterr().err
+    assert "samples at a rate unknown (one sample)" in err and "nan" not in err
+
+
 def test_gzip_in_and_out_and_no_gyro_columns(tmp_path):
     out = tmp_path / "out.csv.gz"
     src = write_csv(tmp_path / "in.csv.gz", gyro=False)
