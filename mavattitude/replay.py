@@ -12,7 +12,9 @@ needs one magnetic reference for the whole log (fixed, or the WMM's at the log's
 vehicle stays within the distance after which the service would look it up again, or the field measured
 from the compass of a log without a position: :class:`~mavattitude.sensors.magref.ReferenceTracker`'s rule,
 which the pipeline applies to the batch's ticks as it would one by one); otherwise, and with
-``at_once=False``, the samples go into the pipeline one by one as they would live.
+``at_once=False``, the samples go into the pipeline one by one as they would live. A telemetry log across a
+reboot of the autopilot is read item by item in its own order: its times go back, and no longer place a
+position or a GPS velocity among the samples.
 """
 
 from __future__ import annotations
@@ -155,9 +157,13 @@ def _replay(source: LogSource, config: Config, progress: Callable[[int, int], No
     vehicle = result.vehicle
     if vehicle is None:  # a .tlog without an autopilot's HEARTBEAT: no row is the vehicle's
         return result
+    from mavattitude.link.logstreams import StreamSource  # the vehicle's streams, one by one
+
+    if not isinstance(source, StreamSource) and _reboots(streams, pipeline.frontend.settings.reorder_window_s):
+        # the times go back: a position or velocity is placed among the samples by the log's order, not by time
+        return _replay_items(source, Replayed([], [], DispatchCounters(), AttitudePipeline(config), None), progress)
     if _one_reference(streams, pipeline):
         return _replay_arrays(streams, result, vehicle, progress)
-    from mavattitude.link.logstreams import StreamSource  # the vehicle's streams, one by one
 
     c = result.counters
     counters = DispatchCounters(c.rejected["decode"], c.ignored, dict(c.rejected))  # what reading the log counted
@@ -199,6 +205,14 @@ def _replay_items(source: MessageSource, result: Replayed, progress: Callable[[i
     if result.internal_errors:  # offline, a bug is reported, not served around
         raise result.internal_errors[0]
     return result
+
+
+def _reboots(streams: LogStreams, reorder_window_s: float) -> bool:
+    """Whether the IMU clock goes back by more than ``reorder_window_s`` somewhere: the autopilot rebooted (the
+    wrap of an old log's uint32 ms field is no reboot), and the arrays' times no longer say what came first."""
+    back = -np.diff(streams.imu_t_s)
+    wrap = streams.time_wrap_s
+    return bool(np.any((back > reorder_window_s) & (back <= (0.5 * wrap if wrap else np.inf))))
 
 
 def _one_reference(streams: LogStreams, pipeline: AttitudePipeline) -> bool:

@@ -189,6 +189,27 @@ def test_a_log_clock_that_is_no_date_leaves_the_positions_undated(tmp_path: Path
     assert _source(path, config).streams_for(Dispatcher(None, _Locked(), system_id=1)).date is None
 
 
+def test_across_a_reboot_a_position_takes_its_place_by_the_logs_order_at_once_as_one_by_one(tmp_path: Path) -> None:
+    """The autopilot rebooted (its clock from 100 s back to 1 s) and found its position after: live, the
+    attitudes start at that position; the samples before the reboot, though later in time, have none. Replay
+    at once gives what one by one gives (it reads such a log in its own order)."""
+    from mavattitude.replay import replay
+    from tests.test_dispatch import Peer
+
+    vehicle = Peer()
+    datagrams = [vehicle.heartbeat(), *vehicle.stream(100)]  # 100 s to 100.5 s
+    vehicle.time_s = 1.0
+    datagrams += vehicle.stream(20)
+    position = mavlink2.MAVLink_global_position_int_message(0, 474000000, 85000000, 450000, 0, 0, 0, 0, 0)
+    datagrams += [vehicle.pack(position), *vehicle.stream(200)]  # from 1.1 s to 2.1 s
+    path = tmp_path / "reboot.tlog"
+    path.write_bytes(b"".join(struct.pack(">Q", 1_700_000_000_000_000 + 5000 * i) + d for i, d in enumerate(datagrams)))
+    config = _config(**{"reference.magnetic": "auto"})
+    at_once, one_by_one = (replay(_source(path, config), config, at_once=a).output_array() for a in (True, False))
+    assert at_once[0, 0] == pytest.approx(1.1) and len(at_once) == 50  # 1.1 s to 2.08 s at 50 Hz
+    np.testing.assert_array_equal(at_once, one_by_one)
+
+
 class _Locked:
     def on_lock(self, vehicle: tuple[int, int]) -> None:
         """Only the lock-on is heard."""
