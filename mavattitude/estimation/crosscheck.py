@@ -261,17 +261,23 @@ def cross_check_log(
     settings: CrossCheckSettings,
     ours_heading: np.ndarray | None = None,
 ) -> tuple[CrossCheck, list[Difference], list[CrossCheckEvent]]:
-    """The live cross-check over a whole log: both attitude series fed in vehicle-time order, as they arrive
-    (``ours_heading``: which of ours have a heading; default all)."""
+    """The live cross-check over a whole log: both attitude series, each in the log's order, fed in vehicle-time
+    order, as they arrive (``ours_heading``: which of ours have a heading; default all). Where the vehicle
+    rebooted both clocks go back: each series' k-th boot (its times going back as :meth:`CrossCheck.add_ours`
+    and :meth:`CrossCheck.add_autopilot` tell a reboot) is merged with the other's k-th."""
     check = CrossCheck(settings)
     heading = [True] * len(ours_t_s) if ours_heading is None else ours_heading.tolist()
     diffs: list[Difference] = []
     events: list[CrossCheckEvent] = []
     j = 0
-    ours = ours_t_s.tolist()
-    for t, q in zip(theirs_t_s.tolist(), theirs_q, strict=True):
-        # ours up to the first at or past its time, as live: an attitude is paired once ours reach past it
-        while j < len(ours) and (j == 0 or ours[j - 1] < t):
+    ours, theirs = ours_t_s.tolist(), theirs_t_s.tolist()
+    ours_boot, theirs_boot = _boots(ours_t_s, 0.0), _boots(theirs_t_s, REBOOT_BACK_S)
+    for t, boot, q in zip(theirs, theirs_boot, theirs_q, strict=True):
+        # ours of earlier boots, then of its boot up to the first at or past its time, as live: an attitude is
+        # paired once ours reach past it
+        while j < len(ours) and (
+            ours_boot[j] < boot or (ours_boot[j] == boot and (j == 0 or ours_boot[j - 1] < boot or ours[j - 1] < t))
+        ):
             check.add_ours(ours[j], ours_q[j], heading[j])
             j += 1
         check.add_autopilot(t, q)
@@ -280,3 +286,8 @@ def cross_check_log(
         events += e
     check.finish()
     return check, diffs, events
+
+
+def _boots(t_s: np.ndarray, back_s: float) -> list[int]:
+    """Each time's boot: how often the clock went back by more than ``back_s`` up to it."""
+    return np.concatenate([[0], np.cumsum(np.diff(t_s) < -back_s)])[: len(t_s)].tolist()

@@ -35,6 +35,22 @@ def test_each_autopilot_attitude_is_paired_with_ours_at_its_time():
     assert all(abs(d.total_deg - 2.0) < 1e-3 for d in diffs) and events == []
 
 
+def test_a_log_across_a_reboot_pairs_each_boot_with_its_own():
+    """A log of two flights, the autopilot rebooted between (both clocks start again at 1 s): each autopilot
+    attitude is paired with ours of the same boot, as live, not left waiting for ours of the first boot."""
+    ours_t, theirs_t = np.arange(1.0, 10.0, 0.02), np.arange(1.005, 9.9, 0.1)
+    ours_q, theirs_q = truth(ours_t), truth(theirs_t, -2.0)
+    check, diffs, _ = cross_check_log(
+        np.concatenate([ours_t, ours_t]),
+        np.concatenate([ours_q, ours_q]),
+        np.concatenate([theirs_t, theirs_t]),
+        np.concatenate([theirs_q, theirs_q]),
+        CrossCheckSettings(),
+    )
+    assert check.pairs == len(diffs) == 2 * len(theirs_t) and not check.unpaired
+    assert all(abs(d.total_deg - 2.0) < 1e-3 for d in diffs)
+
+
 def test_an_autopilot_attitude_ahead_of_our_outputs_waits_for_them():
     check = CrossCheck(CrossCheckSettings())
     q = truth(np.array([0.0, 0.02, 0.04]))
