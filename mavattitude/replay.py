@@ -13,8 +13,7 @@ vehicle stays within the distance after which the service would look it up again
 from the compass of a log without a position: :class:`~mavattitude.sensors.magref.ReferenceTracker`'s rule,
 which the pipeline applies to the batch's ticks as it would one by one); otherwise, and with
 ``at_once=False``, the samples go into the pipeline one by one as they would live. A telemetry log across a
-reboot of the autopilot is read item by item in its own order: its times go back, and no longer place a
-position or a GPS velocity among the samples.
+reboot of the autopilot is read item by item in its own order (:func:`_replay_in_log_order`).
 """
 
 from __future__ import annotations
@@ -36,10 +35,11 @@ from mavattitude.estimation.conventions import Array
 from mavattitude.link.logs import LogSource
 from mavattitude.link.logstreams import LogStreams
 from mavattitude.link.source import AutopilotAttitude, MessageSource, Sender
+from mavattitude.link.tlog import TlogSource
 from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, Pushed
 from mavattitude.sensors.frontend import median_rate_hz
 from mavattitude.sensors.magref import distance_km
-from mavattitude.sensors.units import ImuSample
+from mavattitude.sensors.units import COMPASS_INSTANCES, ImuSample
 
 log = logging.getLogger(__name__)
 
@@ -157,13 +157,11 @@ def _replay(source: LogSource, config: Config, progress: Callable[[int, int], No
     vehicle = result.vehicle
     if vehicle is None:  # a .tlog without an autopilot's HEARTBEAT: no row is the vehicle's
         return result
-    from mavattitude.link.logstreams import StreamSource  # the vehicle's streams, one by one
-
-    if not isinstance(source, StreamSource) and _reboots(streams, pipeline.frontend.settings.reorder_window_s):
-        # the times go back: a position or velocity is placed among the samples by the log's order, not by time
-        return _replay_items(source, Replayed([], [], DispatchCounters(), AttitudePipeline(config), None), progress)
+    if isinstance(source, TlogSource) and _reboots(streams, pipeline.frontend.settings.reorder_window_s):
+        return _replay_in_log_order(source, streams, config, progress)
     if _one_reference(streams, pipeline):
         return _replay_arrays(streams, result, vehicle, progress)
+    from mavattitude.link.logstreams import StreamSource  # the vehicle's streams, one by one
 
     c = result.counters
     counters = DispatchCounters(c.rejected["decode"], c.ignored, dict(c.rejected))  # what reading the log counted
@@ -204,6 +202,22 @@ def _replay_items(source: MessageSource, result: Replayed, progress: Callable[[i
     _dispatch(source, result.pipeline, result, progress)
     if result.internal_errors:  # offline, a bug is reported, not served around
         raise result.internal_errors[0]
+    return result
+
+
+def _replay_in_log_order(
+    source: TlogSource, streams: LogStreams, config: Config, progress: Callable[[int, int], None] | None
+) -> Replayed:
+    """A telemetry log across a reboot, item by item in its own order: its times go back, so only the order
+    places a position or a GPS velocity among the samples. As live, the compass the IMU message carries is
+    replayed, and the log's others are judged beside it."""
+    result = _replay_items(source, Replayed([], [], DispatchCounters(), AttitudePipeline(config), None), progress)
+    message = source.decoder.message
+    own = COMPASS_INSTANCES.get(message)
+    if streams.compasses is not None and own in streams.compasses.readings:
+        streams = streams.with_compass(own, f"{message}'s own, as live")
+        result.compass_used = f"{own}: {message}'s own, as live"
+        _collect_compasses(streams, _judge_compasses(streams, result.pipeline, -math.inf), result)
     return result
 
 

@@ -192,22 +192,40 @@ def test_a_log_clock_that_is_no_date_leaves_the_positions_undated(tmp_path: Path
 def test_across_a_reboot_a_position_takes_its_place_by_the_logs_order_at_once_as_one_by_one(tmp_path: Path) -> None:
     """The autopilot rebooted (its clock from 100 s back to 1 s) and found its position after: live, the
     attitudes start at that position; the samples before the reboot, though later in time, have none. Replay
-    at once gives what one by one gives (it reads such a log in its own order)."""
+    at once gives what one by one gives (it reads such a log in its own order), with the compass RAW_IMU
+    carries replayed, as live, and the second one (SCALED_IMU2's) judged beside it."""
+    from mavattitude.estimation.conventions import rotate_ned_to_body
     from mavattitude.replay import replay
+    from mavattitude.sensors import units
     from tests.test_dispatch import Peer
+    from tests.test_service import G_NED_MPS2, GYRO_RADPS, Q_TRUE, mag_ned_uT
 
-    vehicle = Peer()
-    datagrams = [vehicle.heartbeat(), *vehicle.stream(100)]  # 100 s to 100.5 s
+    vehicle, profile = Peer(), units.get_profile("ardupilot")
+    messages = {"RAW_IMU": mavlink2.MAVLink_raw_imu_message, "SCALED_IMU2": mavlink2.MAVLink_scaled_imu2_message}
+    acc, mag = (tuple(rotate_ned_to_body(Q_TRUE, v)) for v in (G_NED_MPS2, mag_ned_uT()))
+
+    def stream(n: int) -> list[bytes]:  # 200 Hz of RAW_IMU, each followed by SCALED_IMU2 (compass 2) alike
+        out = []
+        for _ in range(n):
+            sample = units.ImuSample(vehicle.time_s, acc, GYRO_RADPS, mag)
+            out += [vehicle.pack(message(**units.encode(sample, profile, name))) for name, message in messages.items()]
+            vehicle.time_s += 0.005
+        return out
+
+    datagrams = [vehicle.heartbeat(), *stream(100)]  # 100 s to 100.5 s
     vehicle.time_s = 1.0
-    datagrams += vehicle.stream(20)
+    datagrams += stream(20)
     position = mavlink2.MAVLink_global_position_int_message(0, 474000000, 85000000, 450000, 0, 0, 0, 0, 0)
-    datagrams += [vehicle.pack(position), *vehicle.stream(200)]  # from 1.1 s to 2.1 s
+    datagrams += [vehicle.pack(position), *stream(200)]  # from 1.1 s to 2.1 s
     path = tmp_path / "reboot.tlog"
     path.write_bytes(b"".join(struct.pack(">Q", 1_700_000_000_000_000 + 5000 * i) + d for i, d in enumerate(datagrams)))
     config = _config(**{"reference.magnetic": "auto"})
-    at_once, one_by_one = (replay(_source(path, config), config, at_once=a).output_array() for a in (True, False))
-    assert at_once[0, 0] == pytest.approx(1.1) and len(at_once) == 50  # 1.1 s to 2.08 s at 50 Hz
-    np.testing.assert_array_equal(at_once, one_by_one)
+    at_once, one_by_one = (replay(_source(path, config), config, at_once=a) for a in (True, False))
+    outputs = at_once.output_array()
+    assert outputs[0, 0] == pytest.approx(1.1) and len(outputs) == 50  # 1.1 s to 2.08 s at 50 Hz
+    np.testing.assert_array_equal(outputs, one_by_one.output_array())
+    assert at_once.compass_used == "0: RAW_IMU's own, as live"
+    assert [j.instance for j in at_once.compasses] == [0, 1]
 
 
 class _Locked:
