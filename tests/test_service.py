@@ -229,6 +229,25 @@ def test_input_loss_is_reported_once_and_output_resumes(served):
     assert sum(1 for m in vehicle.received if m.get_type() == "STATUSTEXT" and "output stopped" in m.text) == 1
 
 
+SLOW_INTERVAL_S = 0.45  # a 2.2 Hz telemetry stream: each interval longer than the test config's input_timeout_s
+
+
+def test_a_slow_streams_first_interval_is_no_loss(served):
+    """Before its second sample the service knows no rhythm of the stream: a telemetry stream's first interval,
+    longer than input_timeout_s, is not said to be its loss ("output stopped"), nor are those after (2.5 of its
+    own intervals would be)."""
+    running, vehicle = served
+    lock_on(vehicle)
+    for _ in range(4):
+        vehicle.stream(1)
+        vehicle.time_s += SLOW_INTERVAL_S - SAMPLE_PERIOD_S
+        deadline = time.monotonic() + SLOW_INTERVAL_S  # the service's clock must see the silence pass
+        while (left_s := deadline - time.monotonic()) > 0.0:
+            vehicle.poll(left_s)
+    counters = running.finish()
+    assert counters.received == 4 and counters.input_lost == 0
+
+
 def test_automatic_magnetic_reference_waits_for_the_vehicle_position(caplog):
     caplog.set_level(logging.INFO)
     config = make_config(**{"reference.magnetic": "auto"})

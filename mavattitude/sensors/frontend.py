@@ -207,6 +207,10 @@ def dead_floors2(settings: FrontEndSettings, expected_field_uT: float | None) ->
 
 CONTINUED, STARTED, GAP = 0, 1, 2
 
+#: The slowest input rate served without a silence taken for its loss before its rhythm is known: a telemetry
+#: link's IMU stream at 1-2 Hz has first intervals longer than ``input_timeout_s``
+SLOWEST_STREAM_HZ = 1.0
+
 
 #: The input's pace against the low-pass cutoff ``f_c``: slower than ``SLOW_PACE · f_c`` it turns too slow to
 #: filter, faster than ``FAST_PACE · f_c`` it is filtered again, and between the two it keeps what it was: a
@@ -525,8 +529,11 @@ class FrontEnd:
     @property
     def gap_limit_s(self) -> float:
         """The longest silence of the input that is no gap at its present rhythm (``input_timeout_s``, or
-        :data:`~mavattitude.estimation.conventions.GAP_INTERVALS` of a slower stream's usual interval)."""
-        return self._imu.gap_limit_s
+        :data:`~mavattitude.estimation.conventions.GAP_INTERVALS` of a slower stream's usual interval); before
+        the stream has shown one (its first interval, as the streams take it: a start, no gap), that of the
+        slowest stream served, :data:`SLOWEST_STREAM_HZ`."""
+        imu = self._imu
+        return imu.gap_limit_s if imu.intervals else gap_limit_s(imu.timeout_s, 1.0 / SLOWEST_STREAM_HZ)
 
     def _repeated(self, t: float, mag: Vec3) -> bool:
         """Whether ``mag`` is the last reading taken again, within :func:`repeat_hold_s` of it: held."""
