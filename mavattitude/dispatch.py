@@ -9,8 +9,9 @@
 - routes the vehicle's items: IMU samples into the pipeline (its outputs to the listener), positions to
   the pipeline's magnetic reference (``wants_position``: ``reference.magnetic: auto``), the GPS receiver's
   velocities to the pipeline (the fused filter's acceleration), the autopilot's attitude and any
-  other message to the listener; an undecodable input message or a pipeline failure is counted as a
-  reject and told to the listener, and the next sample goes on.
+  other message to the listener; an undecodable input message, a pipeline failure or a message whose
+  decoding failed (:class:`~mavattitude.link.source.Broken`, from any sender) is counted as a reject and told
+  to the listener, and the next one goes on.
 
 The service (:mod:`mavattitude.service`) and ``replay`` are two listeners on this one dispatcher, so a
 log replayed offline and the same messages arriving live give the same attitudes.
@@ -27,7 +28,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mavattitude.errors import MavAttitudeError
-from mavattitude.link.source import AutopilotAttitude, Heartbeat, PositionFix, Received, Sender, Undecodable, locks_on
+from mavattitude.link.source import (
+    AutopilotAttitude,
+    Broken,
+    Heartbeat,
+    PositionFix,
+    Received,
+    Sender,
+    Undecodable,
+    locks_on,
+)
 from mavattitude.pipeline import Pushed
 from mavattitude.sensors.units import GpsVelocity, ImuSample
 
@@ -105,13 +115,16 @@ class Dispatcher:
 
     def handle(self, received: Received) -> None:
         t_rx, sender, item = received
+        kind = type(item)
+        if kind is Broken:  # whoever sent it: a bug is reported
+            self._reject("internal_error", item.error)
+            return
         if sender != self.vehicle:
             if self.vehicle is None and locks_on(item, sender, self.system_id):
                 self._lock(sender)
             else:
                 self.counters.ignored += 1
             return
-        kind = type(item)
         if kind is ImuSample:
             self._on_sample(item, t_rx)
         elif kind is AutopilotAttitude:

@@ -507,7 +507,7 @@ class AttitudeService:
         if reason != "internal_error":
             self._reject(reason, exc, counted=True)
         elif self._limiter.allow("log:internal_error"):  # a bug below us: the traceback goes to the log
-            log.error("internal error in the pipeline; sample dropped (please report this)", exc_info=exc)
+            log.error("internal error; the message or sample is dropped (please report this)", exc_info=exc)
 
     def _emit(self, out: AttitudeOutput, t_rx: float) -> None:
         q, rates_radps = out.q.tolist(), out.rates_radps.tolist()  # floats once for both messages' fields

@@ -17,6 +17,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavattitude.link.memory import MemoryLink
 from mavattitude.pipeline import AttitudePipeline
+from mavattitude.sensors import units
 from mavattitude.service import AttitudeService
 from mavattitude.systemd_notify import SystemdNotifier
 from tests.test_dispatch import Peer, sent
@@ -91,3 +92,25 @@ def test_any_traffic_leaves_the_service_running_and_its_attitudes_sound(config, 
     assert np.allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-6)  # float32 fields: ~1e-7 of rounding
     if cfg.reference.magnetic.mode != "auto":  # with auto it waits for a valid position, which may never come
         assert len(attitudes) > before
+
+
+def test_a_decoding_bug_on_one_message_is_reported_and_the_service_goes_on(monkeypatch, caplog):
+    """A bug met on one odd message (the date decoder raising, as a library's might): that message is dropped
+    and counted an internal error with its traceback in the log, from the vehicle or from another system, and
+    the attitudes go on; before, it ended the daemon."""
+
+    def bug(msg: object) -> None:
+        raise RuntimeError("a decoder's bug")
+
+    monkeypatch.setattr(units, "decode_utc_date", bug)
+    cfg = make_config(**{"output.stats_interval_s": 60.0, "crosscheck.enabled": False})
+    link = MemoryLink()
+    service = AttitudeService(cfg, link, AttitudePipeline(cfg), SystemdNotifier(environ={}))
+    vehicle, other = Peer(), Peer(system=7)
+    system_time = mavlink2.MAVLink_system_time_message(1_800_000_000_000_000, 0)
+    link.deliver(vehicle.heartbeat(), *vehicle.stream(100), vehicle.pack(system_time), other.pack(system_time))
+    link.deliver(*vehicle.stream(100))
+    _serve(service, link)
+    assert service.counters.rejected["internal_error"] == 2 and service.counters.received == 200
+    assert len(sent(link, "ATTITUDE_QUATERNION")) >= 45  # 1 s at 50 Hz, less the filter's start
+    assert any(r.exc_info and "internal error" in r.getMessage() for r in caplog.records)

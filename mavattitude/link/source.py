@@ -77,6 +77,15 @@ class Undecodable:
     error: SensorError
 
 
+@dataclass(frozen=True, slots=True)
+class Broken:
+    """A message whose decoding raised what no message should (a bug met on one odd message): dropped and
+    reported as an internal error, the link going on."""
+
+    message: str
+    error: Exception
+
+
 class MessageSource(Protocol):
     """What the dispatcher reads: decoded items from one link or log.
 
@@ -143,7 +152,12 @@ class MavlinkDecoder:
 
     def __call__(self, msg: Message) -> Any:
         route = self._routes.get(msg.get_type())
-        return msg if route is None else route(msg)
+        if route is None:
+            return msg
+        try:
+            return route(msg)
+        except Exception as exc:  # a bug met on one odd message: that message is lost, not the service
+            return Broken(msg.get_type(), exc)
 
     def _imu(self, msg: Message) -> Any:
         try:
