@@ -103,7 +103,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     source = args.input
-    if source.endswith((".csv", ".csv.gz")):
+    is_csv = source.endswith((".csv", ".csv.gz"))
+    if is_csv:
         mag = read_csv_mag(Path(source))
     elif source.lower().endswith(LOG_SUFFIXES) or Path(source).is_file():  # a serial port is no regular file
         mag = _collect(_log_samples(Path(source), args), args, sys.stderr, live=False)
@@ -118,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
         raise CalibrationError(f"{source}: {exc}") from None
     unlike = None if args.field_uT is not None else magfit.unlike_earth(fit.radius_uT)
     if unlike is not None:  # written all the same: a sensor whose scale is off is calibrated, --field-uT fixes it
-        units_from = "the CSV's units (µT)" if source.endswith((".csv", ".csv.gz")) else "--profile"
+        units_from = "the CSV's units (µT)" if is_csv else "--profile"
         log.warning(
             "%s: %s: readings in gauss (100 µT) or milligauss (0.1 µT)? Check %s; if right, the sensor's scale is "
             "off: give the local field with --field-uT",

@@ -82,7 +82,6 @@ class Broken:
     """A message whose decoding raised what no message should (a bug met on one odd message): dropped and
     reported as an internal error, the link going on."""
 
-    message: str
     error: Exception
 
 
@@ -157,7 +156,7 @@ class MavlinkDecoder:
         try:
             return route(msg)
         except Exception as exc:  # a bug met on one odd message: that message is lost, not the service
-            return Broken(msg.get_type(), exc)
+            return Broken(exc)
 
     def _imu(self, msg: Message) -> Any:
         try:

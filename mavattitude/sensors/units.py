@@ -537,11 +537,14 @@ LATEST_UNIX_S = 4_102_444_800  # 2100-01-01
 UTC_TIME_FIELDS = {"SYSTEM_TIME": "time_unix_usec", "GPS_RAW_INT": "time_usec"}
 
 
+def is_date(unix_s: Any) -> Any:
+    """Whether each Unix time (s) can be a GPS date (see :data:`EARLIEST_UNIX_S`; NaN cannot)."""
+    return (unix_s >= EARLIEST_UNIX_S) & (unix_s < LATEST_UNIX_S)
+
+
 def unix_date(unix_s: float) -> dt.date | None:
-    """The UTC day of a Unix time, ``None`` when it cannot be a GPS date (see :data:`EARLIEST_UNIX_S`)."""
-    if not EARLIEST_UNIX_S <= unix_s < LATEST_UNIX_S:  # NaN too
-        return None
-    return dt.datetime.fromtimestamp(unix_s, dt.timezone.utc).date()
+    """The UTC day of a Unix time, ``None`` when it cannot be a GPS date (:func:`is_date`)."""
+    return dt.datetime.fromtimestamp(unix_s, dt.timezone.utc).date() if is_date(unix_s) else None
 
 
 def decode_utc_date(msg: Any) -> dt.date | None:
@@ -555,4 +558,4 @@ def utc_time_columns(kind: str, fields: Mapping[str, NDArray[Any]]) -> NDArray[n
     """:func:`decode_utc_date` for many messages of ``kind`` (one of :data:`UTC_TIME_FIELDS`): each row's
     Unix time in s, NaN where it is not a date (a time since boot, a garbled field)."""
     unix_s = np.asarray(fields[UTC_TIME_FIELDS[kind]], dtype=float) * 1e-6
-    return np.where((unix_s >= EARLIEST_UNIX_S) & (unix_s < LATEST_UNIX_S), unix_s, np.nan)
+    return np.where(is_date(unix_s), unix_s, np.nan)
