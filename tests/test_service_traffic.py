@@ -11,6 +11,7 @@ attitudes go out again.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
@@ -94,21 +95,35 @@ def test_any_traffic_leaves_the_service_running_and_its_attitudes_sound(config, 
         assert len(attitudes) > before
 
 
-def test_a_decoding_bug_on_one_message_is_reported_and_the_service_goes_on(monkeypatch, caplog):
-    """A bug met on one odd message (the date decoder raising, as a library's might): that message is dropped
-    and counted an internal error with its traceback in the log, from the vehicle or from another system, and
-    the attitudes go on; before, it ended the daemon."""
+ODD_TIME_US = 123  # the time of the one RAW_IMU the IMU decoder's bug is met on
 
-    def bug(msg: object) -> None:
-        raise RuntimeError("a decoder's bug")
 
-    monkeypatch.setattr(units, "decode_utc_date", bug)
+def _odd_messages(decoder: str) -> list[object]:
+    """One message that meets the bug put in ``decoder``."""
+    if decoder == "decode_utc_date":
+        return [mavlink2.MAVLink_system_time_message(1_800_000_000_000_000, 0)]
+    return [mavlink2.MAVLink_raw_imu_message(ODD_TIME_US, *[0] * 9, 0, 0)]
+
+
+@pytest.mark.parametrize("decoder", ["decode_utc_date", "decode_fields"])
+def test_a_decoding_bug_on_one_message_is_reported_and_the_service_goes_on(decoder, monkeypatch, caplog):
+    """A bug met on one odd message (the date decoder, or the IMU decoder the link calls on the frame's fields,
+    raising as a library's might): that message is dropped and counted an internal error with its traceback in
+    the log, from the vehicle or from another system, and the attitudes go on; before, it ended the daemon."""
+    real = getattr(units, decoder)
+
+    def bug(*args: object) -> object:
+        if decoder == "decode_utc_date" or args[1] == ODD_TIME_US:
+            raise RuntimeError("a decoder's bug")
+        return real(*args)
+
+    monkeypatch.setattr(units, decoder, bug)
     cfg = make_config(**{"output.stats_interval_s": 60.0, "crosscheck.enabled": False})
     link = MemoryLink()
     service = AttitudeService(cfg, link, AttitudePipeline(cfg), SystemdNotifier(environ={}))
     vehicle, other = Peer(), Peer(system=7)
-    system_time = mavlink2.MAVLink_system_time_message(1_800_000_000_000_000, 0)
-    link.deliver(vehicle.heartbeat(), *vehicle.stream(100), vehicle.pack(system_time), other.pack(system_time))
+    odd = [peer.pack(msg) for msg in _odd_messages(decoder) for peer in (vehicle, other)]
+    link.deliver(vehicle.heartbeat(), *vehicle.stream(100), *odd)
     link.deliver(*vehicle.stream(100))
     _serve(service, link)
     assert service.counters.rejected["internal_error"] == 2 and service.counters.received == 200

@@ -164,11 +164,13 @@ class DirectFrame:
     """A message the link decodes from its frame itself, without pymavlink's message object: ``decode`` takes the
     payload's fields as the frame carries them (wire order, pymavlink's ``unpacker`` of the message) and returns
     the item to hand on (:meth:`MavlinkLink.recv_items`), or raises :class:`SensorError`, handed on as
-    ``refused(error)``."""
+    ``refused(error)``; anything else it raises (a bug met on odd fields) is handed on as ``broken(error)``, so
+    that one message is lost and not the link."""
 
     message_id: int
     decode: Callable[[tuple[Any, ...]], Any]
     refused: Callable[[SensorError], Any]  # the item for fields ``decode`` refuses (raising SensorError)
+    broken: Callable[[Exception], Any]  # the item for a bug met in ``decode``
 
 
 class _FrameReader:
@@ -184,6 +186,7 @@ class _FrameReader:
         self._size = cls.unpacker.size
         self._decode = frame.decode
         self._refused = frame.refused
+        self._broken = frame.broken
 
     def read(self, data: bytes) -> tuple[Sender, Any] | None:
         """The sender and item of ``data``, or None when it is not such a frame (or its CRC is wrong)."""
@@ -201,6 +204,8 @@ class _FrameReader:
             return (data[5], data[6]), self._decode(self._unpack(payload))
         except SensorError as exc:
             return (data[5], data[6]), self._refused(exc)
+        except Exception as exc:  # a bug met on one odd message: that message is lost, not the link
+            return (data[5], data[6]), self._broken(exc)
 
 
 class DatagramConnection:

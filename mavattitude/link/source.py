@@ -137,7 +137,7 @@ class MavlinkDecoder:
         }
         frame = mavlink2.mavlink_map[message_id(self.message)]
         at = dict(zip(frame.fieldnames, frame.orders, strict=True))  # each field's place in the unpacked payload
-        self.direct = DirectFrame(frame.id, units.wire_decoder(self.message, self.profile, at), Undecodable)
+        self.direct = DirectFrame(frame.id, units.wire_decoder(self.message, self.profile, at), Undecodable, Broken)
 
     @classmethod
     def from_config(cls, config: Config, date_of: Callable[[Message], dt.date | None] | None = None) -> MavlinkDecoder:
