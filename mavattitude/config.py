@@ -463,11 +463,15 @@ def merge(low: Mapping[str, Any], high: Mapping[str, Any], path: str = "") -> di
 
 
 def _nest(dotted: Mapping[str, Any]) -> dict[str, Any]:
-    """``{"estimator.method": "cgn"}`` → ``{"estimator": {"method": "cgn"}}``."""
+    """``{"estimator.method": "cgn"}`` → ``{"estimator": {"method": "cgn"}}``; a key given both a value and keys
+    of its own (``filter=3`` and ``filter.cutoff_hz=5``) is refused, since one would silently lose the other."""
     out: dict[str, Any] = {}
     for key, value in dotted.items():
         *parents, leaf = key.split(".")
         node = out
+        for depth in range(1, len(parents) + 1):
+            if ".".join(parents[:depth]) in dotted:
+                _fail(".".join(parents[:depth]), f"given a value and also the key {key}")
         for p in parents:
             node = node.setdefault(p, {})
         node[leaf] = value
@@ -475,12 +479,18 @@ def _nest(dotted: Mapping[str, Any]) -> dict[str, Any]:
 
 
 class _UniqueKeyLoader(yaml.SafeLoader):
-    """PyYAML's safe loader, refusing a key given twice in one mapping (PyYAML keeps the last silently)."""
+    """PyYAML's safe loader, refusing a key given twice in one mapping (PyYAML keeps the last silently). A merge
+    key's (``<<: *defaults``) keys are not the mapping's own: one given again overrides it, as YAML means; an
+    unhashable key is left to PyYAML, which refuses it."""
 
     def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
         seen: set[Any] = set()
         for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":
+                continue
             key = self.construct_object(key_node, deep=deep)  # type: ignore[no-untyped-call]
+            if not isinstance(key, typing.Hashable):
+                continue
             if key in seen:
                 raise yaml.constructor.ConstructorError(
                     None, None, f"key {key!r} given twice in one mapping", key_node.start_mark
@@ -547,7 +557,7 @@ def _key_lines(node: yaml.Node, prefix: str = "") -> dict[str, str]:
 def _located(source: str, data: Mapping[str, Any], message: str) -> str:
     """``source:LINE:COLUMN`` for an error about a key the file holds (the nearest enclosing one), else ``source``."""
     where = getattr(data, "where", {})
-    key = message.split(":", 1)[0]
+    key = message.split(":", 1)[0].split("[", 1)[0]  # an element's error is said where its key is
     while key and key not in where:
         key = key.rpartition(".")[0]
     return f"{source}:{where[key]}" if key else source
@@ -577,7 +587,10 @@ def layers(
     if env.get(ENV_VAR):
         out.append((f"{ENV_VAR}={env[ENV_VAR]}", read_yaml(env[ENV_VAR])))
     if overrides:
-        out.append(("command-line flags", _nest(overrides)))
+        try:
+            out.append(("command-line flags", _nest(overrides)))
+        except ConfigError as exc:
+            raise ConfigError(f"command-line flags: {exc}") from None
     return out
 
 

@@ -192,6 +192,16 @@ def test_a_higher_layer_replaces_the_magnetic_reference_whole(tmp_path):
     assert c.reference.magnetic.field_ned_uT == (20.0, 0.0, 40.0)
 
 
+@pytest.mark.parametrize("order", [1, -1])
+def test_a_flag_giving_a_section_a_value_and_keys_is_refused(order):
+    """``--set filter=3 --set filter.cutoff_hz=5``, either way round: one would silently lose the other."""
+    flags = dict(list({"filter": {"enabled": False}, "filter.cutoff_hz": 5}.items())[::order])
+    with pytest.raises(
+        ConfigError, match=r"command-line flags: filter: given a value and also the key filter\.cutoff_hz"
+    ):
+        load_config(None, overrides=flags, env={})
+
+
 def test_errors_name_the_layer_they_come_from(tmp_path):
     base = write(tmp_path, "base.yaml", {"estimator": {"method": "ign"}})
     bad = write(tmp_path, "site.yaml", {"estimator": {"tolerence": 1e-9}})
@@ -201,6 +211,19 @@ def test_errors_name_the_layer_they_come_from(tmp_path):
         load_config(base, overrides={"estimator.method": "x"}, env={})
     with pytest.raises(ConfigError, match=r"effective config: filter\.cutoff_hz: must be below half"):
         load_config(base, overrides={"filter.output_rate_hz": 10}, env={})
+
+
+def test_merge_keys_are_taken_and_a_key_given_again_overrides_them(tmp_path):
+    """YAML's ``<<: *anchor`` (or an inline mapping): its keys are taken, and one the mapping gives itself wins
+    (it is not a key given twice); a merged key that is wrong is said where the merged mapping gives it."""
+    path = tmp_path / "merged.yaml"
+    fitted = "{hard_iron_uT: [5, 0, 0], soft_iron: [[2, 0, 0], [0, 2, 0], [0, 0, 2]]}"
+    path.write_text(f"calibration:\n  mag:\n    <<: {fitted}\n    hard_iron_uT: [6, 0, 0]\n", encoding="utf-8")
+    mag = load_config(path, env={}).calibration.mag
+    assert mag.hard_iron_uT == (6.0, 0.0, 0.0) and mag.soft_iron[0] == (2.0, 0.0, 0.0)
+    path.write_text(f"calibration:\n  mag:\n    <<: {fitted.replace('5', 'x')}\n", encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"merged\.yaml:3:10: calibration\.mag\.hard_iron_uT"):
+        load_config(path, env={})
 
 
 def test_a_single_layer_is_named_in_cross_key_errors(tmp_path):
@@ -220,6 +243,10 @@ def test_unreadable_and_malformed_files(tmp_path):
     twice.write_text("filter:\n  cutoff_hz: 5\n  enabled: true\n  cutoff_hz: 8\n", encoding="utf-8")
     with pytest.raises(ConfigError, match=r"twice\.yaml:4:3: not valid YAML: key 'cutoff_hz' given twice"):
         load_config(twice, env={})  # PyYAML alone keeps the last one silently
+    complex_key = tmp_path / "complex.yaml"
+    complex_key.write_text("? [filter, enabled]\n: false\n", encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"complex\.yaml:1:3: not valid YAML: found unhashable key"):
+        load_config(complex_key, env={})
     binary = tmp_path / "binary.yaml"
     binary.write_bytes(b"filter:\n  \xff\xfe\n")
     with pytest.raises(ConfigError, match=r"binary\.yaml: not a YAML text file \(byte 10 is not UTF-8\)"):
