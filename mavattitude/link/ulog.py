@@ -38,13 +38,19 @@ log = logging.getLogger(__name__)
 
 FILE_HEADER_BYTES = 16  # "ULog", its version and its start time; then every message: size (u16), type (u8), payload
 _MESSAGE_HEADER = struct.Struct("<HB")
+_DEFINITIONS = b"IMFPQB"  # info, multiple info, format, parameter, parameter default, flag bits
+_DATA_STARTS = b"ALC"  # a subscription, a logged string, a tagged logged string
+_CORRUPT_SIZE = 10_000  # pyulog takes a larger message for corruption
 
 
-def _open(path: Path) -> Any:
-    """pyulog's reading of the file; what it prints of a damaged one (on stdout, where a command's table goes)
-    is logged at debug level, the damage itself said by :attr:`LogStreams.damage`."""
+def _open(path: Path, data: bytes) -> Any:
+    """pyulog's reading of the file (``data``, its bytes); what it prints of a damaged one (on stdout, where a
+    command's table goes) is logged at debug level, the damage itself said by :attr:`LogStreams.damage`. A file
+    whose definitions run to its end holds no data, and pyulog may never return from it: refused first."""
     from pyulog import ULog
 
+    if data_section_at(data) is None:
+        raise DataFileError(f"{path}: not a readable ULog file: it ends inside its definitions, before any data")
     said = io.StringIO()
     try:
         with contextlib.redirect_stdout(said):
@@ -67,7 +73,8 @@ def read_ulog(path: str | Path, imu_instance: int = 0, mag_instance: int | None 
     """The IMU, magnetometer (instance ``mag_instance``), attitude, position and GPS velocity streams of a ULog
     file, SI."""
     path = Path(path)
-    ulog = _open(path)
+    data = path.read_bytes()
+    ulog = _open(path, data)
     mag_instance = mag_instance or 0
     empty3 = np.empty((0, 3))
     combined = _topic(ulog, "sensor_combined", imu_instance)
@@ -91,12 +98,32 @@ def read_ulog(path: str | Path, imu_instance: int = 0, mag_instance: int | None 
         raise DataFileError(f"{path}: a topic lacks a field replay reads: {exc}") from exc
     damage = "damaged: pyulog skipped what it could not read" if ulog.file_corruption else None
     if damage is None and not ulog.has_data_appended:  # appended data is placed by offsets, not walked to
-        damage = cut_at(path.read_bytes())
+        damage = cut_at(data)
     streams = LogStreams(t, acc, gyr, mag_t, mag, att_t, att_q, pos_t, positions, date, None, damage)
     streams.check(str(path), f"sensor_combined[{imu_instance}]", mag_name)
     streams.gps_t_s, streams.gps_velocity = gps_t, gps_velocity
     streams.compasses = _compasses(ulog)
     return streams
+
+
+def data_section_at(data: bytes) -> int | None:
+    """Where a ULog file's data section starts (its first subscription or logged string), walking its
+    definitions as pyulog does (1.3): message by message, one byte on from a header that cannot be one (type 0,
+    size 0 or over 10 000 bytes) unless it is a definition. None when the walk reaches the end first. pyulog
+    does not stop there: from such a header running past the end it seeks back before it and walks to it again,
+    forever."""
+    pos, end = FILE_HEADER_BYTES, len(data)
+    while pos + _MESSAGE_HEADER.size <= end:
+        size, kind = _MESSAGE_HEADER.unpack_from(data, pos)
+        if kind in _DATA_STARTS:
+            return pos
+        if kind not in _DEFINITIONS and (kind == 0 or size == 0 or size > _CORRUPT_SIZE):
+            if pos + _MESSAGE_HEADER.size + size > end:
+                return None
+            pos += 1
+        else:
+            pos += _MESSAGE_HEADER.size + size
+    return None
 
 
 def cut_at(data: bytes) -> str | None:

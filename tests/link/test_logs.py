@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime as dt
+import signal
 import struct
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -15,7 +18,7 @@ from mavattitude.link.dataflash import read_dataflash
 from mavattitude.link.logs import FORMATS, detect_format, open_log
 from mavattitude.link.logstreams import LOG_VEHICLE, StreamSource
 from mavattitude.link.source import AutopilotAttitude, PositionFix
-from mavattitude.link.ulog import cut_at, read_ulog
+from mavattitude.link.ulog import cut_at, data_section_at, read_ulog
 from mavattitude.sensors.units import ImuSample
 from mavattitude.sim.logwriter import LAYOUTS, static_log, write_dataflash
 from tests.link.test_tlog import HEARTBEAT, _raw, write_tlog
@@ -247,6 +250,42 @@ def test_a_ulog_cut_inside_its_last_message_is_found_by_walking_the_message_size
     assert cut_at(whole[:-5]) == f"truncated: the message at byte {last} is incomplete (10 bytes)"
     assert cut_at(whole[: last + 2]) == f"truncated: the message at byte {last} is incomplete (2 bytes)"  # its header
     assert cut_at(whole[:16]) is None  # a header alone: no message begun
+
+
+class _Endless(BaseException):
+    """Raised by the alarm: out of reach of the ``except Exception`` around pyulog, so a hang fails the test."""
+
+
+@contextlib.contextmanager
+def _within(seconds: int) -> Iterator[None]:
+    def endless(*_: object) -> None:
+        raise _Endless(f"still reading after {seconds} s")
+
+    previous = signal.signal(signal.SIGALRM, endless)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def test_a_ulog_whose_definitions_run_to_its_end_is_refused_not_read_forever(tmp_path):
+    """A log cut in its definitions with a header that cannot be one running past the end (type 0, 512 bytes):
+    pyulog 1.3 seeks back before it, steps over the zeros before it a byte at a time and meets it again, for
+    ever. Such a file has no data; it is refused at once (a read takes milliseconds; 10 s only bounds a hang)."""
+    key = b"char[600] sys_name"
+    info = bytes([len(key)]) + key + bytes(600)
+    path = tmp_path / "endless.ulg"
+    path.write_bytes(
+        ulog_bytes() + struct.pack("<HB", len(info), ord("I")) + info + struct.pack("<HB", 512, 0) + bytes(10)
+    )
+    with _within(10), pytest.raises(DataFileError, match=r"endless\.ulg: .* ends inside its definitions, before any"):
+        read_ulog(path)
+    data = shared_path("data", "px4", "sample.ulg").read_bytes()
+    path.write_bytes(data[: data_section_at(data) - 100])  # a real log cut in its parameters
+    with pytest.raises(DataFileError, match=r"ends inside its definitions, before any data"):
+        read_ulog(path)
 
 
 def test_a_cut_off_px4_log_is_replayed_up_to_the_cut_and_said_damaged(tmp_path):
