@@ -584,26 +584,26 @@ while True:
         link.mav.command_long_send(1, 1, 511, 0, 27, 5000, 0, 0, 0, 0, 0)
     link.recv_match(blocking=True, timeout=0.05)
 """
-LIVE_SETTLE_S = 2.0  # after the first outputs: imports and first allocations are not measured
+LIVE_SETTLE_S = 2.0  # after the first outputs: imports and first allocations are not measured (0.5 s quick)
 
 
-def _steady_cpu_share(pid: int, seconds: float) -> float:
-    time.sleep(LIVE_SETTLE_S)
+def _steady_cpu_share(pid: int, seconds: float, settle_s: float) -> float:
+    time.sleep(settle_s)
     cpu0, wall0 = _cpu_s(pid), time.monotonic()
     time.sleep(seconds)
     return (_cpu_s(pid) - cpu0) / (time.monotonic() - wall0)
 
 
-def _bare_loop_share(vehicle: Any, seconds: float) -> float:
+def _bare_loop_share(vehicle: Any, seconds: float, settle_s: float) -> float:
     proc = subprocess.Popen([sys.executable, "-c", BARE_LOOP, f"udpout:127.0.0.1:{vehicle.port}"])
     try:
-        return _steady_cpu_share(proc.pid, seconds)
+        return _steady_cpu_share(proc.pid, seconds, settle_s)
     finally:
         proc.kill()
         proc.wait()
 
 
-def _service_share(vehicle: Any, method: str, seconds: float) -> float:
+def _service_share(vehicle: Any, method: str, seconds: float, settle_s: float) -> float:
     config = daemon.config_for(
         vehicle,
         link={"request_messages": False, "request_rate_hz": 200.0},
@@ -614,7 +614,7 @@ def _service_share(vehicle: Any, method: str, seconds: float) -> float:
     with daemon.ServiceProcess(config) as service:
         if not vehicle.wait_for_outputs(len(vehicle.attitude_log) + WARMUP_OUTPUTS, START_TIMEOUT_S):
             raise RuntimeError(f"the service ({method}) sent no attitude:\n" + service.log_tail())
-        share = _steady_cpu_share(service.pid, seconds)
+        share = _steady_cpu_share(service.pid, seconds, settle_s)
         if service.stop() != 0:
             raise RuntimeError("the service did not exit cleanly:\n" + service.log_tail())
     return share
@@ -624,16 +624,16 @@ def _service_share(vehicle: Any, method: str, seconds: float) -> float:
 def bench_live(settings: Settings) -> list[Row]:
     """The bare loop and the service in turn on one fake vehicle's RAW_IMU-only stream (200 Hz, no ATTITUDE),
     ``rounds`` times: a slow spell of the shared machine falls on every program rather than on one."""
-    seconds, rounds = (2.0, 1) if settings.quick else (10.0, 2)
+    seconds, rounds, settle_s = (1.0, 1, 0.5) if settings.quick else (10.0, 2, LIVE_SETTLE_S)
     script = scenarios.slow_rotation(3600.0)
     vehicle_cfg = vehicle_mod.VehicleConfig("udpin:127.0.0.1:0", stream_on_start=True, seed=SEED, attitude_rate_hz=0.0)
     shares: dict[str, float] = {"bare": 0.0, "ign": 0.0, "fused": 0.0}
     with vehicle_mod.FakeVehicle(script, scenarios.consumer_sensors(200.0), vehicle_cfg) as vehicle:
         vehicle.set_rate(vehicle_cfg.message, 200.0)
         for _ in range(rounds):
-            shares["bare"] += _bare_loop_share(vehicle, seconds) / rounds
+            shares["bare"] += _bare_loop_share(vehicle, seconds, settle_s) / rounds
             for method in ("ign", "fused"):
-                shares[method] += _service_share(vehicle, method, seconds) / rounds
+                shares[method] += _service_share(vehicle, method, seconds, settle_s) / rounds
     sec, names = "live", EXPECTED_ROWS["live"]
     return [
         _row(sec, names[0], 100.0 * shares["bare"], "%"),
