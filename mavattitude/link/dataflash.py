@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import struct
 import sys
 import tempfile
 from collections.abc import Iterator
@@ -46,7 +45,7 @@ class _Reader:
         try:
             with _silenced():
                 self.df = _Index(str(path), zero_time_base=False)
-        except (OSError, ValueError, struct.error, KeyError, IndexError, TypeError) as exc:
+        except Exception as exc:  # DFReader raises plain Exception (a format char it does not know) on bad input too
             raise DataFileError(f"{path}: not a readable DataFlash log: {exc}") from exc
         self.size = int(self.df.data_len)
         self.damage = _unindexed(self.df, self.size)
@@ -68,12 +67,29 @@ class _Reader:
         fmt = self.df.formats[self.df.name_to_id[name]]
         offsets = np.asarray(self.df.offsets[fmt.type], dtype=np.int64)
         offsets = offsets[offsets + fmt.len <= self.size]  # a record the file's end cuts (said: _unindexed)
+        dtype = self._dtype(name, fmt)
+        if dtype is None:
+            return {}
         body = sliding_window_view(self._bytes, fmt.len - 3)[offsets + 3]  # no (n, len) index array
-        records = body.view(struct_dtype(fmt.columns, fmt.msg_struct)).ravel()
+        records = body.view(dtype).ravel()
         return {
             column: records[column] * mult if mult is not None else records[column]
             for column, mult in zip(fmt.columns, fmt.msg_mults, strict=True)
         } | {OFFSET: offsets}
+
+    def _dtype(self, name: str, fmt: Any) -> np.dtype | None:
+        """The record type of ``fmt``; None, said in :attr:`damage`, when its FMT record is damaged (column names
+        and layout that do not match, a layout longer or shorter than the record): those records are not read."""
+        try:
+            dtype = struct_dtype(fmt.columns, fmt.msg_struct)
+        except (ValueError, KeyError):
+            dtype = None
+        if dtype is not None and dtype.itemsize == fmt.len - 3:
+            return dtype
+        note = f"the format (FMT) of {name} is damaged: its records are not read"
+        if note not in (self.damage or ""):
+            self.damage = f"{self.damage}; {note}" if self.damage else note
+        return None
 
     def _file_order_time_s(self, offsets: np.ndarray) -> np.ndarray:
         """The time of the last IMU record (any instance) before each offset; the first IMU's before them all."""

@@ -158,6 +158,30 @@ def test_a_record_of_an_undeclared_type_ends_the_readable_part(tmp_path):
     assert 350 < len(s.imu_t_s) < 450  # what came before
 
 
+def _with_format(path, name: bytes, format_chars: bytes) -> None:
+    """The FMT record declaring ``name`` rewritten with ``format_chars`` as its layout (the 16-byte Format field;
+    the header, type and length bytes and the column names kept)."""
+    data = bytearray(path.read_bytes())
+    at = next(i for i in range(0, len(data), 89) if data[i : i + 3] == b"\xa3\x95\x80" and data[i + 5 : i + 9] == name)
+    data[at + 9 : at + 25] = format_chars.ljust(16, b"\0")
+    path.write_bytes(bytes(data))
+
+
+def test_a_damaged_format_record_loses_its_records_and_says_so(tmp_path):
+    """An FMT record whose layout no longer matches its column names (a byte of the GPS layout damaged): the GPS
+    records are not read (no GPS velocity; positions from POS), the rest is, and the damage is said. A layout
+    char DFReader does not know is one error naming the file; before, both were tracebacks."""
+    log = static_log(2.0)
+    path = write_dataflash(tmp_path / "f.bin", log)
+    _with_format(path, b"GPS\0", b"QBBIHBcLLeffffBB")
+    s = read_dataflash(path)
+    assert s.damage == "the format (FMT) of GPS is damaged: its records are not read"
+    assert len(s.imu_t_s) == len(log.imu_t_s) and len(s.gps_t_s) == 0 and len(s.position_t_s) > 0
+    _with_format(path, b"IMU\0", b"QBffffff?")
+    with pytest.raises(DataFileError, match=r"f\.bin: not a readable DataFlash log: Unsupported format char: '\?'"):
+        read_dataflash(path)
+
+
 def test_what_a_log_lacks_is_one_error_naming_the_file(tmp_path):
     log = static_log(1.0)
     with pytest.raises(DataFileError, match=r"IMU\[I=3\]"):
