@@ -40,7 +40,7 @@ from numpy.typing import NDArray
 
 from mavattitude.estimation.conventions import Array, quat_from_euler
 from mavattitude.estimation.velocity import GPS_FIX_3D
-from mavattitude.sensors.units import BOOT_MS_WRAP_S, MILLIGAUSS_UT, GpsVelocity, is_position
+from mavattitude.sensors.units import BOOT_MS_WRAP_S, MILLIGAUSS_UT, GpsVelocity, is_date, is_position, unix_date
 
 Table = dict[str, NDArray]
 
@@ -57,7 +57,7 @@ GYR_FIELDS, GYR_SI = ("GyrX", "GyrY", "GyrZ"), 1.0  # rad/s
 MAG_FIELDS, MAG_SI = ("MagX", "MagY", "MagZ"), MILLIGAUSS_UT  # milligauss → µT
 ATT_FIELDS, ATT_SI = ("Roll", "Pitch", "Yaw"), math.radians(1.0)  # degrees → rad
 POS_FIELDS = ("Lat", "Lng", "Alt")  # °, °, m once DFReader's multipliers are applied
-GPS_EPOCH = dt.date(1980, 1, 6)
+GPS_EPOCH_UNIX_S = 315_964_800.0  # 1980-01-06, the GPS epoch
 GPS_WEEK_S = 7 * 86_400.0
 
 
@@ -113,18 +113,15 @@ def gps_fixes(table: Table) -> tuple[Array, Array]:
 
 
 def first_gps_date(table: Table) -> dt.date | None:
-    """The day of the first GPS record with a 3D fix and a GPS week (``GWk``/``GMS``, or ``Week``/``TimeMS``)."""
+    """The day of the first GPS record with a 3D fix and a GPS week (``GWk``/``GMS``, or ``Week``/``TimeMS``)
+    that can be a GPS date (:func:`~mavattitude.sensors.units.is_date`: a garbled week is none)."""
     names = next(((w, ms) for w, ms in GPS_WEEK_FIELDS if w in table and ms in table), None)
     if names is None:
         return None
-    week, ms = (np.asarray(table[n]) for n in names)
-    fixed = np.flatnonzero((np.asarray(table["Status"]) >= GPS_FIX_3D) & (week > 0))
-    return gps_date(int(week[fixed[0]]), int(ms[fixed[0]])) if len(fixed) else None
-
-
-def gps_date(week: int, ms_of_week: int) -> dt.date:
-    """The date of a GPS week and millisecond of week (GPS time, leap seconds ignored: a date is enough)."""
-    return GPS_EPOCH + dt.timedelta(days=7 * int(week) + int(ms_of_week) // 86_400_000)
+    week, ms = (np.asarray(table[n], dtype=float) for n in names)
+    unix_s = GPS_EPOCH_UNIX_S + week * GPS_WEEK_S + ms * 1e-3  # leap seconds ignored: a date is enough
+    fixed = np.flatnonzero((np.asarray(table["Status"]) >= GPS_FIX_3D) & is_date(unix_s))
+    return unix_date(float(unix_s[fixed[0]])) if len(fixed) else None
 
 
 def gps_velocity(table: Table) -> tuple[Array, list[GpsVelocity]]:

@@ -526,10 +526,11 @@ def decode_gps_velocity_columns(fields: Mapping[str, NDArray[Any]]) -> tuple[NDA
     return valid, rows
 
 
-# A Unix time outside these is not a GPS date: ArduPilot's GPS_RAW_INT.time_usec counts from boot,
-# SYSTEM_TIME.time_unix_usec is 0 until the autopilot knows the time, and a later one is a garbled field
-# (a year past 9999 is not even a date Python can hold).
-EARLIEST_UNIX_S = 1_420_070_400  # 2015-01-01
+# A Unix time outside these is not a GPS date: ArduPilot's GPS_RAW_INT.time_usec counts from boot (never
+# 40 years), SYSTEM_TIME.time_unix_usec is 0 until the autopilot knows the time, a receiver without time says
+# 1980 or 1999 (GPS week 0 or 1024), and a later one is a garbled field (a year past 9999 is not even a date
+# Python can hold). The earliest is the oldest magnetic model's epoch: DataFlash logs from 2013 have dates.
+EARLIEST_UNIX_S = 1_262_304_000  # 2010-01-01
 LATEST_UNIX_S = 4_102_444_800  # 2100-01-01
 
 

@@ -36,10 +36,16 @@ def test_dataflash_attitude_degrees_become_the_body_to_ned_quaternion() -> None:
 
 @pytest.mark.parametrize(
     ("week", "ms", "date"),
-    [(0, 0, dt.date(1980, 1, 6)), (1024, 0, dt.date(1999, 8, 22)), (2048, 86_400_000 * 3 + 5, dt.date(2019, 4, 10))],
+    [
+        (2048, 86_400_000 * 3 + 5, dt.date(2019, 4, 10)),  # the second rollover (2019-04-07), three days on
+        (2347, 0, dt.date(2024, 12, 29)),
+        (1024, 0, None),  # 1999-08-22: before the oldest magnetic model (2010), a receiver without time
+        (65535, 0, None),  # a garbled week: the year 3236
+    ],
 )
-def test_gps_week_rollovers_give_their_known_dates(week: int, ms: int, date: dt.date) -> None:
-    assert du.gps_date(week, ms) == date
+def test_gps_weeks_give_their_known_dates_and_a_garbled_one_none(week: int, ms: int, date: dt.date | None) -> None:
+    table = {"GWk": np.array([0, week]), "GMS": np.array([0, ms]), "Status": np.array([3, 3])}
+    assert du.first_gps_date(table) == date  # week 0 (1980), the first record: a receiver without time yet
 
 
 def test_dataflash_instance_message_names() -> None:
