@@ -29,12 +29,14 @@ LOG_SUFFIXES = (".tlog", ".bin", ".ulg")  # the flight logs replay and calibrate
 
 
 def open_text(path: str | Path, mode: str) -> IO[str]:
-    """A text file, gzip-compressed when its name ends in .gz."""
+    """A text file, gzip-compressed when its name ends in .gz; UTF-8, read with or without the byte-order mark a
+    spreadsheet's "CSV UTF-8" export begins with."""
     path = Path(path)
+    encoding = "utf-8-sig" if "r" in mode else "utf-8"
     try:
         if path.suffix == ".gz":
-            return gzip.open(path, mode + "t", encoding="utf-8", newline="")  # type: ignore[return-value]
-        return path.open(mode, encoding="utf-8", newline="")
+            return gzip.open(path, mode + "t", encoding=encoding, newline="")  # type: ignore[return-value]
+        return path.open(mode, encoding=encoding, newline="")
     except OSError as exc:
         raise DataFileError(f"{path}: cannot open: {exc.strerror or exc}") from exc
 
@@ -75,6 +77,13 @@ def first_bad_row(path: str | Path, columns: Sequence[int]) -> str:
     return f"{path}: not a numeric CSV"
 
 
+def _separator_hint(header: Sequence[str]) -> str:
+    """What to change when a header is one field separated otherwise (a spreadsheet's ';' where the decimal
+    mark is a comma, or tabs)."""
+    other = next((sep for sep in (";", "\t") if len(header) == 1 and sep in header[0]), None)
+    return f"; columns are separated by commas, and this header by {other!r}" if other else ""
+
+
 def _is_number(text: str) -> bool:
     try:
         float(text)
@@ -101,7 +110,10 @@ def read_columns(path: str | Path, required: Sequence[str], optional: Sequence[s
         header = [name.strip() for name in next(csv.reader([f.readline()]), [])]
         missing = [c for c in required if c not in header]
         if missing:
-            raise DataFileError(f"{path}: missing column(s) {', '.join(missing)} (header: {', '.join(header)[:200]})")
+            raise DataFileError(
+                f"{path}: missing column(s) {', '.join(missing)} (header: {', '.join(header)[:200]})"
+                + _separator_hint(header)
+            )
         names = [*required, *(c for c in optional if c in header)]
         data = load_numbers(f, path, [header.index(c) for c in names])
     return {name: data[:, i] for i, name in enumerate(names)}

@@ -221,6 +221,24 @@ def test_missing_columns_are_named(tmp_path, capsys):
     assert "missing column(s) mag_y_uT, mag_z_uT" in capsys.readouterr().err
 
 
+def test_a_spreadsheets_export_with_a_byte_order_mark_is_read_as_the_plain_file(tmp_path):
+    """Excel's "CSV UTF-8" begins with a BOM, which made the first column's name "\ufefft_s", a missing t_s."""
+    plain = write_csv(tmp_path / "plain.csv")
+    marked = tmp_path / "marked.csv"
+    marked.write_bytes(b"\xef\xbb\xbf" + plain.read_bytes())
+    for src in (plain, marked):
+        assert main(["solve", str(src), "-o", str(tmp_path / f"{src.stem}.out.csv"), *REF]) == 0
+    assert (tmp_path / "marked.out.csv").read_bytes() == (tmp_path / "plain.out.csv").read_bytes()
+
+
+@pytest.mark.parametrize("separator", [";", "\t"])
+def test_a_file_separated_otherwise_is_told_what_to_change(tmp_path, capsys, separator):
+    src = write_csv(tmp_path / "in.csv")
+    src.write_text(src.read_text().replace(",", separator))
+    assert main(["solve", str(src), "-o", str(tmp_path / "o.csv"), *REF]) == 2
+    assert f"columns are separated by commas, and this header by {separator!r}" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize(
     ("cell", "said"), [("x", "'x' is not a number"), ("", "empty (write nan for a missing value)")]
 )
