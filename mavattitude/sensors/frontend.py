@@ -635,7 +635,18 @@ _RESET, _ACC_NORM, _MAG_NORM, _MAG_HELD, _NO_MAG = (
 )
 _PER_SAMPLE = int(SampleFlag.PER_SAMPLE)
 _CLOCK_OK = ClockEvent.OK
-_FLAGS = [SampleFlag(v) for v in range(2 * max(SampleFlag))]  # every combination, built once
+
+
+class _FlagTable(dict[int, SampleFlag]):
+    """Each combination of flags built once, when first met: building all 2 048 up front cost 60 ms of every
+    command's start (IntFlag's constructor searches its members for each)."""
+
+    def __missing__(self, bits: int) -> SampleFlag:
+        self[bits] = flag = SampleFlag(bits)
+        return flag
+
+
+_FLAGS = _FlagTable()
 #: The flag set of plain int bits (a table look-up: IntFlag arithmetic costs a microsecond per operation).
 flag_set = _FLAGS.__getitem__
 _COUNTED_FLAGS = (SampleFlag.RESET, SampleFlag.ACC_NORM, SampleFlag.MAG_NORM, SampleFlag.NO_MAG)
