@@ -166,13 +166,13 @@ def read_dataflash(path: str | Path, imu_instance: int = 0, mag_instance: int | 
     instance 0, every instance in :attr:`LogStreams.compasses`."""
     path = Path(path)
     reader = _Reader(path)
-    imu_name, imu_table = reader.instance("IMU", imu_instance)
-    readings = _magnetometers(reader)
-    chosen = autopilot_compass(_parameters(reader), list(readings)) if mag_instance is None else None
-    used, why = (mag_instance, f"--mag {mag_instance}") if mag_instance is not None else chosen or (0, None)
-    mag_name, mag_table = reader.instance("MAG", used)
     empty3 = np.empty((0, 3))
-    try:
+    try:  # a record without a field read here: a log of another layout, or its FMT damaged in the column names
+        imu_name, imu_table = reader.instance("IMU", imu_instance)
+        readings = _magnetometers(reader)
+        chosen = autopilot_compass(_parameters(reader), list(readings)) if mag_instance is None else None
+        used, why = (mag_instance, f"--mag {mag_instance}") if mag_instance is not None else chosen or (0, None)
+        mag_name, mag_table = reader.instance("MAG", used)
         t, acc, gyr, wrap = (
             du.imu(imu_table) if imu_table and len(imu_table["AccX"]) else (np.empty(0), empty3, empty3, None)
         )
@@ -181,9 +181,10 @@ def read_dataflash(path: str | Path, imu_instance: int = 0, mag_instance: int | 
         att_t, att_q = du.attitude(att) if att else (np.empty(0), np.empty((0, 4)))
         pos_t, positions = _positions(reader)
         gps_t, gps_velocity = _gps_velocity(reader)
+        date = _date(reader)
     except KeyError as exc:
         raise DataFileError(f"{path}: a record lacks a field replay reads: {exc}") from exc
-    streams = LogStreams(t, acc, gyr, mag_t, mag, att_t, att_q, pos_t, positions, _date(reader), wrap, reader.damage)
+    streams = LogStreams(t, acc, gyr, mag_t, mag, att_t, att_q, pos_t, positions, date, wrap, reader.damage)
     streams.check(str(path), imu_name, mag_name)
     streams.gps_t_s, streams.gps_velocity = gps_t, gps_velocity
     if len(readings) > 1 and used in readings:

@@ -7,8 +7,10 @@ finite times, unit quaternions.
 
 from __future__ import annotations
 
+import contextlib
 import signal
-from collections.abc import Callable
+import struct
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -18,8 +20,10 @@ from hypothesis import strategies as st
 
 from mavattitude.errors import DataFileError
 from mavattitude.link.logs import open_log
+from mavattitude.link.ulog import data_section_at, read_ulog
 from mavattitude.replay import replay
 from mavattitude.sim.logwriter import static_log, write_dataflash
+from tests.link.test_logs import ulog_bytes
 from tests.shared import shared_path
 from tests.test_service import make_config
 
@@ -71,11 +75,23 @@ def damaged(data: bytes, damage: list[tuple[str, bool, float, bytes]]) -> bytes:
 
 
 class _Endless(BaseException):
-    """Out of reach of any ``except Exception`` inside a reader, so a hang fails the test."""
+    """Raised by the alarm: out of reach of any ``except Exception`` inside a reader, so a hang fails the test."""
 
 
-def _endless(*_: object) -> None:
-    raise _Endless(f"still reading after {READ_LIMIT_S} s")
+@contextlib.contextmanager
+def within(seconds: int) -> Iterator[None]:
+    """A read that must end within ``seconds`` (an alarm)."""
+
+    def endless(*_: object) -> None:
+        raise _Endless(f"still reading after {seconds} s")
+
+    previous = signal.signal(signal.SIGALRM, endless)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
 
 
 @pytest.mark.parametrize("suffix", LOGS)
@@ -88,17 +104,31 @@ def test_a_damaged_log_is_replayed_or_refused_in_one_error(tmp_path, suffix):
     def replayed_or_refused(damage: list[tuple[str, bool, float, bytes]]) -> None:
         path = tmp_path / f"damaged{suffix}"
         path.write_bytes(damaged(whole, damage))
-        previous = signal.signal(signal.SIGALRM, _endless)
-        signal.alarm(READ_LIMIT_S)
         try:
-            out = replay(open_log(path, config), config).output_array()
+            with within(READ_LIMIT_S):
+                out = replay(open_log(path, config), config).output_array()
         except DataFileError as exc:
             assert str(exc).startswith(str(path))
             return
-        finally:
-            signal.alarm(0)
-            signal.signal(signal.SIGALRM, previous)
         assert np.all(np.isfinite(out[:, 0]))
         assert np.allclose(np.linalg.norm(out[:, 1:5], axis=1), 1.0, atol=1e-9)
 
     replayed_or_refused()
+
+
+def test_a_ulog_whose_definitions_run_to_its_end_is_refused_not_read_forever(tmp_path):
+    """A log cut in its definitions with a header that cannot be one running past the end (type 0, 512 bytes):
+    pyulog 1.3 seeks back before it, steps over the zeros before it a byte at a time and meets it again, for
+    ever. Such a file has no data; it is refused at once (a read takes milliseconds; 10 s only bounds a hang)."""
+    key = b"char[600] sys_name"
+    info = bytes([len(key)]) + key + bytes(600)
+    path = tmp_path / "endless.ulg"
+    path.write_bytes(
+        ulog_bytes() + struct.pack("<HB", len(info), ord("I")) + info + struct.pack("<HB", 512, 0) + bytes(10)
+    )
+    with within(10), pytest.raises(DataFileError, match=r"endless\.ulg: .* ends inside its definitions, before any"):
+        read_ulog(path)
+    data = shared_path("data", "px4", "sample.ulg").read_bytes()
+    path.write_bytes(data[: data_section_at(data) - 100])  # a real log cut in its parameters
+    with pytest.raises(DataFileError, match=r"ends inside its definitions, before any data"):
+        read_ulog(path)

@@ -2,12 +2,9 @@
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import datetime as dt
-import signal
 import struct
-from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -18,7 +15,7 @@ from mavattitude.link.dataflash import read_dataflash
 from mavattitude.link.logs import FORMATS, detect_format, open_log
 from mavattitude.link.logstreams import LOG_VEHICLE, StreamSource
 from mavattitude.link.source import AutopilotAttitude, PositionFix
-from mavattitude.link.ulog import cut_at, data_section_at, read_ulog
+from mavattitude.link.ulog import cut_at, read_ulog
 from mavattitude.sensors.units import ImuSample
 from mavattitude.sim.logwriter import LAYOUTS, static_log, write_dataflash
 from tests.link.test_tlog import HEARTBEAT, _raw, write_tlog
@@ -158,26 +155,33 @@ def test_a_record_of_an_undeclared_type_ends_the_readable_part(tmp_path):
     assert 350 < len(s.imu_t_s) < 450  # what came before
 
 
-def _with_format(path, name: bytes, format_chars: bytes) -> None:
-    """The FMT record declaring ``name`` rewritten with ``format_chars`` as its layout (the 16-byte Format field;
-    the header, type and length bytes and the column names kept)."""
+def _with_format(path, name: bytes, field: slice, value: bytes) -> None:
+    """The FMT record declaring ``name`` with one of its fields rewritten (zero-padded): ``LAYOUT`` (16 bytes) or
+    ``COLUMNS`` (64), its header, type, length and name kept."""
     data = bytearray(path.read_bytes())
     at = next(i for i in range(0, len(data), 89) if data[i : i + 3] == b"\xa3\x95\x80" and data[i + 5 : i + 9] == name)
-    data[at + 9 : at + 25] = format_chars.ljust(16, b"\0")
+    data[at + field.start : at + field.stop] = value.ljust(field.stop - field.start, b"\0")
     path.write_bytes(bytes(data))
+
+
+LAYOUT, COLUMNS = slice(9, 25), slice(25, 89)  # an FMT record's Format and Columns fields
 
 
 def test_a_damaged_format_record_loses_its_records_and_says_so(tmp_path):
     """An FMT record whose layout no longer matches its column names (a byte of the GPS layout damaged): the GPS
-    records are not read (no GPS velocity; positions from POS), the rest is, and the damage is said. A layout
-    char DFReader does not know is one error naming the file; before, both were tracebacks."""
+    records are not read (no GPS velocity; positions from POS), the rest is, and the damage is said. A column
+    name replay reads damaged, or a layout char DFReader does not know, is one error naming the file; before,
+    all three were tracebacks."""
     log = static_log(2.0)
     path = write_dataflash(tmp_path / "f.bin", log)
-    _with_format(path, b"GPS\0", b"QBBIHBcLLeffffBB")
+    _with_format(path, b"GPS\0", LAYOUT, b"QBBIHBcLLeffffBB")
     s = read_dataflash(path)
     assert s.damage == "the format (FMT) of GPS is damaged: its records are not read"
     assert len(s.imu_t_s) == len(log.imu_t_s) and len(s.gps_t_s) == 0 and len(s.position_t_s) > 0
-    _with_format(path, b"IMU\0", b"QBffffff?")
+    _with_format(path, b"MAG\0", COLUMNS, b"TimeUS,I,MagQ,MagY,MagZ")
+    with pytest.raises(DataFileError, match=r"f\.bin: a record lacks a field replay reads: 'MagX'"):
+        read_dataflash(path)
+    _with_format(path, b"IMU\0", LAYOUT, b"QBffffff?")
     with pytest.raises(DataFileError, match=r"f\.bin: not a readable DataFlash log: Unsupported format char: '\?'"):
         read_dataflash(path)
 
@@ -274,42 +278,6 @@ def test_a_ulog_cut_inside_its_last_message_is_found_by_walking_the_message_size
     assert cut_at(whole[:-5]) == f"truncated: the message at byte {last} is incomplete (10 bytes)"
     assert cut_at(whole[: last + 2]) == f"truncated: the message at byte {last} is incomplete (2 bytes)"  # its header
     assert cut_at(whole[:16]) is None  # a header alone: no message begun
-
-
-class _Endless(BaseException):
-    """Raised by the alarm: out of reach of the ``except Exception`` around pyulog, so a hang fails the test."""
-
-
-@contextlib.contextmanager
-def _within(seconds: int) -> Iterator[None]:
-    def endless(*_: object) -> None:
-        raise _Endless(f"still reading after {seconds} s")
-
-    previous = signal.signal(signal.SIGALRM, endless)
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, previous)
-
-
-def test_a_ulog_whose_definitions_run_to_its_end_is_refused_not_read_forever(tmp_path):
-    """A log cut in its definitions with a header that cannot be one running past the end (type 0, 512 bytes):
-    pyulog 1.3 seeks back before it, steps over the zeros before it a byte at a time and meets it again, for
-    ever. Such a file has no data; it is refused at once (a read takes milliseconds; 10 s only bounds a hang)."""
-    key = b"char[600] sys_name"
-    info = bytes([len(key)]) + key + bytes(600)
-    path = tmp_path / "endless.ulg"
-    path.write_bytes(
-        ulog_bytes() + struct.pack("<HB", len(info), ord("I")) + info + struct.pack("<HB", 512, 0) + bytes(10)
-    )
-    with _within(10), pytest.raises(DataFileError, match=r"endless\.ulg: .* ends inside its definitions, before any"):
-        read_ulog(path)
-    data = shared_path("data", "px4", "sample.ulg").read_bytes()
-    path.write_bytes(data[: data_section_at(data) - 100])  # a real log cut in its parameters
-    with pytest.raises(DataFileError, match=r"ends inside its definitions, before any data"):
-        read_ulog(path)
 
 
 def test_a_cut_off_px4_log_is_replayed_up_to_the_cut_and_said_damaged(tmp_path):
