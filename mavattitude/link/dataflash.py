@@ -79,12 +79,13 @@ class _Reader:
 
     def _dtype(self, name: str, fmt: Any) -> np.dtype | None:
         """The record type of ``fmt``; None, said in :attr:`damage`, when its FMT record is damaged (column names
-        and layout that do not match, a layout longer or shorter than the record): those records are not read."""
+        and layout that do not match, a name empty or given twice, a layout longer or shorter than the record):
+        those records are not read."""
         try:
             dtype = struct_dtype(fmt.columns, fmt.msg_struct)
         except (ValueError, KeyError):
             dtype = None
-        if dtype is not None and dtype.itemsize == fmt.len - 3:
+        if dtype is not None and dtype.itemsize == fmt.len - 3 and dtype.names == tuple(fmt.columns):
             return dtype
         note = f"the format (FMT) of {name} is damaged: its records are not read"
         if note not in (self.damage or ""):

@@ -170,14 +170,17 @@ LAYOUT, COLUMNS = slice(9, 25), slice(25, 89)  # an FMT record's Format and Colu
 def test_a_damaged_format_record_loses_its_records_and_says_so(tmp_path):
     """An FMT record whose layout no longer matches its column names (a byte of the GPS layout damaged): the GPS
     records are not read (no GPS velocity; positions from POS), the rest is, and the damage is said. A column
-    name replay reads damaged, or a layout char DFReader does not know, is one error naming the file; before,
-    all three were tracebacks."""
+    name empty is the same; one replay reads damaged, or a layout char DFReader does not know, is one error naming
+    the file. Before, all four were tracebacks."""
     log = static_log(2.0)
     path = write_dataflash(tmp_path / "f.bin", log)
     _with_format(path, b"GPS\0", LAYOUT, b"QBBIHBcLLeffffBB")
     s = read_dataflash(path)
     assert s.damage == "the format (FMT) of GPS is damaged: its records are not read"
     assert len(s.imu_t_s) == len(log.imu_t_s) and len(s.gps_t_s) == 0 and len(s.position_t_s) > 0
+    _with_format(path, b"MAG\0", COLUMNS, b"TimeUS,I,,MagY,MagZ")  # numpy would name the empty one f2
+    s = read_dataflash(path)
+    assert "the format (FMT) of MAG is damaged: its records are not read" in s.damage and len(s.mag_t_s) == 0
     _with_format(path, b"MAG\0", COLUMNS, b"TimeUS,I,MagQ,MagY,MagZ")
     with pytest.raises(DataFileError, match=r"f\.bin: a record lacks a field replay reads: 'MagX'"):
         read_dataflash(path)
