@@ -200,17 +200,35 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _find_logs(names: Iterable[str]) -> list[Path]:
-    found: list[Path] = []
+    """The logs named and those in the directories named, each once (a file also inside a directory given)."""
+    found: dict[Path, Path] = {}
     for name in names:
         path = Path(name)
         if path.is_dir():
             inside = sorted(p for p in path.iterdir() if p.suffix.lower() in LOG_SUFFIXES and p.is_file())
             if not inside:
                 raise DataFileError(f"{path}: a directory with no .tlog, .bin or .ulg file in it")
-            found += inside
         else:
-            found.append(path)
-    return found
+            inside = [path]
+        found |= {p.resolve(): p for p in inside if p.resolve() not in found}
+    return list(found.values())
+
+
+def _output_names(logs: list[Path]) -> list[str]:
+    """Each log's name in the output directory: its stem; its whole name where stems repeat (f.bin, f.tlog); and
+    the folders above it, as many as it takes, where names repeat too (a/f.tlog, b/f.tlog: a_f.tlog, b_f.tlog),
+    so that no log's results overwrite another's."""
+    names = [p.stem for p in logs]
+    if len(set(names)) < len(names):
+        names = [p.name for p in logs]
+    folders = [p.resolve().parent.parts for p in logs]
+    depth = 0
+    while len(set(names)) < len(names):
+        depth += 1
+        names = [
+            "_".join((*parts[max(len(parts) - depth, 0) :], p.name)) for p, parts in zip(logs, folders, strict=True)
+        ]
+    return names
 
 
 def _jobs(args: argparse.Namespace, config: Config) -> list[Job]:
@@ -224,10 +242,9 @@ def _jobs(args: argparse.Namespace, config: Config) -> list[Job]:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise DataFileError(f"{out}: cannot make the output directory: {exc.strerror or exc}") from exc
-    stems = [p.name for p in logs] if len({p.stem for p in logs}) < len(logs) else [p.stem for p in logs]
     return [
-        Job(p, out / f"{stem}.csv", out / f"{stem}.png" if plot else None, config, args.imu, args.mag, False)
-        for p, stem in zip(logs, stems, strict=True)
+        Job(p, out / f"{name}.csv", out / f"{name}.png" if plot else None, config, args.imu, args.mag, False)
+        for p, name in zip(logs, _output_names(logs), strict=True)
     ]
 
 

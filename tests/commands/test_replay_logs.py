@@ -125,6 +125,22 @@ def test_a_directory_of_logs_with_bad_ones_among_them(tmp_path, capsys):
     assert not (out / "d_junk.csv").exists()
 
 
+def test_logs_of_one_name_in_two_folders_keep_their_own_results_and_a_log_named_twice_is_replayed_once(tmp_path):
+    """a/f.bin and b/f.bin both wrote out/f.csv, the second over the first; a/f.bin named and inside the folder
+    a also named was replayed twice."""
+    for folder, yaw_rate_dps in (("a", YAW_RATE_DPS), ("b", 0.0)):
+        (tmp_path / folder).mkdir()
+        write_dataflash(tmp_path / folder / "f.bin", static_log(3.0, yaw_rate_dps=yaw_rate_dps))
+    out = tmp_path / "out"
+    logs = [str(tmp_path / "a" / "f.bin"), str(tmp_path / "b" / "f.bin"), str(tmp_path / "a")]
+    assert main(["replay", *logs, "-o", str(out), "--no-plot", *REF]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["a_f.bin.csv", "b_f.bin.csv", "summary.csv"]
+    assert errors_deg(read_rows(out / "a_f.bin.csv")[10:]).max() < MAX_ERR_DEG  # a's yaw turns, b's does not
+    assert errors_deg(read_rows(out / "b_f.bin.csv")[10:]).max() > 10 * MAX_ERR_DEG
+    with (out / "summary.csv").open(encoding="utf-8") as f:
+        assert len(list(csv.DictReader(f))) == 2
+
+
 def test_a_truncated_log_alone_is_replayed_then_one_line_and_exit_2(tmp_path):
     data = write_dataflash(tmp_path / "x.bin", static_log(3.0)).read_bytes()
     cut = tmp_path / "cut.bin"
