@@ -238,6 +238,8 @@ def _jobs(args: argparse.Namespace, config: Config) -> list[Job]:
     if len(logs) == 1 and out.name.endswith((".csv", ".csv.gz")):
         png = Path(args.plot) if args.plot else Path(str(out).removesuffix(".gz")).with_suffix(".png")
         return [Job(logs[0], out, png if plot else None, config, args.imu, args.mag, True)]
+    if out.name.endswith((".csv", ".csv.gz")) and not out.is_dir():
+        raise DataFileError(f"-o {out}: {len(logs)} logs write a CSV each and a summary: give a directory")
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

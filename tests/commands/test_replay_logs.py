@@ -141,6 +141,13 @@ def test_logs_of_one_name_in_two_folders_keep_their_own_results_and_a_log_named_
         assert len(list(csv.DictReader(f))) == 2
 
 
+def test_several_logs_given_a_csv_for_output_are_refused_before_a_directory_of_that_name_is_made(tmp_path, capsys):
+    logs = [str(write_dataflash(tmp_path / f"{name}.bin", static_log(1.0))) for name in "ab"]
+    assert main(["replay", *logs, "-o", str(tmp_path / "out.csv"), *REF]) == 2
+    assert "2 logs write a CSV each and a summary: give a directory" in capsys.readouterr().err
+    assert not (tmp_path / "out.csv").exists()
+
+
 def test_a_truncated_log_alone_is_replayed_then_one_line_and_exit_2(tmp_path):
     data = write_dataflash(tmp_path / "x.bin", static_log(3.0)).read_bytes()
     cut = tmp_path / "cut.bin"
