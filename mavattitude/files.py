@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import gzip
+import os
 import warnings
 import zlib
 from collections.abc import Iterator, Sequence
@@ -39,6 +40,15 @@ def open_text(path: str | Path, mode: str) -> IO[str]:
         return path.open(mode, encoding=encoding, newline="")
     except OSError as exc:
         raise DataFileError(f"{path}: cannot open: {exc.strerror or exc}") from exc
+
+
+def refuse_overwriting(inputs: Sequence[str | Path], *outputs: str | Path | None) -> None:
+    """A DataFileError when an output is one of the inputs (the same file under any name): writing the results
+    would destroy the recording they come from."""
+    for output in (o for o in outputs if o is not None and Path(o).exists()):
+        for given in inputs:
+            if Path(given).exists() and os.path.samefile(output, given):
+                raise DataFileError(f"{output}: that is the input {given}; the results would overwrite it")
 
 
 @contextmanager

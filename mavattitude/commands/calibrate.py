@@ -28,7 +28,7 @@ import yaml
 from mavattitude.commands._offline import Progress
 from mavattitude.config import DEFAULTS
 from mavattitude.errors import CalibrationError
-from mavattitude.files import LOG_SUFFIXES, MAG_COLUMNS, read_columns
+from mavattitude.files import LOG_SUFFIXES, MAG_COLUMNS, read_columns, refuse_overwriting
 from mavattitude.link.requests import StreamRequest
 from mavattitude.link.session import LinkSession
 from mavattitude.sensors import magfit, units
@@ -103,6 +103,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     source = args.input
+    refuse_overwriting([source], args.output)
     is_csv = source.endswith((".csv", ".csv.gz"))
     if is_csv:
         mag = read_csv_mag(Path(source))

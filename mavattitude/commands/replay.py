@@ -73,7 +73,7 @@ from mavattitude.config import DEFAULTS, Config
 from mavattitude.errors import DataFileError, MavAttitudeError
 from mavattitude.estimation import METHODS
 from mavattitude.estimation.conventions import euler_from_quat
-from mavattitude.files import LOG_SUFFIXES
+from mavattitude.files import LOG_SUFFIXES, refuse_overwriting
 from mavattitude.link.logstreams import TILT_ONLY
 from mavattitude.reports import heading_lost, rate_handling
 from mavattitude.sensors.frontend import SampleFlag
@@ -237,6 +237,7 @@ def _jobs(args: argparse.Namespace, config: Config) -> list[Job]:
     plot = not args.no_plot
     if len(logs) == 1 and out.name.endswith((".csv", ".csv.gz")):
         png = Path(args.plot) if args.plot else Path(str(out).removesuffix(".gz")).with_suffix(".png")
+        refuse_overwriting(logs, out, png if plot else None)
         return [Job(logs[0], out, png if plot else None, config, args.imu, args.mag, True)]
     if out.name.endswith((".csv", ".csv.gz")) and not out.is_dir():
         raise DataFileError(f"-o {out}: {len(logs)} logs write a CSV each and a summary: give a directory")

@@ -37,7 +37,15 @@ from mavattitude.commands._offline import (
 from mavattitude.config import Config
 from mavattitude.errors import ConfigError, DataFileError
 from mavattitude.estimation import METHODS
-from mavattitude.files import ACC_COLUMNS, GYR_COLUMNS, LOG_SUFFIXES, MAG_COLUMNS, TIME_COLUMN, read_columns
+from mavattitude.files import (
+    ACC_COLUMNS,
+    GYR_COLUMNS,
+    LOG_SUFFIXES,
+    MAG_COLUMNS,
+    TIME_COLUMN,
+    read_columns,
+    refuse_overwriting,
+)
 
 NAME = "solve"
 HELP = "attitude for every sample of a CSV file (offline, same pipeline as the service)"
@@ -92,6 +100,7 @@ def run(args: argparse.Namespace) -> int:
     from mavattitude.sensors.frontend import median_rate_hz
 
     config = config_from_args(args)
+    refuse_overwriting([args.input], args.output, args.save_mag_offset)
     data = read_samples(args.input)
     check_offline_config(config, "gyr" in data, args.input)
     if args.save_mag_offset and not METHODS[config.estimator.method].learns_mag_offset:

@@ -74,13 +74,18 @@ def run_on(tmp_path: Path, command: str, suffix: str, content: bytes) -> tuple[i
     path = tmp_path / f"input{suffix}"
     path.write_bytes(content)
     argv, _ = COMMANDS[command]
+    return run_on_argv(argv(path, tmp_path / "out.csv"))
+
+
+def run_on_argv(argv: list[str]) -> tuple[int, list[str], list[str]]:
+    """Exit code, stderr lines and warnings of the command line ``argv``."""
     capture = io.StringIO()
     with warnings.catch_warnings(record=True) as caught, pytest.MonkeyPatch.context() as mp:
         warnings.simplefilter("always")
         warnings.simplefilter("ignore", ResourceWarning)  # never shown to a user (and pymavlink leaks on garbage)
         mp.setattr("sys.stderr", capture)
         mp.setattr("sys.stdout", io.StringIO())
-        code = main(argv(path, tmp_path / "out.csv"))
+        code = main(argv)
     return code, capture.getvalue().splitlines(), [str(w.message) for w in caught]
 
 
@@ -146,3 +151,21 @@ def test_a_file_whose_content_is_not_what_its_name_says(
 @pytest.mark.parametrize(("command", "suffix"), UNREAD)
 def test_a_format_the_command_does_not_read(tmp_path: Path, command: str, suffix: str) -> None:
     assert_one_line_error(run_on(tmp_path, command, suffix, good_bytes(suffix)), command, "input")
+
+
+@pytest.mark.parametrize(
+    ("command", "name", "content"),
+    [("solve", "in.csv", ".csv"), ("calibrate", "in.csv", ".csv"), ("replay", "flight.csv", ".tlog")],
+)
+def test_an_output_that_is_the_input_is_refused_and_the_input_kept(
+    tmp_path: Path, command: str, name: str, content: str
+) -> None:
+    """``-o`` naming the input itself (here by another spelling, ``DIR/./NAME``) wrote the results over the
+    recording they came from; replay knows a log by its content, so a telemetry log may be called .csv."""
+    recording = good_bytes(content)
+    path = tmp_path / name
+    path.write_bytes(recording)
+    argv, _ = COMMANDS[command]
+    result = run_on_argv(argv(path, tmp_path / "." / name))
+    assert_one_line_error(result, command, "that is the input")
+    assert path.read_bytes() == recording
