@@ -208,6 +208,8 @@ def _find_logs(names: Iterable[str]) -> list[Path]:
             inside = sorted(p for p in path.iterdir() if p.suffix.lower() in LOG_SUFFIXES and p.is_file())
             if not inside:
                 raise DataFileError(f"{path}: a directory with no .tlog, .bin or .ulg file in it")
+        elif not path.exists():  # a slip in one name: said before any log is replayed or any output made
+            raise DataFileError(f"{path}: no such file or directory")
         else:
             inside = [path]
         found |= {p.resolve(): p for p in inside if p.resolve() not in found}

@@ -141,6 +141,13 @@ def test_logs_of_one_name_in_two_folders_keep_their_own_results_and_a_log_named_
         assert len(list(csv.DictReader(f))) == 2
 
 
+def test_a_log_name_that_does_not_exist_is_said_before_anything_is_replayed_or_made(tmp_path, capsys):
+    good = str(write_dataflash(tmp_path / "a.bin", static_log(1.0)))
+    assert main(["replay", good, str(tmp_path / "b.bni"), "-o", str(tmp_path / "out"), *REF]) == 2
+    assert capsys.readouterr().err.strip().endswith(f"{tmp_path / 'b.bni'}: no such file or directory")
+    assert not (tmp_path / "out").exists()
+
+
 def test_several_logs_given_a_csv_for_output_are_refused_before_a_directory_of_that_name_is_made(tmp_path, capsys):
     logs = [str(write_dataflash(tmp_path / f"{name}.bin", static_log(1.0))) for name in "ab"]
     assert main(["replay", *logs, "-o", str(tmp_path / "out.csv"), *REF]) == 2
