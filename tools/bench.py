@@ -539,8 +539,8 @@ def _cpu_s(pid: int) -> float:
 
 @section("service")
 def bench_service(settings: Settings) -> list[Row]:
-    at_200 = measure_latency(settings.pick(2, 30))
-    rates = [(2000.0, settings.pick(2, 20))] + ([] if settings.quick else [(4000.0, 10.0), (8000.0, 10.0)])
+    at_200 = measure_latency(settings.pick(1, 30))
+    rates = [(2000.0, settings.pick(1, 20))] + ([] if settings.quick else [(4000.0, 10.0), (8000.0, 10.0)])
     ladder = fly_rates(rates)
     at_2000 = ladder[0]
     best = max((f.rate_hz for f in ladder if f.sustained), default=float("nan"))
@@ -652,7 +652,7 @@ EXPECTED_ROWS["soak"] = [
 
 @section("soak")
 def bench_soak(settings: Settings) -> list[Row]:
-    duration_s, window_s = (80.0, 40.0) if settings.quick else (3600.0, 300.0)
+    duration_s, window_s = (40.0, 20.0) if settings.quick else (3600.0, 300.0)
     report = soak.run_soak(duration_s=duration_s, rate_hz=200.0, speed=20.0, window_s=window_s, seed=SEED)
     if len(report.windows) < 2:
         raise RuntimeError(f"the soak measured {len(report.windows)} window(s), too few to see growth")
@@ -691,7 +691,7 @@ class _Locked:
 
 @section("replay")
 def bench_replay(settings: Settings) -> list[Row]:
-    """A generated flight (30 min of 400 Hz IMU, 10 Hz MAG, ATT, POS; --quick: 20 s) as .bin and .tlog."""
+    """A generated flight (30 min of 400 Hz IMU, 10 Hz MAG, ATT, POS; --quick: 10 s) as .bin and .tlog."""
     import tempfile
 
     from pymavlink import DFReader, mavutil
@@ -704,7 +704,7 @@ def bench_replay(settings: Settings) -> list[Row]:
     from mavattitude.replay import replay
     from mavattitude.sim import logwriter
 
-    seconds = 20.0 if settings.quick else 1800.0
+    seconds = 10.0 if settings.quick else 1800.0
     sec, names = "replay", EXPECTED_ROWS["replay"]
     flight = logwriter.static_log(seconds, yaw_rate_dps=10.0)
     n = len(flight.imu_t_s)
