@@ -20,6 +20,7 @@ from mavattitude.commands._offline import Progress
 from mavattitude.config import load_config
 from mavattitude.errors import ConfigError
 from mavattitude.estimation import METHODS, SNAPSHOT_METHODS
+from mavattitude.files import refuse_overwriting
 from mavattitude.validation import find_recordings, load_recording
 from mavattitude.validation.report import markdown_table, text_table, write_markdown
 from mavattitude.validation.runner import (
@@ -121,6 +122,7 @@ def run(args: argparse.Namespace) -> int:
     if not runs:
         raise ConfigError("nothing to run: the fused method has no batch path (use --path stream)")
     files = [f for p in args.paths for f in find_recordings(p)]
+    refuse_overwriting(files, args.report, args.json)
     results: dict[str, list[Evaluation]] = {}
     recordings = {}
     for file in files:

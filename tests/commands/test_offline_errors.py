@@ -155,7 +155,12 @@ def test_a_format_the_command_does_not_read(tmp_path: Path, command: str, suffix
 
 @pytest.mark.parametrize(
     ("command", "name", "content"),
-    [("solve", "in.csv", ".csv"), ("calibrate", "in.csv", ".csv"), ("replay", "flight.csv", ".tlog")],
+    [
+        ("solve", "in.csv", ".csv"),
+        ("calibrate", "in.csv", ".csv"),
+        ("replay", "flight.csv", ".tlog"),
+        ("validate", "trial.csv", ".csv"),
+    ],
 )
 def test_an_output_that_is_the_input_is_refused_and_the_input_kept(
     tmp_path: Path, command: str, name: str, content: str
