@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import itertools
 import math
 import os
 import typing
@@ -469,9 +470,9 @@ def _nest(dotted: Mapping[str, Any]) -> dict[str, Any]:
     for key, value in dotted.items():
         *parents, leaf = key.split(".")
         node = out
-        for depth in range(1, len(parents) + 1):
-            if ".".join(parents[:depth]) in dotted:
-                _fail(".".join(parents[:depth]), f"given a value and also the key {key}")
+        for section in itertools.accumulate(parents, lambda above, name: f"{above}.{name}"):
+            if section in dotted:
+                _fail(section, f"given a value and also the key {key}")
         for p in parents:
             node = node.setdefault(p, {})
         node[leaf] = value

@@ -212,7 +212,8 @@ def _find_logs(names: Iterable[str]) -> list[Path]:
             raise DataFileError(f"{path}: no such file or directory")
         else:
             inside = [path]
-        found |= {p.resolve(): p for p in inside if p.resolve() not in found}
+        for p in inside:
+            found.setdefault(p.resolve(), p)
     return list(found.values())
 
 
