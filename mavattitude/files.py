@@ -26,7 +26,7 @@ TIME_COLUMN = "t_s"
 ACC_COLUMNS = ("acc_x_mps2", "acc_y_mps2", "acc_z_mps2")
 GYR_COLUMNS = ("gyr_x_radps", "gyr_y_radps", "gyr_z_radps")
 MAG_COLUMNS = ("mag_x_uT", "mag_y_uT", "mag_z_uT")
-LOG_SUFFIXES = (".tlog", ".bin", ".ulg")  # the flight logs replay and calibrate read (told apart by content)
+LOG_SUFFIXES = (".tlog", ".bin", ".ulg", ".log")  # the flight logs replay and calibrate read (told apart by content)
 
 
 def open_text(path: str | Path, mode: str) -> IO[str]:

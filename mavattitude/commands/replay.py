@@ -1,13 +1,13 @@
 """`mavattitude replay LOG... -o OUT`: the service's pipeline, offline, over flight logs.
 
-Each log (a telemetry log .tlog, an ArduPilot DataFlash .bin, a PX4 ULog .ulg: the format is read from
-the file's content) goes through the service's own dispatcher and pipeline (mavattitude.replay), as fast
-as the CPU goes. From a .tlog the IMU messages are input.message decoded with input.profile, and replay
-follows one autopilot as the service does (link.vehicle_system_id, or the first autopilot HEARTBEAT); a
-.bin or .ulg is the autopilot's own log (IMU and MAG instances chosen with --imu / --mag). With
-reference.magnetic auto, the World Magnetic Model is evaluated at the log's positions, on the log's date;
-a log without a position is replayed with heading from magnetic north and the dip and |B| its compass
-shows while the vehicle is still (reference.position_wait_s after its start, as the live service does).
+Each log (a telemetry log .tlog, an ArduPilot DataFlash .bin or its text form .log, a PX4 ULog .ulg: the
+format is read from the file's content) goes through the service's own dispatcher and pipeline
+(mavattitude.replay), as fast as the CPU goes. From a .tlog the IMU messages are input.message decoded with
+input.profile, and replay follows one autopilot as the service does (link.vehicle_system_id, or the first
+autopilot HEARTBEAT); a .bin, .log or .ulg is the autopilot's own log (IMU and MAG instances chosen with
+--imu / --mag). With reference.magnetic auto, the World Magnetic Model is evaluated at the log's positions,
+on the log's date; a log without a position is replayed with heading from magnetic north and the dip and
+|B| its compass shows while the vehicle is still (reference.position_wait_s after its start, as the live service does).
 
 One log and OUT ending in .csv (or .csv.gz): the attitude is written there. Several logs, or a
 directory of them: OUT is a directory, with one CSV per log (the columns of `mavattitude solve`), and
@@ -73,14 +73,16 @@ from mavattitude.config import DEFAULTS, Config
 from mavattitude.errors import DataFileError, MavAttitudeError
 from mavattitude.estimation import METHODS
 from mavattitude.estimation.conventions import euler_from_quat
-from mavattitude.files import LOG_SUFFIXES, refuse_overwriting
+from mavattitude.files import refuse_overwriting
 from mavattitude.link.logstreams import TILT_ONLY
 from mavattitude.reports import heading_lost, rate_handling
 from mavattitude.sensors.frontend import SampleFlag
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
 
 NAME = "replay"
-HELP = "the service's pipeline over flight logs (.tlog, DataFlash .bin, ULog .ulg): attitude CSVs, vs the autopilot's"
+HELP = (
+    "the service's pipeline over flight logs (.tlog, DataFlash .bin/.log, ULog .ulg): attitude CSVs, vs the autopilot's"
+)
 
 log = logging.getLogger(__name__)
 
@@ -201,13 +203,15 @@ def run(args: argparse.Namespace) -> int:
 
 def _find_logs(names: Iterable[str]) -> list[Path]:
     """The logs named and those in the directories named, each once (a file also inside a directory given)."""
+    from mavattitude.link.logs import found_in_folder
+
     found: dict[Path, Path] = {}
     for name in names:
         path = Path(name)
         if path.is_dir():
-            inside = sorted(p for p in path.iterdir() if p.suffix.lower() in LOG_SUFFIXES and p.is_file())
+            inside = sorted(filter(found_in_folder, path.iterdir()))
             if not inside:
-                raise DataFileError(f"{path}: a directory with no .tlog, .bin or .ulg file in it")
+                raise DataFileError(f"{path}: a directory with no .tlog, .bin, .ulg or DataFlash text .log in it")
         elif not path.exists():  # a slip in one name: said before any log is replayed or any output made
             raise DataFileError(f"{path}: no such file or directory")
         else:

@@ -1,6 +1,7 @@
-"""ArduPilot DataFlash logs (.bin) read with pymavlink's DFReader, into :class:`~.logstreams.LogStreams`.
+"""ArduPilot DataFlash logs read into :class:`~.logstreams.LogStreams`: binary (.bin) with pymavlink's DFReader,
+and written as text (.log, :class:`_TextReader`).
 
-DFReader parses the formats (FMT, FMTU) and indexes every record by type; the records replay needs are
+In a binary log, DFReader parses the formats (FMT, FMTU) and indexes every record by type; the records replay needs are
 then unpacked all at once with numpy, with DFReader's own struct layout and multipliers, and converted
 by :mod:`mavattitude.sensors.dataflash_units`. Where the index leaves bytes out (damaged bytes skipped,
 a record of an undeclared type where DFReader stops, a last record cut short) is
@@ -38,7 +39,51 @@ class _Index(DFReader.DFReader_binary):
 
 
 class _Reader:
-    """DFReader's index of one file, and the records of one type as columns."""
+    """The records of one type of a DataFlash log as columns (:meth:`_columns`, per format), and what is damaged."""
+
+    path: Path
+    damage: str | None
+
+    def _columns(self, name: str) -> dict[str, np.ndarray]:
+        """Every complete record of ``name`` as columns, scaled (empty if none), and each one's place in the
+        file (``OFFSET``: anything increasing in file order)."""
+        raise NotImplementedError
+
+    def _note(self, damage: str) -> None:
+        """``damage`` said in :attr:`damage`, once."""
+        if damage not in (self.damage or ""):
+            self.damage = f"{self.damage}; {damage}" if self.damage else damage
+
+    def table(self, name: str) -> dict[str, np.ndarray]:
+        """Every complete record of ``name`` as columns (:meth:`_columns`); records with no time since boot of their
+        own (a GPS record before ArduPilot 3.1, the oldest MAG and ATT) are given the time of the last IMU record
+        before them in the file, as ``TimeUS``."""
+        columns = self._columns(name)
+        if columns and name != "IMU" and not _has_time(columns):
+            columns["TimeUS"] = self._file_order_time_s(columns[OFFSET]) * 1e6
+        return columns
+
+    def _file_order_time_s(self, offsets: np.ndarray) -> np.ndarray:
+        """The time of the last IMU record (any instance) before each offset; the first IMU's before them all."""
+        imu = self._columns("IMU")
+        if not imu:
+            raise KeyError("no time field, and no IMU record to take one from")
+        clock_s = du.time_s(imu)[0]
+        before = np.searchsorted(imu[OFFSET], offsets) - 1
+        return clock_s[np.maximum(before, 0)]
+
+    def instance(self, base: str, instance: int) -> tuple[str, dict[str, np.ndarray]]:
+        """The records of one instance of a sensor (``IMU`` with an ``I`` column, or ``IMU2`` … in old logs)."""
+        table = self.table(base)
+        name = du.message_name(base, instance, "I" in table)
+        if "I" in table:
+            keep = table["I"] == instance
+            return f"{base}[I={instance}]", {k: v[keep] for k, v in table.items()}
+        return name, self.table(name) if name != base else table
+
+
+class _BinaryReader(_Reader):
+    """DFReader's index of one binary log (.bin), each type's records unpacked at once with numpy."""
 
     def __init__(self, path: Path) -> None:
         self.path = path
@@ -50,16 +95,6 @@ class _Reader:
         self.size = int(self.df.data_len)
         self.damage = _unindexed(self.df, self.size)
         self._bytes = np.frombuffer(self.df.data_map, dtype=np.uint8)
-
-    def table(self, name: str) -> dict[str, np.ndarray]:
-        """Every complete record of ``name`` as columns, DFReader's multipliers applied (empty if none), and
-        each one's byte offset (``OFFSET``); records with no time since boot of their own (a GPS record before
-        ArduPilot 3.1, the oldest MAG and ATT) are given the time of the last IMU record before them in the
-        file, as ``TimeUS``."""
-        columns = self._columns(name)
-        if columns and name != "IMU" and not _has_time(columns):
-            columns["TimeUS"] = self._file_order_time_s(columns[OFFSET]) * 1e6
-        return columns
 
     def _columns(self, name: str) -> dict[str, np.ndarray]:
         if name not in self.df.name_to_id:
@@ -87,28 +122,92 @@ class _Reader:
             dtype = None
         if dtype is not None and dtype.itemsize == fmt.len - 3 and dtype.names == tuple(fmt.columns):
             return dtype
-        note = f"the format (FMT) of {name} is damaged: its records are not read"
-        if note not in (self.damage or ""):
-            self.damage = f"{self.damage}; {note}" if self.damage else note
+        self._note(f"the format (FMT) of {name} is damaged: its records are not read")
         return None
 
-    def _file_order_time_s(self, offsets: np.ndarray) -> np.ndarray:
-        """The time of the last IMU record (any instance) before each offset; the first IMU's before them all."""
-        imu = self._columns("IMU")
-        if not imu:
-            raise KeyError("no time field, and no IMU record to take one from")
-        clock_s = du.time_s(imu)[0]
-        before = np.searchsorted(imu[OFFSET], offsets) - 1
-        return clock_s[np.maximum(before, 0)]
 
-    def instance(self, base: str, instance: int) -> tuple[str, dict[str, np.ndarray]]:
-        """The records of one instance of a sensor (``IMU`` with an ``I`` column, or ``IMU2`` … in old logs)."""
-        table = self.table(base)
-        name = du.message_name(base, instance, "I" in table)
-        if "I" in table:
-            keep = table["I"] == instance
-            return f"{base}[I={instance}]", {k: v[keep] for k, v in table.items()}
-        return name, self.table(name) if name != base else table
+class _TextReader(_Reader):
+    """A DataFlash log as text (.log): each record a line of comma-separated values, ``IMU, 1234, 0.01, …``, as
+    Mission Planner writes a .bin out and early ArduPilot logs were downloaded; pymavlink reads it as
+    ``DFReader_text``. The values are written scaled (a ``c`` field as 12.34, not 1234), so no multiplier is
+    applied; a record's place in the file (``OFFSET``) is its line number. A line of a type read here whose
+    values do not fit its FMT (a count or number that is wrong: damaged, or a last line cut short) is not
+    read, and said in :attr:`damage`."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.damage = None
+        try:
+            self._lines = path.read_bytes().decode("latin-1").splitlines()
+        except OSError as exc:
+            raise DataFileError(f"{path}: cannot read: {exc.strerror or exc}") from exc
+        self._formats: dict[str, tuple[str, list[str]]] = {}  # name: the format's characters, its columns
+        self._numbers: dict[str, list[int]] = {}  # name: the lines of its records
+        for number, line in enumerate(self._lines):
+            name = line.partition(",")[0].strip()
+            self._numbers.setdefault(name, []).append(number)
+            if name == "FMT":
+                self._format(line)
+        if not self._formats:
+            raise DataFileError(f"{path}: not a DataFlash log: no format (FMT) line in it")
+
+    def _format(self, line: str) -> None:
+        """An FMT line, ``FMT, 129, 32, IMU, Qfff, TimeUS,GyrX,GyrY,GyrZ``: the columns are its last field."""
+        fields = [f.strip() for f in line.split(",")]
+        if len(fields) >= 6 and fields[3]:
+            self._formats[fields[3]] = (fields[4], fields[5:])
+
+    def _columns(self, name: str) -> dict[str, np.ndarray]:
+        if name not in self._formats or name not in self._numbers:
+            return {}
+        chars, columns = self._formats[name]
+        if len(chars) != len(columns) or len(set(columns)) != len(columns) or "" in columns:
+            self._note(f"the format (FMT) of {name} is damaged: its records are not read")
+            return {}
+        numbers = np.asarray(self._numbers[name], dtype=np.int64)
+        rows = [self._lines[k].split(",")[1:] for k in numbers.tolist()]
+        whole = np.fromiter((len(row) == len(chars) for row in rows), dtype=bool, count=len(rows))
+        fields = np.array([row for row, ok in zip(rows, whole, strict=True) if ok], dtype=str)
+        fields = np.char.strip(fields.reshape(-1, len(chars)))
+        readable = np.ones(len(fields), dtype=bool)
+        for k, char in enumerate(chars):
+            readable &= _text_readable(fields[:, k], char)
+        if not (whole.all() and readable.all()):
+            self._note(f"{len(rows) - int(readable.sum())} {name} line(s) damaged: not read")
+        fields = fields[readable]
+        table = {
+            column: _text_column(fields[:, k], char)
+            for k, (column, char) in enumerate(zip(columns, chars, strict=True))
+        }
+        return table | {OFFSET: numbers[whole][readable]}
+
+
+_TEXT_INTEGERS = frozenset("bBhHiIMqQ")  # DataFlash format characters of integers; strings: nNZ (and a, an array)
+_TEXT_STRINGS = frozenset("nNZa")
+
+
+def _text_column(values: np.ndarray, char: str) -> np.ndarray:
+    """One column of a text log's values (strings) as the binary reader gives it: integers, floats or bytes."""
+    if char in _TEXT_STRINGS:
+        return np.char.encode(values, "latin-1")
+    return values.astype(np.int64 if char in _TEXT_INTEGERS else np.float64)
+
+
+def _text_readable(values: np.ndarray, char: str) -> np.ndarray:
+    """Which of a column's values :func:`_text_column` reads (all, but on a damaged line)."""
+    try:
+        _text_column(values, char)
+    except (ValueError, OverflowError):
+        return np.array([_text_readable_one(v, char) for v in values], dtype=bool)
+    return np.ones(len(values), dtype=bool)
+
+
+def _text_readable_one(value: str, char: str) -> bool:
+    try:
+        _text_column(np.array([value]), char)
+    except (ValueError, OverflowError):
+        return False
+    return True
 
 
 def _has_time(columns: dict[str, np.ndarray]) -> bool:
@@ -162,11 +261,24 @@ def _unindexed(df: Any, size: int) -> str | None:
 
 
 def read_dataflash(path: str | Path, imu_instance: int = 0, mag_instance: int | None = None) -> LogStreams:
-    """The IMU (instance ``imu_instance``), magnetometer, ATT, POS and GPS velocity streams of a DataFlash log,
-    SI; the magnetometer ``mag_instance``, by default the one the autopilot used (its PARM records), else
-    instance 0, every instance in :attr:`LogStreams.compasses`."""
-    path = Path(path)
-    reader = _Reader(path)
+    """The IMU (instance ``imu_instance``), magnetometer, ATT, POS and GPS velocity streams of a DataFlash log
+    (.bin), SI; the magnetometer ``mag_instance``, by default the one the autopilot used (its PARM records),
+    else instance 0, every instance in :attr:`LogStreams.compasses`."""
+    return _streams(_BinaryReader(Path(path)), imu_instance, mag_instance)
+
+
+def read_dataflash_text(path: str | Path, imu_instance: int = 0, mag_instance: int | None = None) -> LogStreams:
+    """:func:`read_dataflash` of a DataFlash log written as text (.log)."""
+    return _streams(_TextReader(Path(path)), imu_instance, mag_instance)
+
+
+def looks_like_dataflash_text(head: bytes) -> bool:
+    """Whether ``head``, a file's first bytes, is a DataFlash text log's: a line that begins ``FMT,``."""
+    return head.startswith(b"FMT,") or b"\nFMT," in head
+
+
+def _streams(reader: _Reader, imu_instance: int, mag_instance: int | None) -> LogStreams:
+    path = reader.path
     empty3 = np.empty((0, 3))
     try:  # a record without a field read here: a log of another layout, or its FMT damaged in the column names
         imu_name, imu_table = reader.instance("IMU", imu_instance)

@@ -20,7 +20,8 @@ from typing import Protocol
 
 from mavattitude.config import Config
 from mavattitude.errors import DataFileError
-from mavattitude.link.dataflash import read_dataflash
+from mavattitude.files import LOG_SUFFIXES
+from mavattitude.link.dataflash import looks_like_dataflash_text, read_dataflash, read_dataflash_text
 from mavattitude.link.logstreams import Follower, LogStreams, StreamSource
 from mavattitude.link.source import MavlinkDecoder, MessageSource
 from mavattitude.link.tlog import SNIFF_BYTES, TlogSource, looks_like_tlog
@@ -63,29 +64,45 @@ FORMATS = (
     # a message header and the FMT message's type: every DataFlash log starts so
     LogFormat("dataflash", b"\xa3\x95\x80", ".bin", _stream_reader(read_dataflash)),
     LogFormat("tlog", None, ".tlog", _tlog, looks_like_tlog),
+    LogFormat("dataflash text", None, ".log", _stream_reader(read_dataflash_text), looks_like_dataflash_text),
 )
 
 
-def detect_format(path: Path) -> LogFormat:
-    """The row of :data:`FORMATS` the file's first bytes (or a .tlog's name: it has no magic) say it is."""
+def _head(path: Path) -> bytes:
     try:
         with path.open("rb") as f:
-            head = f.read(SNIFF_BYTES)
+            return f.read(SNIFF_BYTES)
     except OSError as exc:
         raise DataFileError(f"{path}: cannot open: {exc.strerror or exc}") from exc
-    for fmt in FORMATS:
-        if head.startswith(fmt.magic) if fmt.magic is not None else path.suffix.lower() == fmt.suffix:
-            return fmt
-    known = next((f for f in FORMATS if f.sniff is not None and f.sniff(head)), None)
+
+
+def detect_format(path: Path) -> LogFormat:
+    """The row of :data:`FORMATS` the file's first bytes say it is: its magic; else (a .tlog and a text log have
+    none) the format its name says unless its first bytes are another's, else the format they look like."""
+    head = _head(path)
+    magic = next((f for f in FORMATS if f.magic is not None and head.startswith(f.magic)), None)
+    sniffed = [f for f in FORMATS if f.sniff is not None and f.sniff(head)]
+    named = next((f for f in FORMATS if f.magic is None and path.suffix.lower() == f.suffix), None)
+    known = magic or (named if named is not None and (named in sniffed or not sniffed) else None)
+    known = known or next(iter(sniffed), None)
     if known is not None:
         return known
     csv = path.name.lower().endswith((".csv", ".csv.gz"))
     samples = " (a CSV of samples is for `mavattitude solve`)" if csv else ""
     raise DataFileError(
         f"{path}: not a flight log this reads (byte 0: {head[:4].hex(' ') or 'empty file'}): expected a DataFlash "
-        f".bin (starts a3 95 80), a ULog .ulg (starts 'ULog') or a telemetry log (.tlog: MAVLink frames, each "
-        f"after an 8-byte time){samples}"
+        f".bin (starts a3 95 80) or .log (text, lines from 'FMT, '), a ULog .ulg (starts 'ULog') or a telemetry "
+        f"log (.tlog: MAVLink frames, each after an 8-byte time){samples}"
     )
+
+
+def found_in_folder(path: Path) -> bool:
+    """Whether a file met in a folder is a log to read: its name's suffix is a format's, and a .log (a name many
+    programs give their text) begins as a DataFlash text log."""
+    suffix = path.suffix.lower()
+    if suffix == ".log":
+        return path.is_file() and looks_like_dataflash_text(_head(path))
+    return suffix in LOG_SUFFIXES and path.is_file()
 
 
 def open_log(

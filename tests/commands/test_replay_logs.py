@@ -15,6 +15,7 @@ from mavattitude.estimation.conventions import angle_between, quat_from_euler
 from mavattitude.sim.logwriter import LAYOUTS, static_log, write_dataflash
 from tests.commands.process import run_cli
 from tests.commands.test_replay import read_rows
+from tests.link.dataflash_text import write_text_log
 from tests.shared import shared_path
 
 YAW_RATE_DPS = 10.0
@@ -123,6 +124,23 @@ def test_a_directory_of_logs_with_bad_ones_among_them(tmp_path, capsys):
     assert len(read_rows(out / "c_cut.csv")) == pytest.approx(75, abs=5)  # the first half
     assert (out / "a.png").read_bytes()[:4] == b"\x89PNG"
     assert not (out / "d_junk.csv").exists()
+
+
+def test_a_directory_with_a_dataflash_text_log_and_another_program_s_log(tmp_path, capsys):
+    """A .log is a DataFlash text log (Mission Planner's conversion) or any program's log: the one is replayed as
+    its .bin is, the other left alone."""
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    binary = write_dataflash(tmp_path / "f.bin", static_log(3.0, yaw_rate_dps=YAW_RATE_DPS))
+    write_text_log(binary, logs / "f.log")
+    (logs / "mavproxy.log").write_text("Connect udpin:0.0.0.0:14550 source_system=255\n")
+    out = tmp_path / "out"
+    assert main(["replay", str(logs), "-o", str(out), "--no-plot", *REF]) == 0
+    assert list(summary(out / "summary.csv")) == ["f.log"]
+    as_text, as_binary = read_rows(out / "f.csv"), tmp_path / "f_bin.csv"
+    assert main(["replay", str(binary), "-o", str(as_binary), "--no-plot", *REF]) == 0
+    # the same flight: the text's float32 fields to 7 significant digits change the attitude by ~1e-7 rad
+    assert np.degrees(angle_between(as_text[:, 1:5], read_rows(as_binary)[:, 1:5])).max() < 1e-4
 
 
 def test_logs_of_one_name_in_two_folders_keep_their_own_results_and_a_log_named_twice_is_replayed_once(tmp_path):

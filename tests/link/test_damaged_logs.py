@@ -23,6 +23,7 @@ from mavattitude.link.logs import open_log
 from mavattitude.link.ulog import data_section_at, read_ulog
 from mavattitude.replay import replay
 from mavattitude.sim.logwriter import static_log, write_dataflash
+from tests.link.dataflash_text import write_text_log
 from tests.link.test_logs import ulog_bytes
 from tests.shared import shared_path
 from tests.test_service import make_config
@@ -34,19 +35,25 @@ def _dataflash(tmp_path: Path) -> bytes:
     return write_dataflash(tmp_path / "whole.bin", static_log(2.0)).read_bytes()
 
 
+def _dataflash_text(tmp_path: Path) -> bytes:
+    write_dataflash(tmp_path / "whole.bin", static_log(2.0))
+    return write_text_log(tmp_path / "whole.bin", tmp_path / "whole.log").read_bytes()
+
+
 def _shared(*parts: str, size: int) -> Callable[[Path], bytes]:
     return lambda _: shared_path(*parts).read_bytes()[:size]
 
 
-# Every log format, small enough to replay in a fraction of a second: ours (2 s, every record replay reads), a
-# SITL telemetry log's first 150 kB, a PX4 log's definitions (61 kB) and its first data.
+# Every log format, small enough to replay in a fraction of a second: ours (2 s, every record replay reads; and as
+# text), a SITL telemetry log's first 150 kB, a PX4 log's definitions (61 kB) and its first data.
 LOGS = {
     ".bin": _dataflash,
+    ".log": _dataflash_text,
     ".tlog": _shared("data", "ardupilot-sitl", "flightA.tlog", size=150_000),
     ".ulg": _shared("data", "px4", "sample_log_small.ulg", size=100_000),
 }
 HEAD_BYTES = 65_536  # where formats and definitions are
-EXAMPLES = {".bin": 60, ".tlog": 15, ".ulg": 60}  # a damaged .tlog replays in ~0.2 s, the others in ~0.02 s
+EXAMPLES = {".bin": 60, ".log": 30, ".tlog": 15, ".ulg": 60}  # a damaged .tlog replays in ~0.2 s, .log ~0.05 s
 
 DAMAGE = st.lists(
     st.tuples(
