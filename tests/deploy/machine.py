@@ -277,6 +277,9 @@ class NspawnMachine:
         while True:  # polling: systemd in the machine has no way to tell the host it is up
             if self.proc.poll() is not None or time.monotonic() > deadline:
                 raise AssertionError(f"the machine did not boot ({state}):\n{self._boot_report()}")
+            if self.leader is not None and not Path(f"/proc/{self.leader}").exists():
+                # nspawn's outer child, which forks PID 1 and exits: found before it exited, on a busy machine
+                self.leader = None
             if self.leader is None:
                 children = run(["pgrep", "-P", str(self.proc.pid)], check=False).stdout.split()
                 self.leader = int(children[0]) if children else None
