@@ -167,18 +167,15 @@ class _TextReader(_Reader):
         numbers = np.asarray(self._numbers[name], dtype=np.int64)
         rows = [self._lines[k].split(",")[1:] for k in numbers.tolist()]
         whole = np.fromiter((len(row) == len(chars) for row in rows), dtype=bool, count=len(rows))
-        fields = np.array([row for row, ok in zip(rows, whole, strict=True) if ok], dtype=str)
-        fields = np.char.strip(fields.reshape(-1, len(chars)))
-        readable = np.ones(len(fields), dtype=bool)
-        for k, char in enumerate(chars):
-            readable &= _text_readable(fields[:, k], char)
+        kept = [row for row, ok in zip(rows, whole, strict=True) if ok]
+        # column by column: one (records × fields) array of strings would take ~50 bytes a field at once
+        values = [np.char.strip(np.array([row[k] for row in kept], dtype=str)) for k in range(len(chars))]
+        readable = np.ones(len(kept), dtype=bool)
+        for v, char in zip(values, chars, strict=True):
+            readable &= _text_readable(v, char)
         if not (whole.all() and readable.all()):
             self._note(f"{len(rows) - int(readable.sum())} {name} line(s) damaged: not read")
-        fields = fields[readable]
-        table = {
-            column: _text_column(fields[:, k], char)
-            for k, (column, char) in enumerate(zip(columns, chars, strict=True))
-        }
+        table = {c: _text_column(v[readable], char) for c, v, char in zip(columns, values, chars, strict=True)}
         return table | {OFFSET: numbers[whole][readable]}
 
 
