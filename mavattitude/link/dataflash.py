@@ -165,44 +165,49 @@ class _TextReader(_Reader):
             self._note(f"the format (FMT) of {name} is damaged: its records are not read")
             return {}
         numbers = np.asarray(self._numbers[name], dtype=np.int64)
-        rows = [self._lines[k].split(",")[1:] for k in numbers.tolist()]
-        whole = np.fromiter((len(row) == len(chars) for row in rows), dtype=bool, count=len(rows))
-        kept = [row for row, ok in zip(rows, whole, strict=True) if ok]
-        # column by column: one (records × fields) array of strings would take ~50 bytes a field at once
-        values = [np.char.strip(np.array([row[k] for row in kept], dtype=str)) for k in range(len(chars))]
-        readable = np.ones(len(kept), dtype=bool)
-        for v, char in zip(values, chars, strict=True):
-            readable &= _text_readable(v, char)
-        if not (whole.all() and readable.all()):
-            self._note(f"{len(rows) - int(readable.sum())} {name} line(s) damaged: not read")
-        table = {c: _text_column(v[readable], char) for c, v, char in zip(columns, values, chars, strict=True)}
-        return table | {OFFSET: numbers[whole][readable]}
+        lines = [self._lines[k] for k in numbers.tolist()]
+        kept = np.flatnonzero([line.count(",") == len(chars) for line in lines])
+        try:
+            table = _text_table([lines[k] for k in kept], chars, columns)
+        except ValueError:  # a value that is not one: which lines, one at a time (a damaged log only)
+            kept = kept[[_text_readable(lines[k], chars, columns) for k in kept]]
+            table = _text_table([lines[k] for k in kept], chars, columns)
+        if len(kept) < len(lines):
+            self._note(f"{len(lines) - len(kept)} {name} line(s) damaged: not read")
+        return table | {OFFSET: numbers[kept]}
 
 
-_TEXT_INTEGERS = frozenset("bBhHiIMqQ")  # DataFlash format characters of integers; strings: nNZ (and a, an array)
-_TEXT_STRINGS = frozenset("nNZa")
+_TEXT_INTEGERS = frozenset("bBhHiIMqQ")  # DataFlash format characters of integers
+_TEXT_STRINGS = frozenset("nNZa")  # ... of strings (and a, an array, read as its text)
 
 
-def _text_column(values: np.ndarray, char: str) -> np.ndarray:
-    """One column of a text log's values (strings) as the binary reader gives it: integers, floats or bytes."""
-    if char in _TEXT_STRINGS:
-        return np.char.encode(values, "latin-1")
-    return values.astype(np.int64 if char in _TEXT_INTEGERS else np.float64)
+def _text_table(lines: list[str], chars: str, columns: list[str]) -> dict[str, np.ndarray]:
+    """The columns of a text log's records (``lines`` of one type, each with its fields) as the binary reader
+    gives them: numbers parsed by numpy's C reader (8 bytes a value), integer fields as integers, strings as
+    bytes; ValueError if a value is not one."""
+    numeric = [k for k, char in enumerate(chars) if char not in _TEXT_STRINGS]
+    values = np.empty((len(lines), len(numeric)))
+    if lines and numeric:
+        values = np.loadtxt(lines, delimiter=",", usecols=[k + 1 for k in numeric], ndmin=2, comments=None)
+    table = {
+        columns[k]: _integers(v) if chars[k] in _TEXT_INTEGERS else v for k, v in zip(numeric, values.T, strict=True)
+    }
+    for k in (k for k, char in enumerate(chars) if char in _TEXT_STRINGS):
+        strings = np.array([line.split(",")[k + 1].strip() for line in lines], dtype=str)
+        table[columns[k]] = np.char.encode(strings, "latin-1")
+    return {c: table[c] for c in columns}
 
 
-def _text_readable(values: np.ndarray, char: str) -> np.ndarray:
-    """Which of a column's values :func:`_text_column` reads (all, but on a damaged line)."""
+def _integers(values: np.ndarray) -> np.ndarray:
+    if not np.all((np.abs(values) < 2.0**63) & (values == np.round(values))):  # also false for NaN
+        raise ValueError("an integer field that is not an integer")
+    return values.astype(np.int64)
+
+
+def _text_readable(line: str, chars: str, columns: list[str]) -> bool:
     try:
-        _text_column(values, char)
-    except (ValueError, OverflowError):
-        return np.array([_text_readable_one(v, char) for v in values], dtype=bool)
-    return np.ones(len(values), dtype=bool)
-
-
-def _text_readable_one(value: str, char: str) -> bool:
-    try:
-        _text_column(np.array([value]), char)
-    except (ValueError, OverflowError):
+        _text_table([line], chars, columns)
+    except ValueError:
         return False
     return True
 
