@@ -1,10 +1,11 @@
 """Flight logs as message sources: the table of formats a log is recognised by.
 
 :func:`open_log` recognises a log by its first bytes (ULog's magic, DataFlash's FMT header; otherwise a
-telemetry log if its name ends in ``.tlog`` or its first records frame with their CRCs right), the rows of
-:data:`FORMATS`, and returns its reader's :class:`~mavattitude.link.source.MessageSource`: a DataFlash or
-ULog reader's :class:`~mavattitude.link.logstreams.LogStreams` as a
-:class:`~mavattitude.link.logstreams.StreamSource`, a telemetry log's :class:`~mavattitude.link.tlog.TlogSource`.
+telemetry log or a DataFlash text log by its name, ``.tlog`` or ``.log``, or by its first records: frames
+with their CRCs right, a line that begins ``FMT,``), the rows of :data:`FORMATS`, and returns its reader's
+:class:`~mavattitude.link.source.MessageSource`: a DataFlash or ULog reader's
+:class:`~mavattitude.link.logstreams.LogStreams` as a :class:`~mavattitude.link.logstreams.StreamSource`, a
+telemetry log's :class:`~mavattitude.link.tlog.TlogSource`.
 
 What cannot be used is a :class:`~mavattitude.errors.DataFileError` naming the file and where: unknown
 format, no IMU, no magnetometer, a magnetometer reading only zero. A log cut short (the last record
@@ -81,12 +82,14 @@ def detect_format(path: Path) -> LogFormat:
     none) the format its name says unless its first bytes are another's, else the format they look like."""
     head = _head(path)
     magic = next((f for f in FORMATS if f.magic is not None and head.startswith(f.magic)), None)
+    if magic is not None:
+        return magic
     sniffed = [f for f in FORMATS if f.sniff is not None and f.sniff(head)]
     named = next((f for f in FORMATS if f.magic is None and path.suffix.lower() == f.suffix), None)
-    known = magic or (named if named is not None and (named in sniffed or not sniffed) else None)
-    known = known or next(iter(sniffed), None)
-    if known is not None:
-        return known
+    if named is not None and (named in sniffed or not sniffed):  # a damaged first record is still its format's
+        return named
+    if sniffed:
+        return sniffed[0]
     csv = path.name.lower().endswith((".csv", ".csv.gz"))
     samples = " (a CSV of samples is for `mavattitude solve`)" if csv else ""
     raise DataFileError(

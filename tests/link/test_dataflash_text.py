@@ -12,6 +12,7 @@ from mavattitude.link.dataflash import read_dataflash, read_dataflash_text
 from mavattitude.link.logs import detect_format, found_in_folder, open_log
 from mavattitude.sim.logwriter import LAYOUTS, static_log, write_dataflash
 from tests.link.dataflash_text import write_text_log
+from tests.link.test_tlog import HEARTBEAT, _raw, write_tlog
 from tests.test_service import make_config
 
 # The text holds a float32 field to 7 significant digits: within half a unit of the 7th, 5e-7 of the value.
@@ -54,6 +55,11 @@ def test_text_logs_are_known_by_their_name_or_their_content(tmp_path):
     with pytest.raises(DataFileError, match=r"mavattitude\.log: not a DataFlash log: no format \(FMT\) line"):
         open_log(service_log, make_config())
     assert found_in_folder(text) and not found_in_folder(service_log)  # replay DIR takes the one, not the other
+    # a name that says one format and records that say the other: the records
+    write_tlog(tmp_path / "telemetry.log", [(1, "HEARTBEAT", HEARTBEAT), (1, "RAW_IMU", _raw(0))])
+    assert detect_format(tmp_path / "telemetry.log").name == "tlog"
+    (tmp_path / "text.tlog").write_bytes(text.read_bytes())
+    assert detect_format(tmp_path / "text.tlog").name == "dataflash text"
 
 
 def test_damaged_lines_are_left_out_and_said(tmp_path):
