@@ -28,6 +28,7 @@ from mavattitude.link.logstreams import Compasses, LogStreams, autopilot_compass
 from mavattitude.sensors import dataflash_units as du
 
 OFFSET = "_offset"  # the column of a table holding each record's byte offset: no DataFlash field is named so
+TEXT_HEAD_BYTES = 4096  # a text log's FMT lines begin within these (its first line is FMT's own)
 
 
 class _Index(DFReader.DFReader_binary):
@@ -138,7 +139,13 @@ class _TextReader(_Reader):
         self.path = path
         self.damage = None
         try:
-            self._lines = path.read_bytes().decode("latin-1").splitlines()
+            with path.open("rb") as f:
+                head = f.read(TEXT_HEAD_BYTES)
+                if not looks_like_dataflash_text(head):  # not read whole: a .log may be any program's, any size
+                    raise DataFileError(
+                        f"{path}: not a DataFlash log: no format (FMT) line in its first {TEXT_HEAD_BYTES} bytes"
+                    )
+                self._lines = (head + f.read()).decode("latin-1").splitlines()
         except OSError as exc:
             raise DataFileError(f"{path}: cannot read: {exc.strerror or exc}") from exc
         self._formats: dict[str, tuple[str, list[str]]] = {}  # name: the format's characters, its columns
