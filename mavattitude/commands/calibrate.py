@@ -1,8 +1,8 @@
 """`mavattitude calibrate mag INPUT -o OUT.yaml`: hard- and soft-iron calibration by ellipsoid fit.
 
 INPUT is a CSV (``.csv`` or ``.csv.gz`` with columns ``mag_x_uT, mag_y_uT, mag_z_uT``; rows with a
-``mag_new`` column of 0 are repeats and skipped), a flight log (``.tlog``, DataFlash ``.bin``, ULog ``.ulg``:
-the autopilot's samples, read as replay reads them), or a pymavlink connection
+``mag_new`` column of 0 are repeats and skipped), a flight log (``.tlog``, DataFlash ``.bin`` or text ``.log``,
+ULog ``.ulg``: the autopilot's samples, read as replay reads them), or a pymavlink connection
 string (``udpin:0.0.0.0:14551``, ``tcp:HOST:PORT``, ``/dev/ttyACM0``) to collect live while the vehicle is
 turned by hand: the autopilot is asked for the IMU message as the service asks for it, and while the
 vehicle rests the progress line says to turn it. Coverage counts the orientations the readings show, none
@@ -58,7 +58,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "input",
         metavar="INPUT",
-        help="a CSV (.csv/.csv.gz, columns mag_x_uT, mag_y_uT, mag_z_uT in µT, sensor frame), a .tlog/.bin/.ulg, "
+        help="a CSV (.csv/.csv.gz, columns mag_x_uT, mag_y_uT, mag_z_uT in µT, sensor frame), a .tlog/.bin/.log/.ulg, "
         "or a connection string (udpin:0.0.0.0:14551, tcp:HOST:PORT, /dev/ttyACM0) to collect live",
     )
     parser.add_argument("-o", "--output", required=True, metavar="OUT.yaml", help="YAML file to write")
@@ -214,7 +214,7 @@ def _read(
 
 
 def _log_samples(path: Path, args: argparse.Namespace) -> Iterator[units.ImuSample]:
-    """The autopilot's IMU samples of a .tlog, .bin or .ulg, through the service's source and dispatcher;
+    """The autopilot's IMU samples of a .tlog, .bin, .log or .ulg, through the service's source and dispatcher;
     from a .tlog without ``--message``, the first of the profile's messages that the autopilot followed (the one
     the dispatcher locks onto, as replay's) sent in the log."""
     from mavattitude.config import load_config
