@@ -35,6 +35,8 @@ def test_a_text_log_reads_as_the_binary_it_was_written_from(tmp_path, layout):
     assert np.array_equal(t.mag_t_s, b.mag_t_s) and np.array_equal(t.mag_uT, b.mag_uT)  # int16 fields
     assert t.attitude_q == pytest.approx(b.attitude_q, abs=1e-6)  # from float32 (or centidegree) angles
     assert np.array_equal(t.position, b.position) and t.date == b.date  # lat/lon at every digit: 1e-7 °
+    # a GPS record without a time of its own (3.0) takes the IMU record's before it: by line as by byte
+    assert np.array_equal(t.position_t_s, b.position_t_s)
     assert sorted(t.compasses.readings) == sorted(b.compasses.readings) and t.compasses.why == b.compasses.why
     assert t.damage is None
     # the fixture is a text log as pymavlink knows one: its text reader counts the records its binary reader does
