@@ -69,6 +69,18 @@ FORMATS = (
 )
 
 
+#: How the archives and compressed files logs are shared in begin: said, so that the user takes the log out.
+PACKED = {
+    b"\x1f\x8b": "gzip",
+    b"PK\x03\x04": "zip",
+    b"\xfd7zXZ\x00": "xz",
+    b"BZh": "bzip2",
+    b"7z\xbc\xaf\x27\x1c": "7-Zip",
+    b"\x28\xb5\x2f\xfd": "zstd",
+    b"Rar!\x1a\x07": "RAR",
+}
+
+
 def _head(path: Path) -> bytes:
     try:
         with path.open("rb") as f:
@@ -90,12 +102,15 @@ def detect_format(path: Path) -> LogFormat:
         return named
     if sniffed:
         return sniffed[0]
-    csv = path.name.lower().endswith((".csv", ".csv.gz"))
-    samples = " (a CSV of samples is for `mavattitude solve`)" if csv else ""
+    packed = next((kind for magic, kind in PACKED.items() if head.startswith(magic)), None)
+    if path.name.lower().endswith((".csv", ".csv.gz")):
+        hint = " (a CSV of samples is for `mavattitude solve`)"
+    else:
+        hint = f" (a {packed} file: take the log out of it and give that)" if packed else ""
     raise DataFileError(
         f"{path}: not a flight log this reads (byte 0: {head[:4].hex(' ') or 'empty file'}): expected a DataFlash "
         f".bin (starts a3 95 80) or .log (text, lines from 'FMT, '), a ULog .ulg (starts 'ULog') or a telemetry "
-        f"log (.tlog: MAVLink frames, each after an 8-byte time){samples}"
+        f"log (.tlog: MAVLink frames, each after an 8-byte time){hint}"
     )
 
 

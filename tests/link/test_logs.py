@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as dt
+import gzip
 import struct
 
 import numpy as np
@@ -224,6 +225,10 @@ def test_unknown_formats_are_named_with_their_first_bytes(tmp_path):
     samples.write_text("t_s,acc_x_mps2\n")
     with pytest.raises(DataFileError, match=r"\(a CSV of samples is for `mavattitude solve`\)$"):
         detect_format(samples)
+    shared = tmp_path / "flight.tlog.gz"  # a log as it is often shared: compressed
+    shared.write_bytes(gzip.compress(b"\x00" * 100))
+    with pytest.raises(DataFileError, match=r"1f 8b .*\(a gzip file: take the log out of it and give that\)$"):
+        detect_format(shared)
 
 
 def test_a_telemetry_log_under_another_name_is_known_by_its_frames(tmp_path):
