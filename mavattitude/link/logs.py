@@ -118,9 +118,12 @@ def found_in_folder(path: Path) -> bool:
     """Whether a file met in a folder is a log to read: its name's suffix is a format's, and a .log (a name many
     programs give their text) begins as a DataFlash text log."""
     suffix = path.suffix.lower()
-    if suffix == ".log":
+    if suffix != ".log":
+        return suffix in LOG_SUFFIXES and path.is_file()
+    try:
         return path.is_file() and looks_like_dataflash_text(_head(path))
-    return suffix in LOG_SUFFIXES and path.is_file()
+    except DataFileError:  # unreadable: not known to be a flight log
+        return False
 
 
 def open_log(
