@@ -8,7 +8,6 @@ fails the run. The tool imports the project's modules directly, so a broken impo
 
 from __future__ import annotations
 
-import importlib.util
 import re
 import subprocess
 import sys
@@ -17,23 +16,14 @@ from pathlib import Path
 import pytest
 
 from tests.shared import shared_path
+from tests.tools import ROOT, load_tool
 
-ROOT = Path(__file__).resolve().parents[1]
 QUICK_TIMEOUT_S = 120  # the quick run takes seconds; this only bounds a hung one
 # A number with its unit (possibly followed by detail: "0 of 3995", "2000 Hz (tried 2000 Hz)"), or "none (...)".
 MEASURED = re.compile(r"^(-?[0-9.]+(e[-+]?\d+)?( \S+|,)|none \()")
 
 
-def _load_tool():
-    spec = importlib.util.spec_from_file_location("bench_tool", ROOT / "tools" / "bench.py")
-    assert spec is not None and spec.loader is not None
-    tool = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = tool  # dataclasses look their module up while the file executes
-    spec.loader.exec_module(tool)
-    return tool
-
-
-bench = _load_tool()
+bench = load_tool("bench")
 
 
 def _table_rows(text: str) -> dict[tuple[str, str], tuple[str, str]]:
