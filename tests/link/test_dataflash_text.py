@@ -57,6 +57,9 @@ def test_text_logs_are_known_by_their_name_or_their_content(tmp_path):
     with pytest.raises(DataFileError, match=r"mavattitude\.log: not a DataFlash log: no format \(FMT\) line"):
         open_log(service_log, make_config())
     assert found_in_folder(text) and not found_in_folder(service_log)  # replay DIR takes the one, not the other
+    unreadable = tmp_path / "unreadable.log"  # a file whose read fails, even as root: not taken, not an error
+    unreadable.symlink_to("/proc/self/mem")
+    assert not found_in_folder(unreadable)
     # a name that says one format and records that say the other: the records
     write_tlog(tmp_path / "telemetry.log", [(1, "HEARTBEAT", HEARTBEAT), (1, "RAW_IMU", _raw(0))])
     assert detect_format(tmp_path / "telemetry.log").name == "tlog"
