@@ -88,7 +88,8 @@ log = logging.getLogger(__name__)
 
 SNAPSHOT_NOTE = (
     "{method} uses the accelerometer and magnetometer only: in accelerations it reads specific force as gravity, "
-    "so its roll/pitch differ from the gyro-aided autopilot's there (--method fused follows it)"
+    "so its roll/pitch (and, through the field's dip, its yaw) differ from the gyro-aided autopilot's there "
+    "(--method fused follows it)"
 )
 
 
