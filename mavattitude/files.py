@@ -83,7 +83,8 @@ def first_bad_row(path: str | Path, columns: Sequence[int]) -> str:
             for i in columns:
                 if not _is_number(row[i]):
                     what = f"{row[i]!r} is not a number" if row[i].strip() else "empty (write nan for a missing value)"
-                    return f"{path}:{reader.line_num}: column {header[i].strip()}: {what}"
+                    name = header[i].strip() if i < len(header) else f"{i + 1}"  # a header line left empty
+                    return f"{path}:{reader.line_num}: column {name}: {what}"
     return f"{path}: not a numeric CSV"
 
 
