@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from mavattitude.estimation.conventions import angle_between
+
 ROOT = Path(__file__).resolve().parent.parent
 QUATERNION = ("qw", "qx", "qy", "qz")
 
@@ -56,8 +58,8 @@ def _largest_angle_rad(a: Path, b: Path) -> float:
     qa, qb = (np.genfromtxt(p, delimiter=",", names=True) for p in (a, b))
     if len(qa) != len(qb):
         return float("inf")
-    dot = np.abs(sum(qa[c] * qb[c] for c in QUATERNION))
-    return float(np.max(2.0 * np.arccos(np.clip(dot, -1.0, 1.0)), initial=0.0))
+    q = [np.column_stack([rows[c] for c in QUATERNION]) for rows in (qa, qb)]
+    return float(np.max(angle_between(*q), initial=0.0))
 
 
 def _summary_rows(path: Path) -> list[dict[str, str]]:
