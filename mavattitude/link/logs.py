@@ -21,7 +21,6 @@ from typing import Protocol
 
 from mavattitude.config import Config
 from mavattitude.errors import DataFileError
-from mavattitude.files import LOG_SUFFIXES
 from mavattitude.link.dataflash import looks_like_dataflash_text, read_dataflash, read_dataflash_text
 from mavattitude.link.logstreams import Follower, LogStreams, StreamSource
 from mavattitude.link.source import MavlinkDecoder, MessageSource
@@ -44,6 +43,8 @@ class LogFormat:
     suffix: str  # the usual name's suffix (lower case)
     open: Callable[[Path, Config, int, int | None, Sequence[str], int | None], LogSource]
     sniff: Callable[[bytes], bool] | None = None  # without magic: the file's first bytes are the format's
+    #: other programs name their files so too (.log): in a folder, such a file is taken only if ``sniff`` says so
+    shared_suffix: bool = False
 
 
 def _stream_reader(read: Callable[[Path, int, int | None], LogStreams]) -> Callable[..., LogSource]:
@@ -65,7 +66,14 @@ FORMATS = (
     # a message header and the FMT message's type: every DataFlash log starts so
     LogFormat("dataflash", b"\xa3\x95\x80", ".bin", _stream_reader(read_dataflash)),
     LogFormat("tlog", None, ".tlog", _tlog, looks_like_tlog),
-    LogFormat("dataflash text", None, ".log", _stream_reader(read_dataflash_text), looks_like_dataflash_text),
+    LogFormat(
+        "dataflash text",
+        None,
+        ".log",
+        _stream_reader(read_dataflash_text),
+        looks_like_dataflash_text,
+        shared_suffix=True,
+    ),
 )
 
 
@@ -115,13 +123,15 @@ def detect_format(path: Path) -> LogFormat:
 
 
 def found_in_folder(path: Path) -> bool:
-    """Whether a file met in a folder is a log to read: its name's suffix is a format's, and a .log (a name many
-    programs give their text) begins as a DataFlash text log."""
-    suffix = path.suffix.lower()
-    if suffix != ".log":
-        return suffix in LOG_SUFFIXES and path.is_file()
+    """Whether a file met in a folder is a log to read: its name's suffix is a format's and, where other programs
+    use that suffix too (:attr:`LogFormat.shared_suffix`), its first bytes are the format's."""
+    fmt = next((f for f in FORMATS if path.suffix.lower() == f.suffix), None)
+    if fmt is None or not path.is_file():
+        return False
+    if not fmt.shared_suffix or fmt.sniff is None:
+        return True
     try:
-        return path.is_file() and looks_like_dataflash_text(_head(path))
+        return fmt.sniff(_head(path))
     except DataFileError:  # unreadable: not known to be a flight log
         return False
 
