@@ -1,9 +1,9 @@
 """ArduPilot DataFlash logs read into :class:`~.logstreams.LogStreams`: binary (.bin) with pymavlink's DFReader,
 and written as text (.log, :class:`_TextReader`).
 
-In a binary log, DFReader parses the formats (FMT, FMTU) and indexes every record by type; the records replay needs are
-then unpacked all at once with numpy, with DFReader's own struct layout and multipliers, and converted
-by :mod:`mavattitude.sensors.dataflash_units`. Where the index leaves bytes out (damaged bytes skipped,
+In a binary log, DFReader parses the formats (FMT, FMTU) and indexes every record by type; the records replay
+needs are then unpacked all at once with numpy, with DFReader's own struct layout and multipliers; both kinds
+are converted by :mod:`mavattitude.sensors.dataflash_units`. Where the index leaves bytes out (damaged bytes skipped,
 a record of an undeclared type where DFReader stops, a last record cut short) is
 :attr:`LogStreams.damage`; DFReader's own report of it, printed on the process's stdout/stderr (its fast
 indexer is C), is kept off the terminal, so the user sees one line.
