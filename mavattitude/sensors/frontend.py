@@ -39,7 +39,10 @@ Per input sample (:meth:`FrontEnd.push`, plain floats: the per-message cost is w
 6. screening of the tick: ``| |a| − g | > acc_norm_tolerance · g`` (``ACC_NORM``) or
    ``| |B| − B₀ | > mag_norm_tolerance · B₀`` (``MAG_NORM``, once the expected ``B₀`` is known) are
    flagged, counted and down-weighted: ``acc_std_scale`` / ``mag_std_scale`` (× the σ of the noise model)
-   become ``suspect_std_scale``.
+   become ``suspect_std_scale``. A tick whose gyro turns faster than ``moving_rate_dps`` or whose specific force
+   is off g by more than ``moving_accel_fraction · g`` is flagged ``MOVING`` (:func:`moving`), nothing else: a
+   snapshot attitude, which reads the specific force as gravity, may be off there (what the autopilot
+   cross-check waits out).
 
 With ``filter_enabled`` false, steps 4–5 are skipped: every accepted input sample is one output.
 
@@ -103,6 +106,7 @@ class SampleFlag(IntFlag):
     MAG_HEADING_ONLY = 256  # set by the estimator: the magnetometer set heading only (TRIAD, accelerometer first)
     PER_SAMPLE = 512  # the input is too slow to filter: this tick is one input sample, unfiltered
     NO_HEADING = 1024  # set by the estimator: no magnetometer, roll and pitch only (yaw held at 0, unknown)
+    MOVING = 2048  # turning or accelerating (:func:`moving`): a snapshot attitude may read acceleration as tilt
 
 
 @dataclass(frozen=True)
@@ -120,6 +124,11 @@ class FrontEndSettings:
     acc_norm_tolerance: float = 0.1  # fraction of g
     mag_norm_tolerance: float = 0.15  # fraction of |B₀|
     suspect_std_scale: float = 10.0  # σ multiplier of a flagged vector
+    # MOVING: a snapshot's heading trails the turn by ~0.1 s (the filter's and the compass's delay), 1° at 10°/s,
+    # a fifth of the cross-check's threshold; and a copter's steady acceleration at 14° of tilt or more lifts
+    # | |a| − g | above 3 % of g (g / cos 14° = 1.03 g)
+    moving_rate_dps: float = 10.0
+    moving_accel_fraction: float = 0.03
     dead_fraction: float = 0.05  # a raw |a| < this·g or |B| < this·|B₀| is a dead sensor: refused
     acc_full_scale_mps2: float = 16.0 * STANDARD_GRAVITY_MPS2
     gyr_full_scale_radps: float = math.radians(2000.0)
@@ -277,6 +286,14 @@ def acc_suspect(norm_mps2: Any, settings: FrontEndSettings) -> Any:
     """``| |a| − g | > acc_norm_tolerance · g``: the tick's specific force is not gravity alone (``ACC_NORM``)."""
     g = settings.gravity_mps2
     return abs(norm_mps2 - g) > settings.acc_norm_tolerance * g
+
+
+def moving(acc_norm_mps2: Any, gyr_norm_radps: Any, settings: FrontEndSettings) -> Any:
+    """``|ω| > moving_rate_dps`` or ``| |a| − g | > moving_accel_fraction · g``: the vehicle turns or accelerates
+    (``MOVING``). Scalars or arrays alike."""
+    g = settings.gravity_mps2
+    turning = gyr_norm_radps > math.radians(settings.moving_rate_dps)
+    return turning | (abs(acc_norm_mps2 - g) > settings.moving_accel_fraction * g)
 
 
 def mag_suspect(norm_uT: Any, expected_uT: float, settings: FrontEndSettings) -> Any:
@@ -592,13 +609,16 @@ class FrontEnd:
         if self._pending_reset:
             flags |= _RESET
             self._pending_reset = False
-        acc = (y[0], y[1], y[2])
+        acc, gyr = (y[0], y[1], y[2]), (y[3], y[4], y[5])
         mag, mag_flag, mag_age_s = self._mag_at(tk, raw)
         flags |= mag_flag
         acc_scale = mag_scale = 1.0
-        if acc_suspect(_norm(acc), s):
+        acc_norm = _norm(acc)
+        if acc_suspect(acc_norm, s):
             flags |= _ACC_NORM
             acc_scale = s.suspect_std_scale
+        if moving(acc_norm, _norm(gyr), s):
+            flags |= _MOVING
         b0 = self.expected_field_uT
         if mag is not None and b0 is not None and mag_suspect(_norm(mag), b0, s):
             flags |= _MAG_NORM
@@ -609,7 +629,7 @@ class FrontEnd:
             for flag in _COUNTED_FLAGS:
                 if flags & flag:
                     c.flagged[flag.name or ""] += 1
-        return ProcessedSample(tk, acc, mag, (y[3], y[4], y[5]), _FLAGS[flags], acc_scale, mag_scale, mag_age_s)
+        return ProcessedSample(tk, acc, mag, gyr, _FLAGS[flags], acc_scale, mag_scale, mag_age_s)
 
     def _mag_at(self, tk: float, raw: bool = False) -> tuple[Vec3 | None, int, float]:
         """The magnetometer at a tick, its flag, and its age (the tick's time minus the held reading's); ``raw``:
@@ -633,7 +653,7 @@ class FrontEnd:
 _RESET, _ACC_NORM, _MAG_NORM, _MAG_HELD, _NO_MAG = (
     int(f) for f in (SampleFlag.RESET, SampleFlag.ACC_NORM, SampleFlag.MAG_NORM, SampleFlag.MAG_HELD, SampleFlag.NO_MAG)
 )
-_PER_SAMPLE = int(SampleFlag.PER_SAMPLE)
+_PER_SAMPLE, _MOVING = int(SampleFlag.PER_SAMPLE), int(SampleFlag.MOVING)
 _CLOCK_OK = ClockEvent.OK
 
 
@@ -1141,8 +1161,10 @@ def _concat(pieces: list[tuple[Array, Array, Array, NDArray[np.int64], Array]], 
 
 
 def _screen_batch(s: FrontEndSettings, out: BatchOutput, b0: float | None) -> None:
-    acc_bad = acc_suspect(_norm_rows(out.acc_mps2), s)
+    acc_norm = _norm_rows(out.acc_mps2)
+    acc_bad = acc_suspect(acc_norm, s)
     out.flags[acc_bad] |= SampleFlag.ACC_NORM
+    out.flags[moving(acc_norm, _norm_rows(out.gyr_radps), s)] |= SampleFlag.MOVING
     out.acc_std_scale[acc_bad] = s.suspect_std_scale
     if b0 is not None:
         with np.errstate(invalid="ignore"):
