@@ -118,6 +118,14 @@ class AttitudeOutput:
             return np.full((3, 3), np.nan)
 
 
+def snapshot_while_moving(output: AttitudeOutput, snapshot_method: bool) -> bool:
+    """Whether ``output`` is a snapshot solve (``snapshot_method``'s, or any method's on an input too slow to
+    integrate, ``PER_SAMPLE``) at a tick where the vehicle turned or accelerated (``MOVING``): an attitude that
+    may read the vehicle's acceleration as tilt, which the autopilot cross-check does not judge."""
+    flags = output.flags
+    return bool(flags & SampleFlag.MOVING) and (snapshot_method or bool(flags & SampleFlag.PER_SAMPLE))
+
+
 @dataclass(slots=True)
 class Pushed:
     """Everything one :meth:`AttitudePipeline.push` (or ``push_batch``) produced."""

@@ -106,11 +106,12 @@ def compass_pairs(figures: CompassFigures) -> list[tuple[str, float]]:
 
 
 def crosscheck_pairs(xcheck: CrossCheck) -> list[tuple[str, float]]:
-    """The cross-check figures of the counters line: pairs compared, those missed inside our output span and why,
-    the last and RMS total difference (deg)."""
+    """The cross-check figures of the counters line: pairs compared and of them not judged (the vehicle moving), those
+    missed inside our output span and why, the last and RMS total difference (deg)."""
     last = xcheck.last.total_deg if xcheck.last is not None else math.nan
     return [
         ("xc_pairs", xcheck.pairs),
+        ("xc_unjudged", xcheck.unjudged),  # compared, not judged: ours a snapshot method's while the vehicle moved
         ("xc_missed", xcheck.missed),  # inside our output span, not paired: xc_unpaired.REASON says why
         *((f"xc_unpaired.{k}", v) for k, v in sorted(xcheck.unpaired.items())),
         ("xc_total_deg", last),

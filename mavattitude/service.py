@@ -72,7 +72,7 @@ from mavattitude.link.requests import LOW_FRACTION, RateMonitor, StreamRequest
 from mavattitude.link.session import LinkSession
 from mavattitude.link.source import AutopilotAttitude, MavlinkDecoder, Sender
 from mavattitude.periodic import Every
-from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, Pushed
+from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, Pushed, snapshot_while_moving
 from mavattitude.reports import (
     ServiceCounters,
     compass_event_words,
@@ -226,6 +226,7 @@ class AttitudeService:
         self._attitude_sent = False
         self._rate = RateMonitor(config.link.request_rate_hz, RATE_WINDOW_S) if config.link.request_messages else None
         self._xcheck = CrossCheck(config.crosscheck) if config.crosscheck.enabled else None
+        self._snapshot = METHODS[config.estimator.method].snapshot  # its attitudes read acceleration as tilt
         self.other_compasses = OtherCompasses(config)
         self._published_s: float | None = None  # vehicle time of the last difference published
         now = time.monotonic()
@@ -473,7 +474,8 @@ class AttitudeService:
             self._emit(out, t_rx)
         if self._xcheck is not None and outputs:
             for out in outputs:
-                self._xcheck.add_ours(out.time_s, out.q, not out.flags & SampleFlag.NO_HEADING)
+                moving = snapshot_while_moving(out, self._snapshot)
+                self._xcheck.add_ours(out.time_s, out.q, not out.flags & SampleFlag.NO_HEADING, moving)
             self._cross_check(self._xcheck)
 
     def _say_tilt_only(self, unknown: bool) -> None:

@@ -12,6 +12,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavattitude import service as service_module
 from mavattitude.config import from_dict
+from mavattitude.estimation.conventions import rotate_ned_to_body
 from mavattitude.link.memory import MemoryLink
 from mavattitude.pipeline import AttitudePipeline
 from mavattitude.service import AttitudeService
@@ -20,7 +21,7 @@ from mavattitude.sim.daemon import config_for
 from mavattitude.sim.vehicle import FakeVehicle, VehicleConfig
 from mavattitude.systemd_notify import SystemdNotifier
 from tests.test_dispatch import Peer, sent
-from tests.test_service import Running, make_config
+from tests.test_service import G_NED_MPS2, Q_TRUE, Running, make_config
 
 STEP_S = 0.06  # longer than the service's TICK_S: every step runs its periodic work
 EVENT_TIMEOUT_S = 10.0
@@ -150,20 +151,25 @@ def test_the_covariance_message_is_off_when_configured():
     assert sent(link, "ATTITUDE_QUATERNION") and not sent(link, "ATTITUDE_QUATERNION_COV")
 
 
-def test_the_cross_check_publishes_the_difference_and_warns_once(caplog):
-    caplog.set_level(logging.WARNING, logger="mavattitude.service")
-    service, link = _service(**{"crosscheck.enabled": True})
-    vehicle = Peer()
-    roll_deg, pitch_deg, yaw_deg = 10.0 + 8.0, -20.0, 135.0  # the autopilot's roll 8° off Q_TRUE's
+def _autopilot_8_deg_off(vehicle: Peer, **raw_imu: object) -> list[bytes]:
+    """6 s of RAW_IMU at 200 Hz with the autopilot's ATTITUDE at 10 Hz, its roll 8° off Q_TRUE's."""
+    roll_deg, pitch_deg, yaw_deg = 10.0 + 8.0, -20.0, 135.0
     datagrams = [vehicle.heartbeat()]
-    for _ in range(60):  # 6 s: 0.1 s of RAW_IMU at 200 Hz, then the autopilot's ATTITUDE for its middle
-        datagrams += vehicle.stream(20)
+    for _ in range(60):  # 0.1 s of RAW_IMU, then the autopilot's ATTITUDE for its middle
+        datagrams += vehicle.stream(20, **raw_imu)
         stamp_ms = round((vehicle.time_s - 0.05) * 1000)
         attitude = mavlink2.MAVLink_attitude_message(
             stamp_ms, np.radians(roll_deg), np.radians(pitch_deg), np.radians(yaw_deg), 0.0, 0.0, 0.0
         )
         datagrams.append(vehicle.pack(attitude))
-    link.deliver(*datagrams)
+    return datagrams
+
+
+def test_the_cross_check_publishes_the_difference_and_warns_once(caplog):
+    caplog.set_level(logging.WARNING, logger="mavattitude.service")
+    service, link = _service(**{"crosscheck.enabled": True})
+    vehicle = Peer()
+    link.deliver(*_autopilot_8_deg_off(vehicle))
     _step_until(service, lambda: not link.inbox)
     _step_until(service, lambda: len(sent(link, "NAMED_VALUE_FLOAT")) >= 4)  # published at 2 Hz
     request = [c for c in sent(link, "COMMAND_LONG") if c.param1 == mavlink2.MAVLINK_MSG_ID_ATTITUDE]
@@ -180,4 +186,25 @@ def test_the_cross_check_publishes_the_difference_and_warns_once(caplog):
     line = [r.getMessage() for r in caplog.records if r.getMessage().startswith("counters (final):")][-1]
     pairs = dict(item.split("=") for item in line.removeprefix("counters (final): ").split())
     assert pairs["xc_warnings"] == "1" and int(pairs["xc_pairs"]) >= 55  # 60 less the first, before ours
-    assert float(pairs["xc_total_deg"]) == pytest.approx(8.0, abs=0.5)
+    assert float(pairs["xc_total_deg"]) == pytest.approx(8.0, abs=0.5) and pairs["xc_unjudged"] == "0"
+
+
+@pytest.mark.parametrize(("method", "warnings"), [("ign", 0), ("fused", 1)])
+def test_a_snapshot_attitude_while_the_vehicle_accelerates_is_published_not_judged(caplog, method, warnings):
+    """The specific force 5 % above g throughout (a climb; beyond the 3 % that marks the vehicle moving, within
+    the 10 % that down-weights it): the 8° is published as before, but ign's attitudes are not judged. The fused
+    filter's are, as it does not read acceleration as tilt."""
+    caplog.set_level(logging.INFO, logger="mavattitude.service")
+    service, link = _service(**{"crosscheck.enabled": True, "estimator.method": method})
+    vehicle = Peer()
+    acc = rotate_ned_to_body(Q_TRUE, 1.05 * G_NED_MPS2)
+    link.deliver(*_autopilot_8_deg_off(vehicle, acc_mps2=acc))
+    _step_until(service, lambda: not link.inbox)
+    _step_until(service, lambda: len(sent(link, "NAMED_VALUE_FLOAT")) >= 4)
+    values = {m.name: m.value for m in sent(link, "NAMED_VALUE_FLOAT")[-4:]}
+    assert values["xc_total"] == pytest.approx(8.0, abs=0.5)  # RAW_IMU quantisation, as above
+    service._log_counters(final=True)
+    line = [r.getMessage() for r in caplog.records if r.getMessage().startswith("counters (final):")][-1]
+    pairs = dict(item.split("=") for item in line.removeprefix("counters (final): ").split())
+    assert int(pairs["xc_pairs"]) >= 55 and pairs["xc_warnings"] == str(warnings)
+    assert int(pairs["xc_unjudged"]) == (int(pairs["xc_pairs"]) if method == "ign" else 0)

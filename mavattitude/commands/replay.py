@@ -25,7 +25,8 @@ still time seen, and ign.noise_measured, 1 where the σ measured at rest were us
 among them fused.noise_rest_s, fused.noise_measured and fused.bias_from_rest, the filters started from the gyro
 bias measured at rest, and heading_from_compass), the compass monitor's compass_dip_deg (the first minute's mean),
 compass_dip_expected_deg, compass_field_ratio and compass_warnings, with crosscheck.enabled the cross-check's
-xc_pairs, xc_rms_deg and xc_warnings, and a note on what was wrong with the file.
+xc_pairs, xc_unjudged (of them not judged: a snapshot method's while the vehicle moved), xc_rms_deg and
+xc_warnings, and a note on what was wrong with the file.
 Every magnetometer a log holds (a .bin's MAG instances; a .tlog's RAW_IMU, SCALED_IMU2, SCALED_IMU3) is
 judged by the compass monitor against the same IMU: the summary's compasses column ("0 ok; 1 turns unlike
 the gyro: turned?"), and compass, the one replayed and why: --mag, else the one the autopilot used where
@@ -89,7 +90,7 @@ log = logging.getLogger(__name__)
 SNAPSHOT_NOTE = (
     "{method} uses the accelerometer and magnetometer only: in accelerations it reads specific force as gravity, "
     "so its roll/pitch (and, through the field's dip, its yaw) differ from the gyro-aided autopilot's there "
-    "(--method fused follows it)"
+    "(--method fused follows it); the cross-check judges it only while the vehicle is still (xc_unjudged)"
 )
 
 
@@ -413,7 +414,12 @@ def _report_cross_check(check: Any, events: list[Any], job: Job, result: LogResu
         else:
             log.info("t=%.1f s: our attitude agrees with the autopilot's again", event.time_s)
     rms_deg = round(check.rms_total_deg, 2)
-    result.columns |= {"xc_pairs": check.pairs, "xc_rms_deg": rms_deg, "xc_warnings": check.warnings}
+    result.columns |= {
+        "xc_pairs": check.pairs,
+        "xc_unjudged": check.unjudged,
+        "xc_rms_deg": rms_deg,
+        "xc_warnings": check.warnings,
+    }
 
 
 def _check_found(path: str, message: str, result: Any) -> None:
@@ -501,11 +507,14 @@ def _compare(replayed: Any, job: Job, result: LogResult) -> None:
     table, the plot with the compass's and the cross-check's verdicts, and the cross-check's own figures and
     warnings when it is enabled."""
     from mavattitude.estimation.crosscheck import cross_check_log
+    from mavattitude.pipeline import snapshot_while_moving
 
     ours, autopilot = replayed.output_array(), replayed.autopilot_array()
     heading = np.array([not o.flags & SampleFlag.NO_HEADING for o in replayed.outputs], dtype=bool)
+    snapshot = METHODS[job.config.estimator.method].snapshot
+    moving = np.array([snapshot_while_moving(o, snapshot) for o in replayed.outputs], dtype=bool)
     check, pairs, events = cross_check_log(
-        ours[:, 0], ours[:, 1:5], autopilot[:, 0], autopilot[:, 1:5], job.config.crosscheck, heading
+        ours[:, 0], ours[:, 1:5], autopilot[:, 0], autopilot[:, 1:5], job.config.crosscheck, heading, moving
     )
     if job.config.crosscheck.enabled:
         _report_cross_check(check, events, job, result)

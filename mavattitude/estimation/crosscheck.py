@@ -20,6 +20,16 @@ on plain floats (numpy's per-call overhead on four-element arrays was most of it
 The verdict: *disagreeing* once the total stays above ``threshold_deg`` for ``hold_s`` of vehicle time,
 *agreeing* again once it stays below ``CLEAR_FRACTION · threshold_deg`` for ``hold_s`` (hysteresis, so a
 difference hovering at the threshold is said once, not at every crossing).
+
+A snapshot solve (one accelerometer and magnetometer solve per tick, no gyro: a snapshot method's, or any
+method's on an input too slow to integrate) reads the specific force as gravity: while the vehicle accelerates
+its tilt is off, and through the field's dip its heading more (a copter's 20° dash reads level), and in a fast
+turn its heading trails. The difference is then ours being wrong, which the pilot cannot act on, so such a pair
+is published and counted but not judged (:attr:`CrossCheck.unjudged`) when ours around it is a snapshot solve
+while the vehicle moved (``moving``: turning faster than 10°/s, or the specific force off g by 3 %,
+:func:`mavattitude.pipeline.snapshot_while_moving`) or within ``settle_s`` after (an acceleration a turn began
+lasts past it), and it restarts the hold: the verdict's ``hold_s`` is of judged pairs in a row. What the
+vehicle's own sensors cannot show stays: a steady acceleration at a gentle tilt (docs/vehicle.md).
 """
 
 from __future__ import annotations
@@ -62,6 +72,9 @@ class CrossCheckSettings:
     publish_rate_hz: float = ranged(2.0, "NAMED_VALUE_FLOAT rate of the difference, Hz", 0.0, 50.0, lo_open=True)
     threshold_deg: float = ranged(5.0, "warn when the total difference stays above", 0.0, 180.0, lo_open=True)
     hold_s: float = ranged(3.0, "... for this long (and clear after as long below), s", 0.0, 600.0)
+    settle_s: float = ranged(
+        1.0, "with a snapshot method, judge only this long after the vehicle last turned or accelerated, s", 0.0, 60.0
+    )
     max_gap_s: ClassVar[float] = 0.5  # our outputs further apart (and slower than 2.5 × their rhythm): not bridged
 
 
@@ -121,6 +134,7 @@ class CrossCheck:
         self._times: deque[float] = deque()
         self._quats: deque[Quat] = deque()
         self._headings: deque[bool] = deque()  # whether each of ours has a heading (a magnetometer)
+        self._moved: deque[float] = deque()  # for each of ours, the time of the last moving one up to it
         # autopilot attitudes ahead of our outputs (bounded: while we output nothing, the oldest go)
         self._waiting: deque[tuple[float, Quat]] = deque()
         self._first_s = math.inf  # our first output since the start or our last reset
@@ -128,6 +142,7 @@ class CrossCheck:
         self._resets = 0
         self.last: Difference | None = None
         self.pairs = 0
+        self.unjudged = 0  # pairs not judged: ours a snapshot solve while the vehicle moved (or settle_s after)
         self.unpaired: Counter[str] = Counter()  # autopilot attitudes not paired, by why (module docstring)
         self.disagree = False
         self.warnings = 0
@@ -149,17 +164,20 @@ class CrossCheck:
         inside = self.pairs + self.missed
         return self.pairs / inside if inside else math.nan
 
-    def add_ours(self, time_s: float, q: Iterable[float], heading: bool = True) -> None:
-        """One of our attitudes; ``heading`` false: it has none (roll and pitch only)."""
+    def add_ours(self, time_s: float, q: Iterable[float], heading: bool = True, moving: bool = False) -> None:
+        """One of our attitudes; ``heading`` false: it has none (roll and pitch only); ``moving``: a snapshot
+        solve while the vehicle turned or accelerated (the module docstring)."""
         if self._times and time_s <= self._times[-1]:  # our clock went back (a reboot): start over
             self._times.clear()
             self._quats.clear()
             self._headings.clear()
+            self._moved.clear()
             self._resets += 1
             self._first_s, self._dropped_s = time_s, -math.inf
             self._since = None  # a verdict's hold is timed on one clock
         if not self._times:
             self._first_s = min(self._first_s, time_s)
+        self._moved.append(time_s if moving else self._moved[-1] if self._moved else -math.inf)
         self._times.append(time_s)
         self._quats.append(_quat(q))
         self._headings.append(heading)
@@ -167,6 +185,7 @@ class CrossCheck:
             self._dropped_s = self._times.popleft()
             self._quats.popleft()
             self._headings.popleft()
+            self._moved.popleft()
 
     def add_autopilot(self, time_s: float, q: Iterable[float]) -> None:
         w, x, y, z = map(float, q)
@@ -199,22 +218,28 @@ class CrossCheck:
             if isinstance(ours, str):
                 self.unpaired[ours] += 1
                 continue
-            d = difference(t, ours[0], theirs, ours[1])
+            q, heading, moved_s = ours
+            d = difference(t, q, theirs, heading)
             diffs.append(d)
             self.last = d
             self.pairs += 1
             self._sum_total2 += d.total_deg * d.total_deg
+            if t - moved_s <= self.settings.settle_s:  # (settle_s 0: the moving one itself is not judged)
+                self.unjudged += 1
+                self._since = None  # the hold is of judged pairs in a row
+                continue
             event = self._judge(d)
             if event is not None:
                 events.append(event)
         return diffs, events
 
-    def _ours_at(self, t: float) -> tuple[Quat, bool] | str:
-        """Ours at ``t`` (within our newest output's time) and whether it has a heading, or why there is none."""
-        times, headings = self._times, self._headings
+    def _ours_at(self, t: float) -> tuple[Quat, bool, float] | str:
+        """Ours at ``t`` (within our newest output's time), whether it has a heading and when the vehicle last
+        moved up to it, or why there is none."""
+        times, headings, moved = self._times, self._headings, self._moved
         i = bisect.bisect_left(times, t)
         if times[i] == t:
-            return self._quats[i], headings[i]
+            return self._quats[i], headings[i], moved[i]
         if i == 0:
             if t < self._first_s:
                 return "reset" if self._resets else "outside"
@@ -224,7 +249,7 @@ class CrossCheck:
         if self._gap(times[i - 1], times[i]):
             return "gap"
         q = interpolate(times[i - 1], self._quats[i - 1], times[i], self._quats[i], t)
-        return q, headings[i - 1] and headings[i]
+        return q, headings[i - 1] and headings[i], moved[i]
 
     def _gap(self, before_s: float, after_s: float) -> bool:
         """Whether two of ours are too far apart to interpolate between."""
@@ -260,13 +285,16 @@ def cross_check_log(
     theirs_q: np.ndarray,
     settings: CrossCheckSettings,
     ours_heading: np.ndarray | None = None,
+    ours_moving: np.ndarray | None = None,
 ) -> tuple[CrossCheck, list[Difference], list[CrossCheckEvent]]:
     """The live cross-check over a whole log: both attitude series, each in the log's order, fed in vehicle-time
-    order, as they arrive (``ours_heading``: which of ours have a heading; default all). Where the vehicle
+    order, as they arrive (``ours_heading``: which of ours have a heading, default all; ``ours_moving``: which
+    are snapshot solves while the vehicle moved, default none). Where the vehicle
     rebooted both clocks go back: each series' k-th boot (its times going back as :meth:`CrossCheck.add_ours`
     and :meth:`CrossCheck.add_autopilot` tell a reboot) is merged with the other's k-th."""
     check = CrossCheck(settings)
     heading = [True] * len(ours_t_s) if ours_heading is None else ours_heading.tolist()
+    moving = [False] * len(ours_t_s) if ours_moving is None else ours_moving.tolist()
     diffs: list[Difference] = []
     events: list[CrossCheckEvent] = []
     j = 0
@@ -278,7 +306,7 @@ def cross_check_log(
         while j < len(ours) and (
             ours_boot[j] < boot or (ours_boot[j] == boot and (j == 0 or ours_boot[j - 1] < boot or ours[j - 1] < t))
         ):
-            check.add_ours(ours[j], ours_q[j], heading[j])
+            check.add_ours(ours[j], ours_q[j], heading[j], moving[j])
             j += 1
         check.add_autopilot(t, q)
         d, e = check.update()

@@ -153,6 +153,35 @@ def test_the_warning_needs_hold_s_above_the_threshold_and_clears_after_hold_s_be
     assert events[0].total_deg == pytest.approx(6.0, abs=1e-3)
 
 
+def _moving_run(moving_spans: list[tuple[float, float]], settings: CrossCheckSettings, end_s: float = 20.0):
+    """The autopilot's roll 8° off ours throughout (beyond the 5° threshold); ours a snapshot solve while the
+    vehicle moved in the given (start, end) spans."""
+    ours_t, theirs_t = np.arange(0.0, end_s, 0.02), np.arange(0.0, end_s, 0.1)
+    moving = np.zeros(len(ours_t), dtype=bool)
+    for start, end in moving_spans:
+        moving[(ours_t >= start) & (ours_t < end)] = True
+    return cross_check_log(ours_t, truth(ours_t), theirs_t, truth(theirs_t, -8.0), settings, None, moving)
+
+
+def test_a_snapshot_solve_while_the_vehicle_moves_is_compared_but_not_judged():
+    s = CrossCheckSettings(threshold_deg=5.0, hold_s=3.0, settle_s=1.0)
+    # moving 0–2.5 s: judged from 3.5 s on (settle_s after), warned 3 s of judged pairs later
+    check, diffs, events = _moving_run([(0.0, 2.5)], s)
+    assert [(e.disagree, round(e.time_s, 1)) for e in events] == [(True, 6.5)]
+    assert len(diffs) == check.pairs == 200 and check.unjudged == 35  # 0.0 … 3.4 s at 10 Hz
+    # a short move every 3 s (ours moving at 3k … 3k + 0.08 s) restarts the hold each time: the pairs at 3k …
+    # 3k + 1.0 s are not judged, the 1.9 s left are less than the 3 s held
+    moves = [(k * 3.0, k * 3.0 + 0.1) for k in range(7)]
+    check, _, events = _moving_run(moves, s)
+    assert events == [] and check.pairs == 200 and check.unjudged == 7 * 11
+    # settle_s 0: only the pair at a moving output is not judged; 2.8 s are left, still short of 3 s
+    check, _, events = _moving_run(moves, CrossCheckSettings(settle_s=0.0))
+    assert events == [] and check.unjudged == 7
+    # without moving outputs every pair is judged, as before
+    check, _, events = _moving_run([], s)
+    assert [round(e.time_s, 1) for e in events] == [3.0] and check.unjudged == 0
+
+
 def test_no_flip_flop_around_the_threshold():
     s = CrossCheckSettings(threshold_deg=5.0, hold_s=3.0)
     between = (CLEAR_FRACTION * 5.0 + 5.0) / 2  # below the threshold, above where it clears
