@@ -99,7 +99,11 @@ def test_the_imu_stream_sends_every_tick_of_the_asked_rate() -> None:
             conn.close()
     np.testing.assert_array_equal(np.diff(at_200), 5000)
     assert np.all(at_200 % 5000 == 0)
-    at_300 = after[np.flatnonzero(np.diff(after) != 5000)[0] :][:600]  # past what was on the way at 200 Hz
+    # The switch: the stream goes on at the first 300 Hz tick at or after the 200 Hz one that was next, the same
+    # (the grids meet every 10 ms: 3333 µs after it) or 1667 µs later (6667 µs after the 200 Hz tick before).
+    switch = np.flatnonzero(np.diff(after) != 5000)[0]
+    assert np.diff(after)[switch] in (3333, 6667)
+    at_300 = after[switch + 1 :][:600]  # every stamp from the first on the 300 Hz grid alone
     # 300 Hz: 1e6/300 µs rounded to whole µs, so 3333 or 3334; 600 ticks span 599 periods, to the two
     # end stamps' rounding (half a µs each).
     assert set(np.diff(at_300)) <= {3333, 3334} and abs(at_300[-1] - at_300[0] - 599 * 1e6 / 300) <= 1.0
