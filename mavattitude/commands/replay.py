@@ -543,6 +543,7 @@ def _compare(replayed: Any, job: Job, result: LogResult) -> None:
     verdicts = Verdicts(
         compass=[(e.time_s, e.inconsistent) for e in replayed.compass],
         crosscheck=[(e.time_s, e.disagree) for e in events],
+        unjudged=[(d.time_s, not d.judged) for d in pairs],
         threshold_deg=job.config.crosscheck.threshold_deg if job.config.crosscheck.enabled else None,
     )
     ours_deg = np.degrees(euler_from_quat(ours[:, 1:5]))
@@ -559,11 +560,13 @@ def _compare(replayed: Any, job: Job, result: LogResult) -> None:
 @dataclass(frozen=True)
 class Verdicts:
     """What a comparison plot marks: the compass monitor's and the cross-check's verdict changes, ``(time_s,
-    off)`` each in time order (off: the compass judged off, the cross-check warning), and the cross-check's
-    threshold (None: the cross-check is off)."""
+    off)`` each in time order (off: the compass judged off, the cross-check warning), where the cross-check did
+    not judge (``(time_s, True)`` from a pair it did not, ``(time_s, False)`` from one it did), and the
+    cross-check's threshold (None: the cross-check is off)."""
 
     compass: list[tuple[float, bool]] = field(default_factory=list)
     crosscheck: list[tuple[float, bool]] = field(default_factory=list)
+    unjudged: list[tuple[float, bool]] = field(default_factory=list)
     threshold_deg: float | None = None
 
 
@@ -585,7 +588,8 @@ def comparison_figure(
 ) -> Any:
     """Roll, pitch, yaw of ours (``ours_deg`` at ``ours_t``; a yaw NaN where there is no heading) and the
     autopilot's (``q_ref`` at ``t``), the angle between (``diff[:, 3]``), and the verdicts: shaded where the
-    compass was judged off (every panel) and where the cross-check warned (with its threshold on the last panel).
+    compass was judged off (every panel) and where the cross-check warned (with its threshold on the last panel),
+    and a bar along the last panel's foot where it did not judge.
 
     Each line is enveloped to a few thousand points (a long log's 250 000 were a solid band) with its yaw
     wraps broken; ours is drawn wide and pale under the autopilot's thin line, so both show where they agree.
@@ -615,12 +619,18 @@ def comparison_figure(
             ax.axvspan(a, b, color="C1", alpha=0.2, lw=0, label="compass judged off" if k == 0 else None)
     for k, (a, b) in enumerate(warned):
         axes[3].axvspan(a, b, color="C3", alpha=0.15, lw=0, label="cross-check warned" if k == 0 else None)
+    for k, (a, b) in enumerate(spans(verdicts.unjudged, end_s)):
+        label = "not judged: vehicle moving" if k == 0 else None
+        axes[3].axvspan(a, b, ymin=0.0, ymax=0.04, color="0.4", lw=0, label=label)
     if verdicts.threshold_deg is not None:
         axes[3].axhline(verdicts.threshold_deg, color="C3", lw=0.8, ls="--", label="cross-check threshold")
     axes[0].legend(loc="upper right", fontsize=8)
     axes[3].legend(loc="upper right", fontsize=8)
     rms = np.sqrt(np.mean(diff[:, 3] ** 2))
     said = f"compass judged off {len(compass)}×, cross-check warned {len(warned)}×"
+    unjudged = sum(on for _, on in verdicts.unjudged)
+    if unjudged:
+        said += f" ({100.0 * (1.0 - unjudged / len(verdicts.unjudged)):.0f} % judged)"
     axes[0].set_title(f"{title}\nangle between: {rms:.2f}° RMS over {len(t)} comparisons; {said}", fontsize=10)
     # fixed margins for the fixed size: what tight_layout finds for these labels, without the extra draw it
     # takes to find them (~0.4 s of a short log's replay)

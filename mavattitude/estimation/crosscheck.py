@@ -87,6 +87,7 @@ class Difference:
     pitch_deg: float
     yaw_deg: float
     total_deg: float
+    judged: bool = True  # false: published, not judged (ours a snapshot solve while the vehicle moved)
 
 
 @dataclass(frozen=True)
@@ -98,16 +99,16 @@ class CrossCheckEvent:
     total_deg: float
 
 
-def difference(time_s: float, ours: Quat, theirs: Quat, heading: bool = True) -> Difference:
+def difference(time_s: float, ours: Quat, theirs: Quat, heading: bool = True, judged: bool = True) -> Difference:
     """Ours minus theirs (quaternions ``[w, x, y, z]`` body → NED) in degrees. ``heading`` false: ours has none
     (no magnetometer, yaw held at 0): the yaw difference is NaN and the total the tilt's alone (ours turned to
-    their yaw)."""
+    their yaw). ``judged``: whether the verdict takes it (the module docstring)."""
     (r1, p1, y1), (r2, p2, y2) = euler_from_quat_parts(ours), euler_from_quat_parts(theirs)
     if not heading:
         ours, y1 = quat_from_euler_parts(r1, p1, y2), math.nan
     total = math.degrees(angle_between_parts(ours, theirs))
     roll, pitch, yaw = (wrap_deg(math.degrees(a - b)) for a, b in ((r1, r2), (p1, p2), (y1, y2)))
-    return Difference(time_s, roll, pitch, yaw, total)
+    return Difference(time_s, roll, pitch, yaw, total, judged)
 
 
 def interpolate(t0: float, q0: Quat, t1: float, q1: Quat, t: float) -> Quat:
@@ -219,12 +220,13 @@ class CrossCheck:
                 self.unpaired[ours] += 1
                 continue
             q, heading, moved_s = ours
-            d = difference(t, q, theirs, heading)
+            judged = t - moved_s > self.settings.settle_s  # (settle_s 0: a moving one itself is not judged)
+            d = difference(t, q, theirs, heading, judged)
             diffs.append(d)
             self.last = d
             self.pairs += 1
             self._sum_total2 += d.total_deg * d.total_deg
-            if t - moved_s <= self.settings.settle_s:  # (settle_s 0: the moving one itself is not judged)
+            if not judged:
                 self.unjudged += 1
                 self._since = None  # the hold is of judged pairs in a row
                 continue
