@@ -221,6 +221,14 @@ class MountingConfig:
     rotation: str | Mat3 = field(
         default=_FRONT_END.mounting, metadata=_meta(_rotation, "board → body rotation: ArduPilot name or 3×3 matrix")
     )
+    autopilot_trim: bool = field(
+        default=True,
+        metadata=_meta(
+            _boolean,
+            "turn the readings by ArduPilot's level trim (AHRS_TRIM_X/Y, asked of the vehicle or read from the log),"
+            " so the attitude is of the vehicle's frame, as the autopilot's",
+        ),
+    )
 
 
 @dataclass(frozen=True)

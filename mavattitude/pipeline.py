@@ -68,6 +68,7 @@ from mavattitude.sensors.frontend import (
     process_batch,
 )
 from mavattitude.sensors.magref import ReferenceTracker
+from mavattitude.sensors.mounting import TRIM_LIMIT_RAD, TRIM_PARAMETERS
 from mavattitude.sensors.units import GpsVelocity, ImuSample
 
 log = logging.getLogger(__name__)
@@ -646,6 +647,27 @@ class AttitudePipeline:
     def set_velocity(self, velocity: GpsVelocity) -> None:
         """The GPS receiver's own velocity, received after the last sample (the fused filter's acceleration)."""
         self.estimator.velocity(velocity)
+
+    def set_autopilot_parameter(self, name: str, value: float) -> bool:
+        """One of the autopilot's parameters (PARAM_VALUE, a log's PARM), received after the last sample. Its level
+        trim (:data:`~mavattitude.sensors.mounting.TRIM_PARAMETERS`, with ``mounting.autopilot_trim``) turns the
+        readings into the vehicle's frame from the next sample on; True when that changed the trim."""
+        if name not in TRIM_PARAMETERS or not self.config.mounting.autopilot_trim:
+            return False
+        if not abs(value) <= TRIM_LIMIT_RAD:  # NaN too
+            log.warning("%s %g rad is no level trim (the autopilot keeps it within ±10°): not applied", name, value)
+            return False
+        trim = list(self.frontend.settings.trim_rad)
+        trim[TRIM_PARAMETERS.index(name)] = value
+        if tuple(trim) == self.frontend.settings.trim_rad:
+            return False
+        self.frontend.set_trim(*trim)
+        log.info(
+            "%s %.2f°: the autopilot's level trim, applied (attitudes of the vehicle's frame)",
+            name,
+            math.degrees(value),
+        )
+        return True
 
     def push_batch(
         self,

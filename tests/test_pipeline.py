@@ -228,6 +228,32 @@ def test_mounting_from_the_config_reaches_the_front_end():
     assert np.degrees(angle_between(unmounted[-1].q, Q_TRUE)) > 45.0
 
 
+@pytest.mark.parametrize("follow", [True, False])
+def test_the_autopilots_level_trim_turns_the_attitude_into_the_vehicles_frame(follow, caplog):
+    """The autopilot's board sits rolled 3° and pitched down 6° in a frame at Q_TRUE; its readings (RAW_IMU)
+    are the board's. ArduPilot's level calibration stores that as AHRS_TRIM_X/Y, and its attitude is the
+    frame's; so is ours once the trim is known (``mounting.autopilot_trim``, on by default)."""
+    board_in_frame = quat_from_euler(np.radians(3.0), np.radians(-6.0), 0.0)
+    samples = static_samples(n=100)
+    turned = [
+        ImuSample(
+            s.time_s, *(tuple(rotate_ned_to_body(board_in_frame, v)) for v in (s.acc_mps2, s.gyr_radps, s.mag_uT))
+        )
+        for s in samples
+    ]
+    p = AttitudePipeline(from_dict({**ANGLES, "mounting": {"autopilot_trim": follow}}))
+    assert p.set_autopilot_parameter("AHRS_TRIM_X", np.radians(3.0)) is follow
+    assert p.set_autopilot_parameter("AHRS_TRIM_Y", np.radians(-6.0)) is follow
+    assert not p.set_autopilot_parameter("AHRS_TRIM_Y", np.radians(-6.0))  # said again: nothing changes
+    assert not p.set_autopilot_parameter("COMPASS_USE", 1.0)
+    off_deg = np.degrees(angle_between(run(p, turned)[-1].q, Q_TRUE))
+    assert off_deg < MAX_ERR_DEG if follow else off_deg > 6.7 - MAX_ERR_DEG  # the board's 6.7° off the frame
+    # beyond the ±10° the autopilot keeps it to: no trim, said
+    assert not p.set_autopilot_parameter("AHRS_TRIM_X", 0.2) and not p.set_autopilot_parameter("AHRS_TRIM_Y", np.nan)
+    if follow:
+        assert sum("no level trim" in r.getMessage() for r in caplog.records) == 2
+
+
 def test_an_unknown_mounting_name_is_a_config_error():
     with pytest.raises(ConfigError, match="unknown mounting rotation 'YAW_91'"):
         AttitudePipeline(from_dict({"mounting": {"rotation": "YAW_91"}}))

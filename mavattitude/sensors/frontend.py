@@ -16,7 +16,8 @@ Per input sample (:meth:`FrontEnd.push`, plain floats: the per-message cost is w
    magnetometer reading all zeros in an integer message is no compass at all (``mag_uT`` is ``None``,
    :mod:`.units`); in a float message it is this dead reading: either way no reading enters the filter,
    and the ticks hold the last one, then have none (``MAG_HELD``, ``NO_MAG``);
-3. calibration and mounting (:mod:`.calibration`, :mod:`.mounting`) as one affine map per sensor;
+3. calibration, mounting and the autopilot's level trim (:mod:`.calibration`, :mod:`.mounting`: ``trim_rad``,
+   ArduPilot's AHRS_TRIM, known from its parameters) as one affine map per sensor, into the vehicle's frame;
 4. the 2nd-order Butterworth low-pass (:mod:`mavattitude.lowpass`) per axis, designed for the measured input rate
    (mean of the last ``rate_window`` intervals; re-designed when it moves by more than ``rate_tolerance``,
    continuing from the last two inputs and outputs, so without a jump), started at the steady state of
@@ -85,7 +86,7 @@ from mavattitude.estimation.conventions import Array, Vec3, gap_limit_s
 from mavattitude.lowpass import butter2, filter_batch
 from mavattitude.sensors.calibration import Calibration, sensor_affines
 from mavattitude.sensors.clock import ClockEvent, VehicleClock
-from mavattitude.sensors.mounting import mounting_matrix
+from mavattitude.sensors.mounting import mounting_matrix, trim_matrix
 from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2, ImuSample
 
 log = logging.getLogger(__name__)
@@ -114,6 +115,7 @@ class FrontEndSettings:
     """Everything the front end needs (:func:`mavattitude.pipeline.frontend_settings` reads the config's)."""
 
     mounting: Any = "NONE"  # ArduPilot rotation name or a 3×3 board → body matrix
+    trim_rad: tuple[float, float] = (0.0, 0.0)  # the autopilot's level trim, roll and pitch, after the mounting
     calibration: Calibration = field(default_factory=Calibration)
     filter_enabled: bool = True
     cutoff_hz: float = 10.0
@@ -439,6 +441,12 @@ def _within(v: Sequence[float], limit: float) -> bool:
     return -limit < v[0] < limit and -limit < v[1] < limit and -limit < v[2] < limit
 
 
+def body_affines(settings: FrontEndSettings) -> dict[str, tuple[Array, Array]]:
+    """Each sensor's map into the vehicle's body frame: calibration, mounting, then the autopilot's level trim."""
+    board_to_body = trim_matrix(*settings.trim_rad) @ mounting_matrix(settings.mounting)
+    return sensor_affines(settings.calibration, board_to_body)
+
+
 def _affine_rows(a: Array, c: Array) -> tuple[tuple[float, ...], ...]:
     return tuple((*(float(v) for v in row), float(ci)) for row, ci in zip(a, c, strict=True))
 
@@ -450,10 +458,7 @@ class FrontEnd:
         self.settings = s = settings or FrontEndSettings()
         self.counters = FrontEndCounters()
         self.set_expected_field_uT(s.expected_field_uT)
-        affines = sensor_affines(s.calibration, mounting_matrix(s.mounting))
-        self._acc = _affine_rows(*affines["acc"])
-        self._gyr = _affine_rows(*affines["gyr"])
-        self._mag_cal = _affine_rows(*affines["mag"])
+        self._set_affines()
         cutoff = s.cutoff_hz if s.filter_enabled else None
         self._clock = VehicleClock(s.reorder_window_s)
         pace = pace_intervals_s(s)
@@ -465,6 +470,17 @@ class FrontEnd:
         self._gridded = s.filter_enabled  # ticks on the output rate's grid (while the input is not slow)
         self._set_next_tick(0)  # the next tick, k / output_rate_hz: _next_tick_s
         self._pending_reset = False
+
+    def _set_affines(self) -> None:
+        affines = body_affines(self.settings)
+        self._acc = _affine_rows(*affines["acc"])
+        self._gyr = _affine_rows(*affines["gyr"])
+        self._mag_cal = _affine_rows(*affines["mag"])
+
+    def set_trim(self, roll_rad: float, pitch_rad: float) -> None:
+        """The autopilot's level trim (when it becomes known or changes): readings from the next on turn by it."""
+        self.settings = dataclasses.replace(self.settings, trim_rad=(roll_rad, pitch_rad))
+        self._set_affines()
 
     def set_expected_field_uT(self, magnitude_uT: float | None) -> None:
         """|B₀| of the magnetic reference (when it becomes known or changes), for the |B| screening."""
@@ -831,7 +847,7 @@ def process_batch(
     if repeats.any():
         mag_ok &= ~_held_repeats(t, mag, mag_ok, repeats, epoch, repeat_hold_s(s))
 
-    affines = sensor_affines(s.calibration, mounting_matrix(s.mounting))
+    affines = body_affines(s)
     # from here on channels first, time contiguous: (6, n) for the IMU, (3, n) for the magnetometer
     imu_body = np.concatenate(
         [_apply_batch(affines["acc"], _rows(acc, accepted)), _apply_batch(affines["gyr"], _rows(gyr, accepted))]

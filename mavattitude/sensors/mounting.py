@@ -4,6 +4,12 @@ ArduPilot names a rotation by the Euler angles that take the board's axes to the
 then pitch, then yaw: ``v_body = Rz(yaw) Ry(pitch) Rx(roll) v_board`` (e.g. ``ROLL_180_YAW_90`` maps
 ``(x, y, z)`` to ``(y, x, −z)`` as ``Vector3::rotate`` does). The odd one, ``ROLL_90_PITCH_68_YAW_293``,
 is ArduPilot's Euler (90°, 68.8°, 293.3°). Names are accepted with or without the ``ROTATION_`` prefix.
+
+ArduPilot's *level trim* (``AHRS_TRIM_X``, ``AHRS_TRIM_Y``, radians, set by its "calibrate level") turns once more:
+its IMU readings (RAW_IMU, DataFlash IMU/MAG) are in the autopilot's body frame, the board orientation applied,
+while its attitude (ATTITUDE, DataFlash ATT) is of the vehicle's, which ``AP_AHRS`` takes from the autopilot's
+as ``R_vehicle→NED = R_autopilot→NED · from_euler(x, y, 0)ᵀ``. A reading turns into the vehicle's frame as
+``v_vehicle = from_euler(x, y, 0) · v_autopilot`` (:func:`trim_matrix`), after the mounting.
 """
 
 from __future__ import annotations
@@ -98,6 +104,16 @@ def rotation_angles_deg(name: str) -> tuple[float, float, float]:
     for axis, degrees in _PART.findall(key):
         angles[axis] = float(degrees)
     return angles["ROLL"], angles["PITCH"], angles["YAW"]
+
+
+#: ArduPilot's level trim parameters, roll and pitch (radians; the autopilot limits each to ±10°).
+TRIM_PARAMETERS = ("AHRS_TRIM_X", "AHRS_TRIM_Y")
+TRIM_LIMIT_RAD = math.radians(10.0)
+
+
+def trim_matrix(roll_rad: float, pitch_rad: float) -> Array:
+    """The autopilot body → vehicle body matrix of a level trim (the module docstring)."""
+    return euler_matrix(math.degrees(roll_rad), math.degrees(pitch_rad), 0.0)
 
 
 def mounting_matrix(rotation: Any) -> Array:
