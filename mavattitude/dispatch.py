@@ -8,10 +8,11 @@
   vehicle (``source.vehicle``) and is locked onto from the start;
 - routes the vehicle's items: IMU samples into the pipeline (its outputs to the listener), positions to
   the pipeline's magnetic reference (``wants_position``: ``reference.magnetic: auto``), the GPS receiver's
-  velocities to the pipeline (the fused filter's acceleration), the autopilot's attitude and any
-  other message to the listener; an undecodable input message, a pipeline failure or a message whose
-  decoding failed (:class:`~mavattitude.link.source.Broken`, from any sender) is counted as a reject and told
-  to the listener, and the next one goes on.
+  velocities to the pipeline (the fused filter's acceleration), the autopilot's parameters to the pipeline
+  (its level trim) and then the listener, the autopilot's attitude and any other message to the listener;
+  an undecodable input message, a pipeline failure or a message whose decoding failed
+  (:class:`~mavattitude.link.source.Broken`, from any sender) is counted as a reject and told to the
+  listener, and the next one goes on.
 
 The service (:mod:`mavattitude.service`) and ``replay`` are two listeners on this one dispatcher, so a
 log replayed offline and the same messages arriving live give the same attitudes.
@@ -30,6 +31,7 @@ from numpy.typing import NDArray
 from mavattitude.errors import MavAttitudeError
 from mavattitude.link.source import (
     AutopilotAttitude,
+    AutopilotParameter,
     Broken,
     Heartbeat,
     PositionFix,
@@ -67,6 +69,8 @@ class SampleSink(Protocol):
 
     def set_velocity(self, velocity: GpsVelocity) -> None: ...
 
+    def set_autopilot_parameter(self, name: str, value: float) -> bool: ...
+
 
 class Listener(Protocol):
     """What the dispatcher tells its owner (the service, replay)."""
@@ -83,6 +87,9 @@ class Listener(Protocol):
 
     def on_autopilot_attitude(self, attitude: AutopilotAttitude, t_rx: float) -> None:
         """The autopilot's own attitude estimate."""
+
+    def on_parameter(self, parameter: AutopilotParameter) -> None:
+        """One of the autopilot's parameters, after the pipeline took it."""
 
     def on_message(self, msg: Any, t_rx: float) -> None:
         """Any other MAVLink message from the vehicle (COMMAND_ACK, …)."""
@@ -136,6 +143,9 @@ class Dispatcher:
                 self.pipeline.set_velocity(item.velocity)
         elif kind is GpsVelocity:
             self.pipeline.set_velocity(item)
+        elif kind is AutopilotParameter:
+            self.pipeline.set_autopilot_parameter(item.name, item.value)
+            self.listener.on_parameter(item)
         elif kind is Undecodable:
             self.undecodable(item.error)
         elif kind is not Heartbeat and item is not None:

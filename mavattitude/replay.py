@@ -13,7 +13,9 @@ vehicle stays within the distance after which the service would look it up again
 from the compass of a log without a position: :class:`~mavattitude.sensors.magref.ReferenceTracker`'s rule,
 which the pipeline applies to the batch's ticks as it would one by one); otherwise, and with
 ``at_once=False``, the samples go into the pipeline one by one as they would live. A telemetry log across a
-reboot of the autopilot is read item by item in its own order (:func:`_replay_in_log_order`).
+reboot of the autopilot is read item by item in its own order (:func:`_replay_in_log_order`). The autopilot's
+parameters (its level trim) are taken before the first sample, each at its last value in the log; read item by
+item, where they come in it.
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ from mavattitude.estimation.compass import CompassEvent, CompassMonitor
 from mavattitude.estimation.conventions import Array
 from mavattitude.link.logs import LogSource
 from mavattitude.link.logstreams import LogStreams
-from mavattitude.link.source import AutopilotAttitude, MessageSource, Sender
+from mavattitude.link.source import AutopilotAttitude, AutopilotParameter, MessageSource, Sender
 from mavattitude.link.tlog import TlogSource
 from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, Pushed
 from mavattitude.sensors.frontend import median_rate_hz
@@ -125,6 +127,9 @@ class _Collector:
 
     def on_autopilot_attitude(self, attitude: AutopilotAttitude, t_rx: float) -> None:
         self.result.autopilot.append(attitude)
+
+    def on_parameter(self, parameter: AutopilotParameter) -> None:
+        """Taken by the pipeline; nothing to ask for offline."""
 
     def on_message(self, msg: Any, t_rx: float) -> None:
         """Other messages mean nothing offline."""
@@ -259,6 +264,8 @@ def _replay_arrays(
         counters.positions = len(s.position_t_s)
         before = s.imu_t_s[s.imu_t_s < s.position_t_s[0]]  # a tick is computed when the sample after it arrives
         reference_after_s = float(before[-1]) if len(before) else -math.inf
+    for name, value in s.parameters.items():
+        pipeline.set_autopilot_parameter(name, value)
     others = _judge_compasses(s, pipeline, reference_after_s)
     s = _chosen_compass(s, others, result)
     pushed = pipeline.push_batch(

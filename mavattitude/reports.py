@@ -152,6 +152,7 @@ def counters_line(
         ("input_lost", c.input_lost),
         ("positions", c.positions),
         ("interval_requests", c.interval_requests),
+        ("parameter_requests", c.parameter_requests),
         *((f"acks.{k.lower()}", v) for k, v in sorted(c.acks.items())),
         ("ack_timeouts", c.ack_timeouts),
         ("acks_unmatched", c.acks_unmatched),

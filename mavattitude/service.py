@@ -70,7 +70,7 @@ from mavattitude.link.arrivals import TickArrivals
 from mavattitude.link.logstreams import TILT_ONLY
 from mavattitude.link.requests import LOW_FRACTION, RateMonitor, StreamRequest
 from mavattitude.link.session import LinkSession
-from mavattitude.link.source import AutopilotAttitude, MavlinkDecoder, Sender
+from mavattitude.link.source import AutopilotAttitude, AutopilotParameter, MavlinkDecoder, Sender
 from mavattitude.periodic import Every
 from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, Pushed, snapshot_while_moving
 from mavattitude.reports import (
@@ -83,6 +83,7 @@ from mavattitude.reports import (
 )
 from mavattitude.sensors import units
 from mavattitude.sensors.frontend import SampleFlag
+from mavattitude.sensors.mounting import TRIM_PARAMETERS
 from mavattitude.sensors.units import ImuSample
 from mavattitude.systemd_notify import SystemdNotifier, default_notifier
 
@@ -230,8 +231,9 @@ class AttitudeService:
         self.other_compasses = OtherCompasses(config)
         self._published_s: float | None = None  # vehicle time of the last difference published
         now = time.monotonic()
+        trim = TRIM_PARAMETERS if config.mounting.autopilot_trim else ()
         self.session = LinkSession(
-            link, self._stream_requests(config), config.link.request_repeat_s, now, self.counters
+            link, self._stream_requests(config), config.link.request_repeat_s, now, self.counters, trim
         )
         self._tick = Every(TICK_S, now)
         self._publish = Every(1.0 / config.crosscheck.publish_rate_hz, now)
@@ -388,6 +390,9 @@ class AttitudeService:
             rate_hz = config.crosscheck.attitude_rate_hz
             streams.append(StreamRequest(ATTITUDE_MESSAGE, message_id(ATTITUDE_MESSAGE), rate_hz, optional=True))
         return streams
+
+    def on_parameter(self, parameter: AutopilotParameter) -> None:
+        self.session.parameter_received(parameter.name)
 
     def on_message(self, msg: Any, t_rx: float) -> None:
         self.session.on_message(msg, time.monotonic())

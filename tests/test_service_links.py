@@ -12,7 +12,13 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavattitude import service as service_module
 from mavattitude.config import from_dict
-from mavattitude.estimation.conventions import rotate_ned_to_body
+from mavattitude.estimation.conventions import (
+    angle_between,
+    quat_conjugate,
+    quat_from_euler,
+    quat_multiply,
+    rotate_ned_to_body,
+)
 from mavattitude.link.memory import MemoryLink
 from mavattitude.pipeline import AttitudePipeline
 from mavattitude.service import AttitudeService
@@ -126,6 +132,57 @@ def test_a_fast_enough_link_is_not_warned_about(monkeypatch):
         finally:
             running.finish()
     assert counters.rate_warnings == 0 and counters.input_rate_hz > 0.9 * rate_hz
+
+
+def _param_value(peer: Peer, name: str, value: float) -> bytes:
+    return peer.pack(mavlink2.MAVLink_param_value_message(name.encode(), value, mavlink2.MAV_PARAM_TYPE_REAL32, 900, 0))
+
+
+def test_the_autopilots_level_trim_is_asked_for_and_turns_the_attitude_into_the_vehicles_frame():
+    """The vehicle's readings are its board's; its AHRS_TRIM_Y says the board is pitched 6° down in the frame."""
+    service, link = _service()
+    vehicle = Peer()
+    link.deliver(vehicle.heartbeat())
+    _step_until(service, lambda: len(sent(link, "PARAM_REQUEST_READ")) == 2)
+    asked = sent(link, "PARAM_REQUEST_READ")
+    assert [(r.param_id, r.param_index, r.target_system, r.target_component) for r in asked] == [
+        ("AHRS_TRIM_X", -1, 1, 1),
+        ("AHRS_TRIM_Y", -1, 1, 1),
+    ]
+    link.deliver(*vehicle.stream(100))
+    _step_until(service, lambda: not link.inbox)
+    untrimmed = sent(link, "ATTITUDE_QUATERNION")[-1]
+    link.deliver(_param_value(vehicle, "AHRS_TRIM_X", 0.0), _param_value(vehicle, "AHRS_TRIM_Y", np.radians(-6.0)))
+    link.deliver(*vehicle.stream(200))
+    _step_until(service, lambda: not link.inbox)
+    trimmed = sent(link, "ATTITUDE_QUATERNION")[-1]
+    # the frame's attitude: the board's (Q_TRUE) turned back by the trim, R_frame = R_board · T(trim)ᵀ
+    frame = quat_multiply(Q_TRUE, quat_conjugate(quat_from_euler(0.0, np.radians(-6.0), 0.0)))
+    q = [np.array([m.q1, m.q2, m.q3, m.q4]) for m in (untrimmed, trimmed)]
+    # RAW_IMU quantisation moves ours by < 0.2° (test_service's tolerance is 0.5°)
+    assert np.degrees(angle_between(q[0], Q_TRUE)) < 0.5 and np.degrees(angle_between(q[1], frame)) < 0.5
+    assert service.counters.parameter_requests == 2  # answered: not asked again
+
+
+def test_a_level_trim_never_answered_is_asked_for_three_times_then_gone_without(caplog):
+    caplog.set_level(logging.INFO, logger="mavattitude.link.session")
+    service, link = _service(**{"link.request_repeat_s": 0.5})
+    link.deliver(Peer().heartbeat())
+    _step_until(service, lambda: any("did not answer" in r.getMessage() for r in caplog.records))
+    assert [r.param_id for r in sent(link, "PARAM_REQUEST_READ")] == ["AHRS_TRIM_X", "AHRS_TRIM_Y"] * 3
+    said = [r.getMessage() for r in caplog.records if "did not answer" in r.getMessage()]
+    assert said == [
+        f"the autopilot did not answer for {n} in 3 requests: going without" for n in ("AHRS_TRIM_X", "AHRS_TRIM_Y")
+    ]
+    service.step(1.0)
+    assert len(sent(link, "PARAM_REQUEST_READ")) == 6
+
+
+def test_the_level_trim_is_not_asked_for_when_configured_off():
+    service, link = _service(**{"mounting.autopilot_trim": False, "link.request_repeat_s": 0.5})
+    link.deliver(Peer().heartbeat())
+    _step_until(service, lambda: service.counters.interval_requests >= 2)  # two rounds of stream requests
+    assert sent(link, "PARAM_REQUEST_READ") == []
 
 
 def test_every_attitude_goes_out_with_its_covariance():

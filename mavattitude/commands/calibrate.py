@@ -173,6 +173,10 @@ class _Readings:
     def set_velocity(self, velocity: units.GpsVelocity) -> None:
         """Nothing is estimated here."""
 
+    def set_autopilot_parameter(self, name: str, value: float) -> bool:
+        """A calibration is of the sensors' own frame: the autopilot's level trim does not enter it."""
+        return False
+
 
 class _Skipped:
     """The dispatcher's listener in calibrate: says what it skipped, nothing else."""
@@ -190,6 +194,9 @@ class _Skipped:
         """Nothing is estimated here."""
 
     def on_autopilot_attitude(self, attitude: Any, t_rx: float) -> None:
+        """Not needed for a calibration."""
+
+    def on_parameter(self, parameter: Any) -> None:
         """Not needed for a calibration."""
 
     def on_message(self, msg: Any, t_rx: float) -> None:

@@ -20,13 +20,14 @@ reset, late, overflow), rejects (inputs and ticks refused), rate_handling (an IM
 about twice the low-pass cutoff, gives one unfiltered attitude per sample; --method fused then solves them with
 IGN: too slow to integrate), heading, its source (a log without a magnetometer, or one reading zero, gives roll
 and pitch with the yaw NaN), reference, the magnetic one used (WMM release, place and date; the field measured
-from the compass; or the one given), the estimator's own counters named by its method (ign.noise_rest_s, the
-still time seen, and ign.noise_measured, 1 where the σ measured at rest were used; the fused filter's fused.*,
-among them fused.noise_rest_s, fused.noise_measured and fused.bias_from_rest, the filters started from the gyro
-bias measured at rest, and heading_from_compass), the compass monitor's compass_dip_deg (the first minute's mean),
-compass_dip_expected_deg, compass_field_ratio and compass_warnings, with crosscheck.enabled the cross-check's
-xc_pairs, xc_unjudged (of them not judged: a snapshot method's while the vehicle moved), xc_rms_deg and
-xc_warnings, and a note on what was wrong with the file.
+from the compass; or the one given), trim_deg (the autopilot's level trim applied, roll and pitch: ArduPilot's
+AHRS_TRIM_X/Y from the log's parameters, with mounting.autopilot_trim), the estimator's own counters named by
+its method (ign.noise_rest_s, the still time seen, and ign.noise_measured, 1 where the σ measured at rest were
+used; the fused filter's fused.*, among them fused.noise_rest_s, fused.noise_measured and fused.bias_from_rest,
+the filters started from the gyro bias measured at rest, and heading_from_compass), the compass monitor's
+compass_dip_deg (the first minute's mean), compass_dip_expected_deg, compass_field_ratio and compass_warnings,
+with crosscheck.enabled the cross-check's xc_pairs, xc_unjudged (of them not judged: a snapshot method's while
+the vehicle moved), xc_rms_deg and xc_warnings, and a note on what was wrong with the file.
 Every magnetometer a log holds (a .bin's MAG instances; a .tlog's RAW_IMU, SCALED_IMU2, SCALED_IMU3) is
 judged by the compass monitor against the same IMU: the summary's compasses column ("0 ok; 1 turns unlike
 the gyro: turned?"), and compass, the one replayed and why: --mag, else the one the autopilot used where
@@ -362,6 +363,8 @@ def _fill(result: LogResult, replayed: Any, imu_name: str) -> None:
     result.outputs = len(replayed.outputs)
     result.duration_s = replayed.last_sample_s - replayed.first_sample_s
     result.columns["reference"] = replayed.pipeline.magref.describe()  # the magnetic reference(s), in order
+    trim = replayed.pipeline.frontend.settings.trim_rad
+    result.columns["trim_deg"] = ", ".join(f"{math.degrees(a):.2f}" for a in trim) if any(trim) else ""
     result.rejects = (
         sum(replayed.counters.rejected.values())
         + sum(pipeline.frontend.rejected.values())

@@ -738,6 +738,10 @@ class MavlinkLink:
             )
         )
 
+    def request_parameter(self, target: tuple[int, int], name: str) -> bool:
+        """PARAM_REQUEST_READ of one parameter by its name (the autopilot answers with PARAM_VALUE)."""
+        return self._send(mavlink2.MAVLink_param_request_read_message(target[0], target[1], name.encode("ascii"), -1))
+
     def send_attitude_quaternion_cov(
         self, time_usec: int, q: Sequence[float], rates_radps: Sequence[float], covariance: Sequence[float]
     ) -> bool:

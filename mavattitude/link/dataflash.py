@@ -292,7 +292,8 @@ def _streams(reader: _Reader, imu_instance: int, mag_instance: int | None) -> Lo
     try:  # a record without a field read here: a log of another layout, or its FMT damaged in the column names
         imu_name, imu_table = reader.instance("IMU", imu_instance)
         readings = _magnetometers(reader)
-        chosen = autopilot_compass(_parameters(reader), list(readings)) if mag_instance is None else None
+        parameters = _parameters(reader)
+        chosen = autopilot_compass(parameters, list(readings)) if mag_instance is None else None
         used, why = (mag_instance, f"--mag {mag_instance}") if mag_instance is not None else chosen or (0, None)
         mag_name, mag_table = reader.instance("MAG", used)
         t, acc, gyr, wrap = (
@@ -309,6 +310,7 @@ def _streams(reader: _Reader, imu_instance: int, mag_instance: int | None) -> Lo
     streams = LogStreams(t, acc, gyr, mag_t, mag, att_t, att_q, pos_t, positions, date, wrap, reader.damage)
     streams.check(str(path), imu_name, mag_name)
     streams.gps_t_s, streams.gps_velocity = gps_t, gps_velocity
+    streams.parameters = parameters
     if len(readings) > 1 and used in readings:
         streams.compasses = Compasses(readings, used, why)
     return streams

@@ -11,7 +11,9 @@ order:
   magnetometer is thus held, never interpolated towards a reading that comes later; an all-zero reading
   is no reading, as in MAVLink's integer messages;
 - the autopilot's attitude and the positions (with the log's date, for the World Magnetic Model);
-- the GPS receiver's velocities (:class:`~mavattitude.estimation.velocity.GpsVelocity`), for the fused filter.
+- the GPS receiver's velocities (:class:`~mavattitude.estimation.velocity.GpsVelocity`), for the fused filter;
+- first of all, the autopilot's parameters (:class:`~mavattitude.link.source.AutopilotParameter`, each at its last
+  value in the log: its level trim).
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from numpy.typing import NDArray
 
 from mavattitude.errors import DataFileError
 from mavattitude.estimation.conventions import Array
-from mavattitude.link.source import AutopilotAttitude, PositionFix, Received, Sender
+from mavattitude.link.source import AutopilotAttitude, AutopilotParameter, PositionFix, Received, Sender
 from mavattitude.sensors.units import GpsVelocity, ImuSample, Position
 
 log = logging.getLogger(__name__)
@@ -129,6 +131,8 @@ class LogStreams:
     gps_t_s: Array = field(default_factory=lambda: np.empty(0))
     gps_velocity: list[GpsVelocity] = field(default_factory=list)
     compasses: Compasses | None = None  # every magnetometer, where the log holds several
+    #: the autopilot's parameters, each at its last value in the log (its level trim is used from the start)
+    parameters: dict[str, float] = field(default_factory=dict)
 
     def with_compass(self, instance: int, why: str | None) -> LogStreams:
         """These streams with the magnetometer ``instance`` of :attr:`compasses` replayed (and ``why``)."""
@@ -229,6 +233,8 @@ class StreamSource:
         self.finished = stop >= len(times)
         s, vehicle, wrap, repeats = self.streams, self.vehicle, self.streams.time_wrap_s, self.streams.mag_repeats
         out: list[Received] = []
+        if start == 0 and times:  # the autopilot's parameters before its first sample, as a link's would come
+            out += [(times[0], vehicle, AutopilotParameter(n, v)) for n, v in s.parameters.items()]
         for t, kind, i in zip(times[start:stop], kinds[start:stop], index[start:stop], strict=True):
             if kind == 1:
                 m = mag_index[i]

@@ -4,13 +4,17 @@
 vehicle's system id), asks for the streams with MAV_CMD_SET_MESSAGE_INTERVAL on their schedule (on locking,
 every ``repeat_s``, at once after a reconnect or when told: a rebooted autopilot has forgotten them), and
 matches each COMMAND_ACK to the request it answers (:class:`~.requests.PendingRequests`), saying each
-stream's answer, or its absence, once. ``tick(now)`` does what is due; the service and live ``calibrate``
-keep one each.
+stream's answer, or its absence, once. It reads the autopilot's ``parameters`` the service needs (its level
+trim) with PARAM_REQUEST_READ, on locking and with every stream request after, until each is answered or has
+been asked ``PARAMETER_TRIES`` times (an autopilot without it, a PX4, never answers: said once). ``tick(now)``
+does what is due; the service and live ``calibrate`` keep one each.
 """
 
 from __future__ import annotations
 
 import logging
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -24,6 +28,7 @@ log = logging.getLogger(__name__)
 HEARTBEAT_PERIOD_S = 1.0
 ACK_TIMEOUT_S = 2.0
 ACK_FORGET_S = 10.0  # an unanswered request still matches a late ACK for this long
+PARAMETER_TRIES = 3
 
 
 @dataclass
@@ -31,6 +36,7 @@ class RequestCounters:
     """What was asked and answered (the service's counters extend these)."""
 
     interval_requests: int = 0
+    parameter_requests: int = 0  # PARAM_REQUEST_READ sent
     acks: dict[str, int] = field(default_factory=dict)  # SET_MESSAGE_INTERVAL results by name (of our requests)
     ack_timeouts: int = 0
     acks_unmatched: int = 0  # ACKs of SET_MESSAGE_INTERVAL addressed to us with no request of ours waiting
@@ -46,6 +52,7 @@ class LinkSession:
         repeat_s: float,
         now: float,
         counters: RequestCounters | None = None,
+        parameters: Sequence[str] = (),
     ) -> None:
         self.link = link
         self.counters = counters if counters is not None else RequestCounters()
@@ -55,6 +62,8 @@ class LinkSession:
         self._pending = PendingRequests(ACK_TIMEOUT_S, ACK_FORGET_S)
         self._answers_said: set[tuple[str, str]] = set()  # (stream, result) logged once each
         self._reconnects_seen = 0
+        self._parameter_tries = dict.fromkeys(parameters, 0)  # of those not answered yet
+        self._parameters_next_s = math.inf  # asked first on locking
 
     def lock(self, vehicle: Sender, now: float) -> None:
         """Locked onto ``vehicle``: speak as its system, announce ourselves and ask for the streams at once."""
@@ -62,6 +71,7 @@ class LinkSession:
         self.link.set_source_system(vehicle[0])
         self._heartbeat.at_once(now)
         self._requests.ask_now(now)
+        self._parameters_next_s = now
 
     def ask_now(self, now: float) -> None:
         """Ask for the streams at the next tick (a rebooted autopilot has forgotten them)."""
@@ -82,6 +92,23 @@ class LinkSession:
         for request in self._pending.timed_out(now):
             self.counters.ack_timeouts += 1
             self._say_answer(request, "TIMEOUT")
+        if vehicle is not None and now >= self._parameters_next_s:
+            self._ask_parameters(vehicle, now)
+
+    def _ask_parameters(self, vehicle: Sender, now: float) -> None:
+        self._parameters_next_s = now + self._requests.repeat_s
+        tries = self._parameter_tries
+        for name in [n for n, k in tries.items() if k == PARAMETER_TRIES]:
+            log.info("the autopilot did not answer for %s in %d requests: going without", name, PARAMETER_TRIES)
+            del tries[name]
+        for name in tries:
+            if self.link.request_parameter(vehicle, name):
+                self.counters.parameter_requests += 1
+                tries[name] += 1
+
+    def parameter_received(self, name: str) -> None:
+        """The autopilot said one of its parameters: it is not asked for again."""
+        self._parameter_tries.pop(name, None)
 
     def on_message(self, msg: Any, now: float) -> None:
         """A message from the vehicle: a COMMAND_ACK of SET_MESSAGE_INTERVAL addressed to us is matched."""

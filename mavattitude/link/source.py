@@ -9,6 +9,7 @@ A :class:`MessageSource` hands out what arrived as ``(t_rx, sender, item)`` trip
   from GPS_RAW_INT the receiver's velocity;
 - :class:`~mavattitude.estimation.velocity.GpsVelocity`: a receiver's velocity on its own (DataFlash GPS, ULog);
 - :class:`AutopilotAttitude`: the autopilot's own attitude estimate, to compare with;
+- :class:`AutopilotParameter`: one of the autopilot's parameters (PARAM_VALUE; its level trim is used);
 - :class:`Heartbeat`: whether the sender is an autopilot (what the dispatcher locks onto);
 - :class:`Undecodable`: an input message whose fields could not be turned into a sample;
 - any other MAVLink message, as pymavlink decoded it (COMMAND_ACK, …), for the service to read.
@@ -68,6 +69,14 @@ class AutopilotAttitude:
 
     time_s: float
     q: tuple[float, float, float, float]
+
+
+@dataclass(frozen=True, slots=True)
+class AutopilotParameter:
+    """One of the autopilot's parameters as it said it (PARAM_VALUE, a DataFlash PARM record)."""
+
+    name: str
+    value: float
 
 
 @dataclass(frozen=True, slots=True)
@@ -134,6 +143,7 @@ class MavlinkDecoder:
             **dict(zip(ATTITUDE_MESSAGES, (_attitude, _attitude_quaternion), strict=True)),
             **dict.fromkeys(units.POSITION_MESSAGES, self._position),
             "SYSTEM_TIME": self._system_time,
+            "PARAM_VALUE": _parameter,
         }
         frame = mavlink2.mavlink_map[message_id(self.message)]
         at = dict(zip(frame.fieldnames, frame.orders, strict=True))  # each field's place in the unpacked payload
@@ -180,6 +190,10 @@ class MavlinkDecoder:
 
 def _heartbeat(msg: Message) -> Heartbeat:
     return Heartbeat(MavlinkLink.is_autopilot_heartbeat(msg))
+
+
+def _parameter(msg: Message) -> AutopilotParameter:
+    return AutopilotParameter(msg.param_id, float(msg.param_value))
 
 
 def _attitude(msg: Message) -> AutopilotAttitude:

@@ -367,6 +367,7 @@ class TlogSource:
         )
         if "GPS_RAW_INT" in tables:
             streams.gps_t_s, streams.gps_velocity = _velocities(tables["GPS_RAW_INT"], imu_index, t)
+        streams.parameters = _parameters(tables.get("PARAM_VALUE"))
         return self._with_compasses(streams, tables)
 
     def _with_compasses(self, streams: LogStreams, tables: dict[str, _Table]) -> LogStreams:
@@ -389,7 +390,7 @@ class TlogSource:
         streams.compasses = Compasses(readings, own)
         if self.mag_instance is not None and self.mag_instance in readings:
             return streams.with_compass(self.mag_instance, f"--mag {self.mag_instance}")
-        chosen = autopilot_compass(_parameters(tables.get("PARAM_VALUE")), list(readings))
+        chosen = autopilot_compass(streams.parameters, list(readings))
         return streams if chosen is None else streams.with_compass(*chosen)
 
     def _imu_columns(self, table: _Table, follower: Follower) -> units.ImuColumns | None:

@@ -103,6 +103,7 @@ def read_ulog(path: str | Path, imu_instance: int = 0, mag_instance: int | None 
     streams.check(str(path), f"sensor_combined[{imu_instance}]", mag_name)
     streams.gps_t_s, streams.gps_velocity = gps_t, gps_velocity
     streams.compasses = _compasses(ulog)
+    streams.parameters = {k: float(v) for k, v in ulog.initial_parameters.items()}
     return streams
 
 

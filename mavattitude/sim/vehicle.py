@@ -20,7 +20,9 @@ It behaves like an autopilot on a companion-computer link:
 - on ``udpin:`` it serves every peer that has sent it a datagram (pymavlink's multi-client UDP server,
   as ArduPilot and MAVProxy do), so a ground station and the service can share it;
 - records every ATTITUDE_QUATERNION, STATUSTEXT and COMMAND_LONG it receives, and scores the attitude
-  against the truth at the same vehicle time (:mod:`mavattitude.sim.scoring`).
+  against the truth at the same vehicle time (:mod:`mavattitude.sim.scoring`);
+- answers PARAM_REQUEST_READ of its level trim (AHRS_TRIM_X/Y, ``trim_deg``: its board so turned in the
+  frame, its IMU messages the board's, its ATTITUDE and the truth the frame's).
 
 The vehicle clock is the script clock scaled by ``speed`` (an accelerated soak runs faster than real
 time); ``time_boot_ms``/``time_usec`` count from the last (simulated) boot. Faults are injected through
@@ -47,6 +49,7 @@ import numpy as np
 from mavattitude.errors import InputError, LinkError
 from mavattitude.estimation.conventions import Array, euler_from_quat
 from mavattitude.link.mavlink2 import force_mavlink2, mavlink2, mavutil, message_id
+from mavattitude.sensors.mounting import TRIM_PARAMETERS, trim_matrix
 from mavattitude.sensors.units import (
     MESSAGES,
     ImuSample,
@@ -107,6 +110,9 @@ class VehicleConfig:
     attitude_error_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # the autopilot's error: roll, pitch, yaw
     gps_unix_s: float | None = None  # the GPS's Unix time at boot, for SYSTEM_TIME (None: no GPS time)
     gps_fix: bool = True  # False: no GPS position (GLOBAL_POSITION_INT all 0, as ArduPilot without a GPS)
+    # ArduPilot's level trim, roll and pitch: the autopilot's board sits so turned in the frame; its IMU messages
+    # are the board's, its ATTITUDE the frame's, and PARAM_REQUEST_READ of AHRS_TRIM_X/Y answers it
+    trim_deg: tuple[float, float] = (0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -191,6 +197,7 @@ class FakeVehicle:
         self._epoch = _Epoch()
         self._imu_paused = False
         self._gps_fix = config.gps_fix
+        self._board_from_frame = trim_matrix(*np.radians(config.trim_deg)).T  # its readings are its board's
         self._streams: dict[int, _Stream | _ImuStream] = {}
         # the telemetry it sends (paced by the clock) and how
         self._telemetry: dict[int, Callable[[float], None]] = {
@@ -416,7 +423,7 @@ class FakeVehicle:
         t = t[t >= epoch.boot_script_s]
         if not len(t):
             return
-        acc, gyr, mag = sensors.measure(self.script, t, self._rng)
+        acc, gyr, mag = (v @ self._board_from_frame.T for v in sensors.measure(self.script, t, self._rng))
         name = mavlink2.mavlink_map[msg_id].msgname
         rows = [ImuRow(t[i], epoch.vehicle_time(t[i]), _vec(acc[i]), _vec(gyr[i]), _vec(mag[i])) for i in range(len(t))]
         for row in self._apply_fault(rows):
@@ -549,6 +556,15 @@ class FakeVehicle:
             self._cond.notify_all()
         if kind == "COMMAND_LONG" and msg.target_system in (0, self.config.system_id):
             self._command(msg)
+        elif kind == "PARAM_REQUEST_READ" and msg.target_system in (0, self.config.system_id):
+            self._parameter(msg.param_id)
+
+    def _parameter(self, name: str) -> None:
+        """PARAM_VALUE of one of the parameters it has (its level trim); another name is not answered."""
+        if name in TRIM_PARAMETERS:
+            value = math.radians(self.config.trim_deg[TRIM_PARAMETERS.index(name)])
+            real32 = mavlink2.MAV_PARAM_TYPE_REAL32
+            self.send(mavlink2.MAVLink_param_value_message(name.encode(), value, real32, len(TRIM_PARAMETERS), 0))
 
     def _command(self, msg: Any) -> None:
         result = mavlink2.MAV_RESULT_UNSUPPORTED
