@@ -229,5 +229,27 @@ def pipeline_summary(counters: Any) -> str:
     )
 
 
+#: What a refusal's reason means for the vehicle, where its counter's name does not say it.
+REFUSAL_HINTS = {
+    "duplicate": "its IMU time does not advance",
+    "out_of_order": "its IMU time goes back",
+    "decode": "not readable in the input.profile's units",
+}
+
+
+def refusals(dispatch: DispatchCounters, pipeline: Any) -> Counter[str]:
+    """Every input sample and tick refused so far, by reason: undecodable (the dispatcher), refused by the front
+    end (its clock, the screening), not emitted by the pipeline (degenerate geometry, no magnetometer, …)."""
+    return Counter(dispatch.rejected) + pipeline.frontend.rejected + pipeline.rejected
+
+
+def refusals_text(refused: Counter[str]) -> str:
+    """Refusals as words, the most frequent first: ``duplicate 2400 (its IMU time does not advance)``."""
+    if not refused:
+        return "nothing refused"
+    words = [f"{k} {n}" + (f" ({REFUSAL_HINTS[k]})" if k in REFUSAL_HINTS else "") for k, n in refused.most_common()]
+    return "refused: " + ", ".join(words)
+
+
 def _by_reason(counter: Mapping[str, int]) -> str:
     return ", ".join(f"{k}: {v}" for k, v in sorted(counter.items()))

@@ -52,6 +52,7 @@ import logging
 import math
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable
 from typing import Any
 
@@ -67,6 +68,7 @@ from mavattitude.estimation.compass import CompassEvent
 from mavattitude.estimation.crosscheck import CrossCheck
 from mavattitude.link import MavlinkLink, load_signing_key, message_id
 from mavattitude.link.arrivals import TickArrivals
+from mavattitude.link.connection import STATUSTEXT_LEN
 from mavattitude.link.logstreams import TILT_ONLY
 from mavattitude.link.requests import LOW_FRACTION, RateMonitor, StreamRequest
 from mavattitude.link.session import LinkSession
@@ -80,6 +82,8 @@ from mavattitude.reports import (
     counters_line,
     heading_lost,
     rate_handling,
+    refusals,
+    refusals_text,
 )
 from mavattitude.sensors import units
 from mavattitude.sensors.frontend import SampleFlag
@@ -145,6 +149,7 @@ class Waiting(enum.Enum):
     IMU_STREAM = "IMU stream"  # the input message, at start or after input_timeout_s of silence
     POSITION = "GPS position"  # ``reference.magnetic: auto``: the position, or the field measured without one
     FIRST_ATTITUDE = "first attitude"  # input flows, the filter and solver have not produced one yet
+    ATTITUDES = "attitudes"  # input flows, attitudes went out, but none for longer than a gap: all refused
     RUNNING = "running"
 
 
@@ -222,6 +227,9 @@ class AttitudeService:
         self._arrivals = TickArrivals()
         self._last_input: float | None = None
         self._input_lost = False
+        self._output_since = -math.inf  # the last attitude sent (or the input's return), time.monotonic()
+        self._stalled = False  # input arrives but every sample is refused: said (_watch_output)
+        self._refused: Counter[str] = Counter()  # the refusals up to the last attitude
         self._per_sample = False  # the input too slow to filter, as last said (_say_rate_handling)
         self._no_heading = SampleFlag.NONE  # our attitudes have no heading, as last said (_say_tilt_only)
         self._attitude_sent = False
@@ -305,6 +313,8 @@ class AttitudeService:
             silent_s = now - self._last_input
             if silent_s > self.pipeline.frontend.gap_limit_s:  # input_timeout_s, or longer for a slow input
                 self._on_input_lost(silent_s)
+        if self._attitude_sent and not self._input_lost:
+            self._watch_output(now)
         self._report_waiting(now)
         if self._stats.due(now):
             self._log_counters()
@@ -326,6 +336,8 @@ class AttitudeService:
             return Waiting.POSITION
         if not self._attitude_sent:
             return Waiting.FIRST_ATTITUDE
+        if self._stalled:
+            return Waiting.ATTITUDES
         return Waiting.RUNNING
 
     def waiting_text(self, waiting: Waiting | None = None) -> str:
@@ -349,8 +361,11 @@ class AttitudeService:
                 f"without one, after {self.config.reference.position_wait_s:g} s of the IMU stream, the field is "
                 "measured from the compass while the vehicle is still"
             )
+        refused = refusals(self.counters, self.pipeline.counters)
         if waiting is Waiting.FIRST_ATTITUDE:
-            return "waiting for the first attitude"
+            return f"waiting for the first attitude ({refusals_text(refused)})"
+        if waiting is Waiting.ATTITUDES:
+            return f"{self._input_name} arrives but no attitude goes out ({refusals_text(refused - self._refused)})"
         return "running"
 
     def _report_waiting(self, now: float) -> None:
@@ -465,6 +480,7 @@ class AttitudeService:
             self._rate.count(t_rx)
         if self._input_lost:
             self._input_lost = False
+            self._output_since = t_rx  # the output's watch starts again with the input
             log.info("input %s is back", self._input_name)
 
     def on_outputs(self, pushed: Pushed, t_rx: float) -> None:
@@ -528,6 +544,30 @@ class AttitudeService:
         if len(self._latencies_s) < MAX_LATENCY_SAMPLES:
             self._latencies_s.append(latency_s)
         self._attitude_sent = True
+        self._output_since = self.link.last_send_s
+        if self._stalled:
+            self._stalled = False
+            log.info("attitudes go out again")
+
+    def _watch_output(self, now: float) -> None:
+        """Input arrives, attitudes went out, and none has for longer than a gap (what counts the input lost): every
+        sample or tick refused since (a frozen IMU time, values out of range, degenerate geometry). Said once, with
+        the refusals since the last attitude, and once when attitudes go out again (:meth:`_emit`)."""
+        refused = refusals(self.counters, self.pipeline.counters)
+        quiet_s = now - self._output_since
+        if quiet_s <= self.pipeline.frontend.gap_limit_s:
+            self._refused = refused  # attitudes flow: what is refused from here on is why they would stop
+            return
+        if self._stalled:
+            return
+        self._stalled = True
+        why = refusals_text(refused - self._refused)
+        log.warning("%s arrives but no attitude has gone out for %.1f s: %s", self._input_name, quiet_s, why)
+        top = (refused - self._refused).most_common(1)
+        text = f"mavattitude: {self._input_name} {top[0][0] if top else 'refused'}: no attitude"
+        if len(text) > STATUSTEXT_LEN:
+            text = f"mavattitude: {self._input_name} refused: no attitude"
+        self._statustext("output_stopped", text, "warning", log_it=False)
 
     def _on_input_lost(self, silent_s: float) -> None:
         self._input_lost = True

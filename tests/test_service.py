@@ -488,7 +488,7 @@ def test_each_wait_is_said_in_words_with_what_to_check():
     assert (
         service.waiting_text() == "waiting for the IMU stream: RAW_IMU from system 7, component 1, asked for at 100 Hz"
     )
-    assert service.waiting_text(Waiting.FIRST_ATTITUDE) == "waiting for the first attitude"
+    assert service.waiting_text(Waiting.FIRST_ATTITUDE) == "waiting for the first attitude (nothing refused)"
 
 
 def test_started_before_the_autopilot_it_says_its_banner_then_what_it_waits_for():

@@ -185,6 +185,45 @@ def test_the_level_trim_is_not_asked_for_when_configured_off():
     assert sent(link, "PARAM_REQUEST_READ") == []
 
 
+def test_an_imu_time_that_stops_advancing_is_said_once_with_why_and_the_output_coming_back_too(caplog):
+    """The autopilot's RAW_IMU keeps coming, stamped with one time (a stuck clock): every sample is a duplicate,
+    no attitude goes out, and without a word the service would look merely idle."""
+    caplog.set_level(logging.INFO, logger="mavattitude.service")
+    service, link = _service()
+    vehicle = Peer()
+    link.deliver(vehicle.heartbeat(), *vehicle.stream(200))
+    _step_until(service, lambda: not link.inbox)
+    assert service.waiting is service_module.Waiting.RUNNING
+    stuck_s = vehicle.time_s
+
+    def stuck(count: int) -> list[bytes]:
+        out = []
+        for _ in range(count):
+            vehicle.time_s = stuck_s
+            out.append(vehicle.raw_imu())
+        return out
+
+    def frozen_until(done) -> None:
+        while not done():
+            link.deliver(*stuck(10))
+            _step_until(service, lambda: not link.inbox)
+
+    frozen_until(lambda: service.waiting is service_module.Waiting.ATTITUDES)
+    said = [r for r in caplog.records if "no attitude has gone out" in r.getMessage()]
+    assert len(said) == 1 and said[0].levelno == logging.WARNING
+    assert "refused: duplicate" in said[0].getMessage() and "its IMU time does not advance" in said[0].getMessage()
+    assert "arrives but no attitude goes out (refused: duplicate" in service.waiting_text()
+    frozen_until(lambda: len(sent(link, "HEARTBEAT")) >= 3)  # a while longer frozen: said once only
+    texts = [m.text for m in sent(link, "STATUSTEXT") if "no attitude" in m.text]
+    assert texts == ["mavattitude: RAW_IMU duplicate: no attitude"]
+    vehicle.time_s = stuck_s + 0.005
+    link.deliver(*vehicle.stream(100))
+    _step_until(service, lambda: not link.inbox)
+    assert service.waiting is service_module.Waiting.RUNNING
+    assert sum("attitudes go out again" in r.getMessage() for r in caplog.records) == 1
+    assert sum("no attitude has gone out" in r.getMessage() for r in caplog.records) == 1
+
+
 def test_every_attitude_goes_out_with_its_covariance():
     service, link = _service()
     vehicle = Peer()
