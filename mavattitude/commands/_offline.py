@@ -38,6 +38,7 @@ OUTPUT_COLUMNS = (
 _UPPER = np.triu_indices(3)  # xx, xy, xz, yy, yz, zz: the order of COVARIANCE_COLUMNS
 # Inputs at least this long show progress on stderr unless --no-progress.
 PROGRESS_MIN_SAMPLES = 50_000
+MOSTLY_REFUSED = 0.5  # more of the input samples refused than this share: said (a log's refusals are ~1 %)
 
 
 def add_config_arguments(parser: argparse.ArgumentParser) -> None:
@@ -204,7 +205,7 @@ class Progress:
 def summarise(pipeline: AttitudePipeline, n_in: int, source: str, compass: list[CompassEvent]) -> None:
     """Log the counters, the compass verdict's changes (``compass``) and its figures (the caller names ``source``
     in the log: :func:`mavattitude.commands.about`); nothing solved at all is a failure, not an empty success."""
-    from mavattitude.reports import pipeline_summary
+    from mavattitude.reports import pipeline_summary, refusals_text
     from mavattitude.sensors.magref import MIN_MEASURED_TICKS
 
     counters = pipeline.counters
@@ -222,3 +223,8 @@ def summarise(pipeline: AttitudePipeline, n_in: int, source: str, compass: list[
     if counters.emitted == 0:
         reasons = dict(counters.rejected) or dict(counters.frontend.rejected) or "no output tick"
         raise MavAttitudeError(f"{source}: no attitude could be computed ({reasons})")
+    refused, received = counters.frontend.rejected, counters.frontend.received
+    if sum(refused.values()) > received * MOSTLY_REFUSED:  # attitudes, but from a few samples: said, as live
+        logger.warning(
+            "most input samples were refused (%d of %d): %s", sum(refused.values()), received, refusals_text(refused)
+        )

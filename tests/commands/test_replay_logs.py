@@ -187,6 +187,17 @@ def test_a_truncated_log_alone_is_replayed_then_one_line_and_exit_2(tmp_path):
     assert len(read_rows(out)) > 40  # what came before the cut
 
 
+def test_a_log_whose_imu_time_stands_still_is_replayed_with_a_warning_that_says_why(tmp_path):
+    """An IMU clock stuck after its first second: a few attitudes, then every sample a duplicate."""
+    log = static_log(10.0)
+    log.imu_t_s = np.minimum(log.imu_t_s, 2.0)
+    path = write_dataflash(tmp_path / "stuck.bin", log)
+    done = run_cli(["--log-level", "WARNING", "replay", str(path), "-o", str(tmp_path / "stuck.csv"), *REF])
+    assert done.returncode == 0 and 0 < len(read_rows(tmp_path / "stuck.csv")) < 60  # the first second's
+    (line,) = done.stderr.strip().splitlines()
+    assert re.search(r"most input samples were refused \(3599 of 4000\): refused: duplicate 3599 \(its IMU time", line)
+
+
 def test_a_telemetry_log_with_a_damaged_record_is_replayed_around_it_then_exit_2(tmp_path, capsys):
     from tests.commands.test_replay import write_tlog
 
