@@ -296,9 +296,11 @@ def _streams(reader: _Reader, imu_instance: int, mag_instance: int | None) -> Lo
         chosen = autopilot_compass(parameters, list(readings)) if mag_instance is None else None
         used, why = (mag_instance, f"--mag {mag_instance}") if mag_instance is not None else chosen or (0, None)
         mag_name, mag_table = reader.instance("MAG", used)
-        t, acc, gyr, wrap = (
-            du.imu(imu_table) if imu_table and len(imu_table["AccX"]) else (np.empty(0), empty3, empty3, None)
-        )
+        if imu_table and len(imu_table["AccX"]):
+            t, acc, gyr, wrap = du.imu(imu_table)
+        else:
+            _refuse_for_others(path, reader, imu_name)
+            t, acc, gyr, wrap = np.empty(0), empty3, empty3, None
         mag_t, mag = du.mag(mag_table) if mag_table and len(mag_table["MagX"]) else (np.empty(0), empty3)
         att = reader.table("ATT")
         att_t, att_q = du.attitude(att) if att else (np.empty(0), np.empty((0, 4)))
@@ -349,14 +351,25 @@ def _positions(reader: _Reader) -> tuple[np.ndarray, np.ndarray]:
 
 def _magnetometers(reader: _Reader) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """Every MAG instance with readings (an ``I`` column, or MAG, MAG2, MAG3 in old logs): times s, field µT."""
-    table = reader.table("MAG")
-    instances = sorted(set(table["I"].tolist())) if "I" in table else range(3)
-    out = {}
-    for k in instances:
-        found = reader.instance("MAG", k)[1]
-        if found and len(found["MagX"]):
-            out[k] = du.mag(found)
-    return out
+    return {k: du.mag(found) for k, found in _instances(reader, "MAG", "MagX")}
+
+
+def _instances(reader: _Reader, base: str, column: str) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
+    """Each instance of a sensor with records (an ``I`` column, or ``base``, ``base2``, ``base3`` in old logs)."""
+    table = reader.table(base)
+    for k in sorted(set(table["I"].tolist())) if "I" in table else range(3):
+        found = reader.instance(base, k)[1]
+        if found and len(found[column]):
+            yield k, found
+
+
+def _refuse_for_others(path: Path, reader: _Reader, name: str) -> None:
+    """The chosen IMU instance has no records: a DataFileError naming those the log has (an autopilot whose
+    first IMU is disabled), if any; without any, the streams' own check says so."""
+    others = [str(k) for k, _ in _instances(reader, "IMU", "AccX")]
+    if others:
+        has = ", ".join(others)
+        raise DataFileError(f"{path}: no {name} records; the log has IMU instance {has}: --imu {others[0]}")
 
 
 def _parameters(reader: _Reader) -> dict[str, float]:

@@ -173,6 +173,13 @@ def test_several_logs_given_a_csv_for_output_are_refused_before_a_directory_of_t
     assert not (tmp_path / "out.csv").exists()
 
 
+@pytest.mark.parametrize("layout", ["4.1", "3.0"])  # an I column, or IMU, IMU2 records
+def test_an_imu_instance_the_log_lacks_is_refused_naming_those_it_has(tmp_path, capsys, layout):
+    log = str(write_dataflash(tmp_path / "two.bin", static_log(1.0), layout=layout, instances=2))
+    assert main(["replay", log, "--imu", "2", "-o", str(tmp_path / "out.csv"), *REF]) == 2
+    assert capsys.readouterr().err.strip().endswith("records; the log has IMU instance 0, 1: --imu 0")
+
+
 def test_a_truncated_log_alone_is_replayed_then_one_line_and_exit_2(tmp_path):
     data = write_dataflash(tmp_path / "x.bin", static_log(3.0)).read_bytes()
     cut = tmp_path / "cut.bin"
