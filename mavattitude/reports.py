@@ -25,6 +25,7 @@ from mavattitude.dispatch import DISPATCH_REJECTS, DispatchCounters
 from mavattitude.estimation import METHODS
 from mavattitude.estimation.compass import CompassEvent, CompassFigures
 from mavattitude.estimation.crosscheck import CrossCheck
+from mavattitude.link.connection import STATUSTEXT_LEN
 from mavattitude.link.session import RequestCounters
 from mavattitude.pipeline import SLOW_INPUT_METHOD
 from mavattitude.sensors.frontend import SLOW_PACE
@@ -237,6 +238,26 @@ REFUSAL_HINTS = {
 }
 
 
+#: What the service says to the ground station, each within STATUSTEXT's 50 characters for every input message
+#: (its log line says more).
+DEGENERATE_STATUSTEXT = "mavattitude: acc and mag collinear, no attitude"
+
+
+def start_statustext(version: str, message: str) -> str:
+    return f"mavattitude {version}: attitude from {message}"
+
+
+def input_lost_statustext(message: str, silent_s: float) -> str:
+    return f"mavattitude: no {message} {silent_s:.1f} s, output stopped"
+
+
+def refused_statustext(message: str, refused: Counter[str]) -> str:
+    """The input arrives but is all refused: the commonest reason, when it fits."""
+    top = refused.most_common(1)
+    text = f"mavattitude: {message} {top[0][0] if top else 'refused'}: no attitude"
+    return text if len(text) <= STATUSTEXT_LEN else f"mavattitude: {message} refused: no attitude"
+
+
 def refusals(dispatch: DispatchCounters, pipeline: Any) -> Counter[str]:
     """Every input sample and tick refused so far, by reason: undecodable (the dispatcher), refused by the front
     end (its clock, the screening), not emitted by the pipeline (degenerate geometry, no magnetometer, …)."""
@@ -245,6 +266,7 @@ def refusals(dispatch: DispatchCounters, pipeline: Any) -> Counter[str]:
 
 def refusals_text(refused: Counter[str]) -> str:
     """Refusals as words, the most frequent first: ``duplicate 2400 (its IMU time does not advance)``."""
+    refused = +refused  # (a count of 0 is nothing refused)
     if not refused:
         return "nothing refused"
     words = [f"{k} {n}" + (f" ({REFUSAL_HINTS[k]})" if k in REFUSAL_HINTS else "") for k, n in refused.most_common()]

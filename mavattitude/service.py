@@ -68,7 +68,6 @@ from mavattitude.estimation.compass import CompassEvent
 from mavattitude.estimation.crosscheck import CrossCheck
 from mavattitude.link import MavlinkLink, load_signing_key, message_id
 from mavattitude.link.arrivals import TickArrivals
-from mavattitude.link.connection import STATUSTEXT_LEN
 from mavattitude.link.logstreams import TILT_ONLY
 from mavattitude.link.requests import LOW_FRACTION, RateMonitor, StreamRequest
 from mavattitude.link.session import LinkSession
@@ -76,14 +75,18 @@ from mavattitude.link.source import AutopilotAttitude, AutopilotParameter, Mavli
 from mavattitude.periodic import Every
 from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, Pushed, snapshot_while_moving
 from mavattitude.reports import (
+    DEGENERATE_STATUSTEXT,
     ServiceCounters,
     compass_event_words,
     compass_statustext,
     counters_line,
     heading_lost,
+    input_lost_statustext,
     rate_handling,
     refusals,
     refusals_text,
+    refused_statustext,
+    start_statustext,
 )
 from mavattitude.sensors import units
 from mavattitude.sensors.frontend import SampleFlag
@@ -383,7 +386,7 @@ class AttitudeService:
     def on_lock(self, vehicle: Sender) -> None:
         self.session.lock(vehicle, time.monotonic())
         log.info("locked onto the autopilot: system %d, component %d", *vehicle)
-        self._statustext("start", f"mavattitude {__version__}: attitude from {self._input_name}", "info")
+        self._statustext("start", start_statustext(__version__, self._input_name), "info")
 
     @staticmethod
     def _stream_requests(config: Config) -> list[StreamRequest]:
@@ -485,7 +488,7 @@ class AttitudeService:
 
     def on_outputs(self, pushed: Pushed, t_rx: float) -> None:
         if pushed.rejected and DEGENERATE in pushed.rejected:
-            self._statustext("degenerate", "mavattitude: acc and mag near collinear, no attitude", "warning")
+            self._statustext("degenerate", DEGENERATE_STATUSTEXT, "warning")
         for event in pushed.compass:
             self._on_compass(event)
         outputs = pushed.outputs
@@ -563,18 +566,14 @@ class AttitudeService:
         self._stalled = True
         why = refusals_text(refused - self._refused)
         log.warning("%s arrives but no attitude has gone out for %.1f s: %s", self._input_name, quiet_s, why)
-        top = (refused - self._refused).most_common(1)
-        text = f"mavattitude: {self._input_name} {top[0][0] if top else 'refused'}: no attitude"
-        if len(text) > STATUSTEXT_LEN:
-            text = f"mavattitude: {self._input_name} refused: no attitude"
+        text = refused_statustext(self._input_name, refused - self._refused)
         self._statustext("output_stopped", text, "warning", log_it=False)
 
     def _on_input_lost(self, silent_s: float) -> None:
         self._input_lost = True
         self.counters.input_lost += 1
-        text = f"mavattitude: no {self._input_name} for {silent_s:.1f} s, output stopped"
-        log.warning("%s", text)
-        self._statustext("input_lost", text, "warning", log_it=False)
+        log.warning("no %s for %.1f s, output stopped", self._input_name, silent_s)
+        self._statustext("input_lost", input_lost_statustext(self._input_name, silent_s), "warning", log_it=False)
         if self._rate is not None:
             self._rate.restart()
         self._arrivals.forget()
