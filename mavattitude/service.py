@@ -21,16 +21,23 @@ service is the dispatcher's listener. What it does on the link:
   every ``request_repeat_s``, and as soon as the link (re)opens
   (unless ``request_messages`` is off); each COMMAND_ACK is matched to the request it answers
   (:mod:`mavattitude.link.requests`), and each stream's answer (or its absence) is said once;
+- asks for ArduPilot's level trim (``AHRS_TRIM_X/Y``, PARAM_REQUEST_READ, with ``mounting.autopilot_trim``)
+  until answered or asked three times; the pipeline turns the readings by it, so the attitude is of the
+  vehicle's frame, as the autopilot's (docs/frames.md);
 - cross-checks the autopilot (``crosscheck:``): asks for its ATTITUDE, pairs it with our output by vehicle
   time (:mod:`mavattitude.estimation.crosscheck`), publishes the difference as NAMED_VALUE_FLOAT
   (``xc_roll``, ``xc_pitch``, ``xc_yaw``, ``xc_total``, degrees) at ``publish_rate_hz``, and says once (log +
-  STATUSTEXT) when the total stays above ``threshold_deg`` for ``hold_s``, and when it clears;
+  STATUSTEXT) when the total stays above ``threshold_deg`` for ``hold_s``, and when it clears; a snapshot
+  solve while the vehicle moves is published, not judged (:func:`~mavattitude.pipeline.snapshot_while_moving`);
 - measures the input rate it receives, and says once (log + STATUSTEXT) when it stays below the requested
   rate (a slow serial link, a busy autopilot), with the measured rate and what to do, and when it recovers;
 - emits ATTITUDE_QUATERNION per pipeline output, stamped with the vehicle time of the sample, and (unless
   ``output.covariance`` is off) ATTITUDE_QUATERNION_COV with its 3×3 error covariance (rad², body frame);
 - input silent for longer than ``input_timeout_s``: says so once (log + STATUSTEXT); the output
   stops by itself, since outputs only come from input, and resumes with the next good sample;
+- input that arrives but is all refused for as long (a frozen IMU time, values out of range): says so once,
+  with the refusals since the last attitude (log + STATUSTEXT, :attr:`Waiting.ATTITUDES`), and when
+  attitudes go out again;
 - STATUSTEXT on start (once locked on) and, rate-limited, on degenerate geometry;
 - the compass judged inconsistent (:mod:`mavattitude.estimation.compass`): said once (log warning with the
   measured and expected dip, and a STATUSTEXT) until it clears; its figures go into the counters line;
