@@ -469,7 +469,9 @@ def _write_summary(path: Path, results: list[LogResult]) -> None:
         writer.writerows(rows)
 
 
-def comparison_table(diff_deg: np.ndarray, check: Any) -> str:
+def comparison_table(diff_deg: np.ndarray, check: Any, judged: bool = True) -> str:
+    """The differences' statistics, how many were compared, and with ``judged`` (the cross-check on) what it
+    judged and warned of."""
     lines = [f"{'ours − autopilot (deg)':<24}{'mean':>9}{'rms':>9}{'p95 |.|':>9}{'max |.|':>9}"]
     for name, d in zip(("roll", "pitch", "yaw", "total angle"), diff_deg.T, strict=True):
         d = d[np.isfinite(d)]  # yaw: none where ours has no heading
@@ -480,6 +482,9 @@ def comparison_table(diff_deg: np.ndarray, check: Any) -> str:
         lines.append(f"{name:<24}{d.mean():9.3f}{np.sqrt(np.mean(d**2)):9.3f}{np.percentile(a, 95):9.3f}{a.max():9.3f}")
     compared = f"{len(diff_deg)} autopilot attitudes compared with ours (interpolated to their times)"
     lines.append(f"{compared}: {_pairing(check)}")
+    if judged:
+        moving = f" ({check.unjudged} not: ours a snapshot while the vehicle moved)" if check.unjudged else ""
+        lines.append(f"cross-check: {check.pairs - check.unjudged} judged{moving}, {check.warnings} warning(s)")
     return "\n".join(lines)
 
 
@@ -540,7 +545,7 @@ def _compare(replayed: Any, job: Job, result: LogResult) -> None:
     if job.table:
         method = job.config.estimator.method
         note = SNAPSHOT_NOTE.format(method=method) + "\n" if METHODS[method].snapshot else ""
-        sys.stdout.write(comparison_table(diff, check) + "\n" + note)
+        sys.stdout.write(comparison_table(diff, check, job.config.crosscheck.enabled) + "\n" + note)
     if job.plot is None:
         return
     verdicts = Verdicts(

@@ -121,6 +121,9 @@ def test_replay_writes_the_attitude_and_compares_with_the_autopilot(tmp_path, ca
     # Ours is the truth, the autopilot's is the truth + 2°: −2° within the error bound.
     assert abs(mean_yaw + AUTOPILOT_YAW_OFFSET_DEG) < MAX_ERR_DEG / 2
     assert "autopilot attitudes compared with ours (interpolated to their times)" in table
+    compared = next(line for line in table.splitlines() if "compared with ours" in line).split()[0]
+    # turning at 5°/s on the ground: every pair judged (a snapshot is judged below 10°/s), the 2° never warned of
+    assert f"\ncross-check: {compared} judged, 0 warning(s)\n" in table
     png = out.with_suffix(".png")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "other system or component" in captured.err  # vehicle 2 and the ground station were skipped
