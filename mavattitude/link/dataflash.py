@@ -42,8 +42,10 @@ class _Index(DFReader.DFReader_binary):
 class _Reader:
     """The records of one type of a DataFlash log as columns (:meth:`_columns`, per format), and what is damaged."""
 
-    path: Path
-    damage: str | None
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.damage: str | None = None
+        self._tables: dict[str, dict[str, np.ndarray]] = {}  # each type read once (MAG is asked for per instance)
 
     def _columns(self, name: str) -> dict[str, np.ndarray]:
         """Every complete record of ``name`` as columns, scaled (empty if none), and each one's place in the
@@ -59,14 +61,16 @@ class _Reader:
         """Every complete record of ``name`` as columns (:meth:`_columns`); records with no time since boot of their
         own (a GPS record before ArduPilot 3.1, the oldest MAG and ATT) are given the time of the last IMU record
         before them in the file, as ``TimeUS``."""
-        columns = self._columns(name)
-        if columns and name != "IMU" and not _has_time(columns):
-            columns["TimeUS"] = self._file_order_time_s(columns[OFFSET]) * 1e6
-        return columns
+        if name not in self._tables:
+            columns = self._columns(name)
+            if columns and name != "IMU" and not _has_time(columns):
+                columns["TimeUS"] = self._file_order_time_s(columns[OFFSET]) * 1e6
+            self._tables[name] = columns
+        return self._tables[name]
 
     def _file_order_time_s(self, offsets: np.ndarray) -> np.ndarray:
         """The time of the last IMU record (any instance) before each offset; the first IMU's before them all."""
-        imu = self._columns("IMU")
+        imu = self.table("IMU")
         if not imu:
             raise KeyError("no time field, and no IMU record to take one from")
         clock_s = du.time_s(imu)[0]
@@ -87,7 +91,7 @@ class _BinaryReader(_Reader):
     """DFReader's index of one binary log (.bin), each type's records unpacked at once with numpy."""
 
     def __init__(self, path: Path) -> None:
-        self.path = path
+        super().__init__(path)
         try:
             with _silenced():
                 self.df = _Index(str(path), zero_time_base=False)
@@ -136,8 +140,7 @@ class _TextReader(_Reader):
     read, and said in :attr:`damage`."""
 
     def __init__(self, path: Path) -> None:
-        self.path = path
-        self.damage = None
+        super().__init__(path)
         try:
             with path.open("rb") as f:
                 head = f.read(TEXT_HEAD_BYTES)
@@ -299,7 +302,7 @@ def _streams(reader: _Reader, imu_instance: int, mag_instance: int | None) -> Lo
         if imu_table and len(imu_table["AccX"]):
             t, acc, gyr, wrap = du.imu(imu_table)
         else:
-            _refuse_for_others(path, reader, imu_name)
+            _refuse_for_others(reader, imu_name)
             t, acc, gyr, wrap = np.empty(0), empty3, empty3, None
         mag_t, mag = du.mag(mag_table) if mag_table and len(mag_table["MagX"]) else (np.empty(0), empty3)
         att = reader.table("ATT")
@@ -363,13 +366,13 @@ def _instances(reader: _Reader, base: str, column: str) -> Iterator[tuple[int, d
             yield k, found
 
 
-def _refuse_for_others(path: Path, reader: _Reader, name: str) -> None:
+def _refuse_for_others(reader: _Reader, name: str) -> None:
     """The chosen IMU instance has no records: a DataFileError naming those the log has (an autopilot whose
     first IMU is disabled), if any; without any, the streams' own check says so."""
     others = [str(k) for k, _ in _instances(reader, "IMU", "AccX")]
     if others:
         has = ", ".join(others)
-        raise DataFileError(f"{path}: no {name} records; the log has IMU instance {has}: --imu {others[0]}")
+        raise DataFileError(f"{reader.path}: no {name} records; the log has IMU instance {has}: --imu {others[0]}")
 
 
 def _parameters(reader: _Reader) -> dict[str, float]:
