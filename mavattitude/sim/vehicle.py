@@ -197,7 +197,8 @@ class FakeVehicle:
         self._epoch = _Epoch()
         self._imu_paused = False
         self._gps_fix = config.gps_fix
-        self._board_from_frame = trim_matrix(*np.radians(config.trim_deg)).T  # its readings are its board's
+        # its readings are its board's: a frame row vector v turns into the board's as v · T (Tᵀ v, as a column)
+        self._frame_to_board_rows = trim_matrix(*np.radians(config.trim_deg))
         self._streams: dict[int, _Stream | _ImuStream] = {}
         # the telemetry it sends (paced by the clock) and how
         self._telemetry: dict[int, Callable[[float], None]] = {
@@ -423,7 +424,7 @@ class FakeVehicle:
         t = t[t >= epoch.boot_script_s]
         if not len(t):
             return
-        acc, gyr, mag = (v @ self._board_from_frame.T for v in sensors.measure(self.script, t, self._rng))
+        acc, gyr, mag = (v @ self._frame_to_board_rows for v in sensors.measure(self.script, t, self._rng))
         name = mavlink2.mavlink_map[msg_id].msgname
         rows = [ImuRow(t[i], epoch.vehicle_time(t[i]), _vec(acc[i]), _vec(gyr[i]), _vec(mag[i])) for i in range(len(t))]
         for row in self._apply_fault(rows):
