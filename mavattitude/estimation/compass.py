@@ -102,6 +102,7 @@ from .conventions import (
     rotate_body_to_ned_parts,
     rotation_matrix_parts,
 )
+from .motion import moving, norm, norm_rows
 
 NOISE_SIGMAS = 3.0  # k: a window mean this many per-sample σ off is not noise
 CLEAR_FRACTION = 0.75  # consistent again below this fraction of the thresholds
@@ -117,14 +118,10 @@ MIN_SECOND_AXIS_SHARE = 0.1  # a turn vouches for a compass when this share of i
 MIN_EXPLAINED_SHARE = 0.5  # another mounting must explain at least this share of the configured one's turn residual
 
 
-def _norm(v: Vec3) -> float:
-    return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-
-
 def measured_dip_deg(acc_mps2: Vec3, mag_uT: Vec3) -> float:
     """The field's dip below the horizontal the accelerometer shows, degrees (positive: field points down);
     NaN when either vector is zero (it has no direction, so there is no dip)."""
-    norms = _norm(acc_mps2) * _norm(mag_uT)
+    norms = norm(acc_mps2) * norm(mag_uT)
     if norms == 0.0:
         return math.nan
     dot = -(acc_mps2[0] * mag_uT[0] + acc_mps2[1] * mag_uT[1] + acc_mps2[2] * mag_uT[2])
@@ -135,7 +132,7 @@ def measured_dip_deg_rows(acc_mps2: Array, mag_uT: Array) -> Array:
     """:func:`measured_dip_deg` of each row, the same operations in the same order (``asin`` by :mod:`math`:
     numpy's vectorised one differs in the last bit)."""
     dot = -(acc_mps2[:, 0] * mag_uT[:, 0] + acc_mps2[:, 1] * mag_uT[:, 1] + acc_mps2[:, 2] * mag_uT[:, 2])
-    norms = _norm_rows(acc_mps2) * _norm_rows(mag_uT)
+    norms = norm_rows(acc_mps2) * norm_rows(mag_uT)
     with np.errstate(divide="ignore", invalid="ignore"):  # a zero vector's row: NaN below
         ratio = dot / norms
     ratio = np.where(ratio < 1.0, ratio, 1.0)  # clip_unit's comparisons: NaN becomes 1, as there
@@ -144,14 +141,9 @@ def measured_dip_deg_rows(acc_mps2: Array, mag_uT: Array) -> Array:
     return np.degrees(np.fromiter(map(math.asin, ratio.tolist()), float, len(ratio)))
 
 
-def _norm_rows(v: Array) -> Array:
-    """:func:`_norm` of each row, the same operations in the same order."""
-    return np.sqrt(v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1] + v[:, 2] * v[:, 2])
-
-
 def reference_dip_deg(field_ned_uT: Vec3) -> float:
     """The inclination of a NED reference field, degrees (positive down)."""
-    return math.degrees(math.asin(clip_unit(field_ned_uT[2] / _norm(field_ned_uT))))
+    return math.degrees(math.asin(clip_unit(field_ned_uT[2] / norm(field_ned_uT))))
 
 
 def rms_sigma(std: Vec3) -> float:
@@ -620,16 +612,12 @@ class CompassMonitor:
         self._expected_dip = reference_dip_deg(field_ned_uT)
         self._field_uT = intensity_uT
         self._reference_measured = measured
-        scale = intensity_uT if intensity_uT is not None else _norm(field_ned_uT)
+        scale = intensity_uT if intensity_uT is not None else norm(field_ned_uT)
         self._thresholds = thresholds(self.settings, *self._sigmas, scale)
 
     def quiet(self, acc_mps2: Vec3, gyr_radps: Vec3) -> bool:
         """Low acceleration and slow rotation: the specific force shows gravity (module docstring)."""
-        g = STANDARD_GRAVITY_MPS2
-        return (
-            abs(_norm(acc_mps2) - g) <= self.settings.low_accel_fraction * g
-            and _norm(gyr_radps) <= self._max_rate_radps
-        )
+        return not moving(norm(acc_mps2), norm(gyr_radps), self.settings.low_accel_fraction, self._max_rate_radps)
 
     def quiet_dip_field(self, acc_mps2: Vec3, mag_uT: Vec3, gyr_radps: Vec3) -> tuple[float, float]:
         """The dip (degrees) and |B| (µT) of one tick when it is quiet, NaN when not: what the monitor takes
@@ -637,13 +625,13 @@ class CompassMonitor:
         acc_mps2, mag_uT, gyr_radps = _floats(acc_mps2), _floats(mag_uT), _floats(gyr_radps)
         if not self.quiet(acc_mps2, gyr_radps):
             return math.nan, math.nan
-        return measured_dip_deg(acc_mps2, mag_uT), _norm(mag_uT)
+        return measured_dip_deg(acc_mps2, mag_uT), norm(mag_uT)
 
     def quiet_dip_field_rows(self, acc_mps2: Array, mag_uT: Array, gyr_radps: Array) -> tuple[Array, Array]:
         """:meth:`quiet_dip_field` of each row, the same operations in the same order."""
         quiet = self._quiet_rows(acc_mps2, gyr_radps)
         dip = np.where(quiet, measured_dip_deg_rows(acc_mps2, mag_uT), np.nan)
-        return dip, np.where(quiet, _norm_rows(mag_uT), np.nan)
+        return dip, np.where(quiet, norm_rows(mag_uT), np.nan)
 
     def suspect(self, acc_mps2: Vec3, mag_uT: Vec3, gyr_radps: Vec3) -> bool:
         """Whether this one sample's field should set heading only.
@@ -694,7 +682,7 @@ class CompassMonitor:
         acc_mps2, mag_uT, gyr_radps = _floats(acc_mps2), _floats(mag_uT), _floats(gyr_radps)
         quiet = self.quiet(acc_mps2, gyr_radps)
         dip = measured_dip_deg(acc_mps2, mag_uT) if quiet else math.nan
-        field = _norm(mag_uT) if quiet and self._field_uT is not None else None
+        field = norm(mag_uT) if quiet and self._field_uT is not None else None
         event = self._take(float(time_s), mag_uT, gyr_radps, float(mag_age_s), quiet, dip, field)
         if self.inconsistent or self.confirmed:
             return event, self.inconsistent
@@ -715,7 +703,7 @@ class CompassMonitor:
         known = self._expected_dip == self._expected_dip  # else update() judges nothing
         quiet = self._quiet_rows(acc_mps2, gyr_radps).tolist()
         dips = measured_dip_deg_rows(acc_mps2, mag_uT).tolist()
-        fields = _norm_rows(mag_uT).tolist() if self._field_uT is not None else [None] * len(time_s)
+        fields = norm_rows(mag_uT).tolist() if self._field_uT is not None else [None] * len(time_s)
         ages = [0.0] * len(time_s) if mag_age_s is None else mag_age_s.tolist()
         for t, m, g, age, q, dip, field in zip(
             time_s.tolist(), mag_uT.tolist(), gyr_radps.tolist(), ages, quiet, dips, fields, strict=True
@@ -727,10 +715,8 @@ class CompassMonitor:
 
     def _quiet_rows(self, acc_mps2: Array, gyr_radps: Array) -> NDArray[np.bool_]:
         """:meth:`quiet` of each row, the same operations in the same order."""
-        g = STANDARD_GRAVITY_MPS2
-        return (np.abs(_norm_rows(acc_mps2) - g) <= self.settings.low_accel_fraction * g) & (
-            _norm_rows(gyr_radps) <= self._max_rate_radps
-        )
+        s = self.settings
+        return ~moving(norm_rows(acc_mps2), norm_rows(gyr_radps), s.low_accel_fraction, self._max_rate_radps)
 
     def _take(
         self,

@@ -82,7 +82,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from mavattitude.estimation import motion
 from mavattitude.estimation.conventions import Array, Vec3, gap_limit_s
+from mavattitude.estimation.motion import norm, norm2, norm2_rows, norm_rows
 from mavattitude.lowpass import butter2, filter_batch
 from mavattitude.sensors.calibration import Calibration, sensor_affines
 from mavattitude.sensors.clock import ClockEvent, VehicleClock
@@ -286,16 +288,16 @@ def mag_rejects(finite: Any, saturated: Any, dead: Any) -> dict[str, Any]:
 
 def acc_suspect(norm_mps2: Any, settings: FrontEndSettings) -> Any:
     """``| |a| − g | > acc_norm_tolerance · g``: the tick's specific force is not gravity alone (``ACC_NORM``)."""
-    g = settings.gravity_mps2
-    return abs(norm_mps2 - g) > settings.acc_norm_tolerance * g
+    return motion.off_gravity(norm_mps2, settings.acc_norm_tolerance, settings.gravity_mps2)
 
 
 def moving(acc_norm_mps2: Any, gyr_norm_radps: Any, settings: FrontEndSettings) -> Any:
     """``|ω| > moving_rate_dps`` or ``| |a| − g | > moving_accel_fraction · g``: the vehicle turns or accelerates
-    (``MOVING``). Scalars or arrays alike."""
-    g = settings.gravity_mps2
-    turning = gyr_norm_radps > math.radians(settings.moving_rate_dps)
-    return turning | (abs(acc_norm_mps2 - g) > settings.moving_accel_fraction * g)
+    (``MOVING``)."""
+    s = settings
+    return motion.moving(
+        acc_norm_mps2, gyr_norm_radps, s.moving_accel_fraction, math.radians(s.moving_rate_dps), s.gravity_mps2
+    )
 
 
 def mag_suspect(norm_uT: Any, expected_uT: float, settings: FrontEndSettings) -> Any:
@@ -504,7 +506,7 @@ class FrontEnd:
         if (
             sample.saturated
             or not (_within(acc, s.acc_full_scale_mps2) and _within(gyr, s.gyr_full_scale_radps))
-            or _norm2(acc) < self._acc_floor2
+            or norm2(acc) < self._acc_floor2
         ):
             reason = self._reject_reason(sample)
             if reason is not None:
@@ -512,7 +514,7 @@ class FrontEnd:
                 return []
         c.accepted += 1
         if mag is not None:
-            if "mag" in sample.saturated or not _within(mag, s.mag_full_scale_uT) or _norm2(mag) < self._mag_floor2:
+            if "mag" in sample.saturated or not _within(mag, s.mag_full_scale_uT) or norm2(mag) < self._mag_floor2:
                 c.mag_rejected[self._mag_reject_reason(mag, sample.saturated)] += 1
             elif not (sample.mag_repeats and self._repeated(t, mag)):
                 self._mag_taken = mag
@@ -581,7 +583,7 @@ class FrontEnd:
                 np.bool_(_finite(acc) and _finite(gyr)),
                 np.bool_("acc" in sample.saturated or not _within(acc, s.acc_full_scale_mps2)),
                 np.bool_("gyr" in sample.saturated or not _within(gyr, s.gyr_full_scale_radps)),
-                np.bool_(_norm2(acc) < self._acc_floor2),
+                np.bool_(norm2(acc) < self._acc_floor2),
             )
         )
 
@@ -591,7 +593,7 @@ class FrontEnd:
                 mag_rejects(
                     np.bool_(_finite(mag)),
                     np.bool_("mag" in saturated or not _within(mag, self.settings.mag_full_scale_uT)),
-                    np.bool_(_norm2(mag) < self._mag_floor2),
+                    np.bool_(norm2(mag) < self._mag_floor2),
                 )
             )
             or "dead"
@@ -629,14 +631,14 @@ class FrontEnd:
         mag, mag_flag, mag_age_s = self._mag_at(tk, raw)
         flags |= mag_flag
         acc_scale = mag_scale = 1.0
-        acc_norm = _norm(acc)
+        acc_norm = norm(acc)
         if acc_suspect(acc_norm, s):
             flags |= _ACC_NORM
             acc_scale = s.suspect_std_scale
-        if moving(acc_norm, _norm(gyr), s):
+        if moving(acc_norm, norm(gyr), s):
             flags |= _MOVING
         b0 = self.expected_field_uT
-        if mag is not None and b0 is not None and mag_suspect(_norm(mag), b0, s):
+        if mag is not None and b0 is not None and mag_suspect(norm(mag), b0, s):
             flags |= _MAG_NORM
             mag_scale = s.suspect_std_scale
         c = self.counters
@@ -703,23 +705,6 @@ def _apply(rows: tuple[tuple[float, ...], ...], v: Sequence[float]) -> Vec3:
 def _lerp(t0: float, y0: Sequence[float], t1: float, y1: Sequence[float], t: float) -> list[float]:
     frac = (t - t0) / (t1 - t0)
     return [a + (b - a) * frac for a, b in zip(y0, y1, strict=True)]
-
-
-def _norm2(v: Sequence[float]) -> float:
-    return v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
-
-
-def _norm(v: Sequence[float]) -> float:
-    return math.sqrt(_norm2(v))
-
-
-def _norm2_rows(a: Array) -> Array:
-    """Squared row norms with the same operations, in the same order, as :func:`_norm2`."""
-    return a[:, 0] * a[:, 0] + a[:, 1] * a[:, 1] + a[:, 2] * a[:, 2]
-
-
-def _norm_rows(a: Array) -> Array:
-    return np.sqrt(_norm2_rows(a))
 
 
 def _vec(y: Sequence[float]) -> Vec3:
@@ -827,7 +812,7 @@ def process_batch(
     sat_gyr = sat["gyr"] | ~_within_rows(gyr, s.gyr_full_scale_radps)
     mag_sat = sat["mag"] | ~_within_rows(mag, s.mag_full_scale_uT)
     with np.errstate(invalid="ignore", over="ignore"):  # NaN and huge rows are not dead (and already refused)
-        acc_dead, mag_dead = _norm2_rows(acc) < acc_floor2, _norm2_rows(mag) < mag_floor2
+        acc_dead, mag_dead = norm2_rows(acc) < acc_floor2, norm2_rows(mag) < mag_floor2
     rejects = sample_rejects(ok_fin, sat_acc, sat_gyr, acc_dead)
     for reason, mask in rejects.items():
         count = int(np.count_nonzero(kept & mask))
@@ -1177,13 +1162,13 @@ def _concat(pieces: list[tuple[Array, Array, Array, NDArray[np.int64], Array]], 
 
 
 def _screen_batch(s: FrontEndSettings, out: BatchOutput, b0: float | None) -> None:
-    acc_norm = _norm_rows(out.acc_mps2)
+    acc_norm = norm_rows(out.acc_mps2)
     acc_bad = acc_suspect(acc_norm, s)
     out.flags[acc_bad] |= SampleFlag.ACC_NORM
-    out.flags[moving(acc_norm, _norm_rows(out.gyr_radps), s)] |= SampleFlag.MOVING
+    out.flags[moving(acc_norm, norm_rows(out.gyr_radps), s)] |= SampleFlag.MOVING
     out.acc_std_scale[acc_bad] = s.suspect_std_scale
     if b0 is not None:
         with np.errstate(invalid="ignore"):
-            mag_bad = mag_suspect(_norm_rows(out.mag_uT), b0, s)
+            mag_bad = mag_suspect(norm_rows(out.mag_uT), b0, s)
         out.flags[mag_bad] |= SampleFlag.MAG_NORM
         out.mag_std_scale[mag_bad] = s.suspect_std_scale

@@ -1,0 +1,61 @@
+"""Whether the specific force is gravity alone: the one rule, with each user's thresholds. No I/O.
+
+An accelerometer reads the specific force ``f = a − g``; only when the vehicle neither accelerates nor turns is
+``f`` the gravity every snapshot solve (the paper's Eq. 1–2 reference ``[0, 0, −1]``) and the compass's dip
+assume. Two cheap symptoms say it is not: ``| |f| − g |`` beyond a fraction of g (a linear acceleration, a tap,
+vibration) and ``|ω|`` beyond a rate (a turn, whose centripetal acceleration and lag the snapshot does not see).
+Three users ask it with thresholds of their own purpose: the front end's ``ACC_NORM`` flag (the accelerometer's
+weight inflated) and ``MOVING`` flag (the cross-check does not vouch for a snapshot), and the compass monitor's
+*quiet* samples (the only ones its dip and |B| count).
+
+Each function takes plain floats or equal-shape arrays alike; :func:`norm` and :func:`norm_rows` are the same
+operations in the same order (both square roots correctly rounded), so the per-sample and the batch paths agree
+to the bit.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from .conventions import STANDARD_GRAVITY_MPS2, Array
+
+
+def norm2(v: Sequence[float]) -> float:
+    """``|v|²`` of a 3-vector of plain floats."""
+    return v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+
+
+def norm(v: Sequence[float]) -> float:
+    """``|v|`` of a 3-vector of plain floats."""
+    return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+
+
+def norm2_rows(a: Array) -> Array:
+    """:func:`norm2` of each row of an ``(n, 3)`` array."""
+    return a[:, 0] * a[:, 0] + a[:, 1] * a[:, 1] + a[:, 2] * a[:, 2]
+
+
+def norm_rows(a: Array) -> Array:
+    """:func:`norm` of each row of an ``(n, 3)`` array."""
+    return np.sqrt(norm2_rows(a))
+
+
+def off_gravity(acc_norm_mps2: Any, fraction: float, gravity_mps2: float = STANDARD_GRAVITY_MPS2) -> Any:
+    """``| |f| − g | > fraction · g``: the specific force is more than gravity's (False for NaN)."""
+    return abs(acc_norm_mps2 - gravity_mps2) > fraction * gravity_mps2
+
+
+def moving(
+    acc_norm_mps2: Any,
+    gyr_norm_radps: Any,
+    accel_fraction: float,
+    rate_radps: float,
+    gravity_mps2: float = STANDARD_GRAVITY_MPS2,
+) -> Any:
+    """Turning faster than ``rate_radps`` or :func:`off_gravity` by ``accel_fraction``: the specific force may
+    not be gravity (False for NaN)."""
+    return (gyr_norm_radps > rate_radps) | off_gravity(acc_norm_mps2, accel_fraction, gravity_mps2)
