@@ -258,6 +258,19 @@ def refused_statustext(message: str, refused: Counter[str]) -> str:
     return text if len(text) <= STATUSTEXT_LEN else f"mavattitude: {message} refused: no attitude"
 
 
+def compass_unused_warning(instance: int, parameter: str, value: float, remedy: str) -> str:
+    """The compass our heading comes from is one the autopilot does not use (``instance`` 0-based; the autopilot
+    numbers them from 1): it set it aside, perhaps for a reason the pilot knows (interference, a bad mount)."""
+    return (
+        f"the autopilot does not use compass {instance + 1} ({parameter} {value:g}), the one our heading comes "
+        f"from: it may have set it aside for a reason (interference, its mounting); {remedy}"
+    )
+
+
+def compass_unused_statustext(instance: int) -> str:
+    return f"mavattitude: compass {instance + 1} unused by autopilot"
+
+
 def refusals(dispatch: DispatchCounters, pipeline: Any) -> Counter[str]:
     """Every input sample and tick refused so far, by reason: undecodable (the dispatcher), refused by the front
     end (its clock, the screening), not emitted by the pipeline (degenerate geometry, no magnetometer, …)."""

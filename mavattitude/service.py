@@ -75,7 +75,7 @@ from mavattitude.estimation.compass import CompassEvent
 from mavattitude.estimation.crosscheck import CrossCheck
 from mavattitude.link import MavlinkLink, load_signing_key, message_id
 from mavattitude.link.arrivals import TickArrivals
-from mavattitude.link.logstreams import TILT_ONLY
+from mavattitude.link.logstreams import TILT_ONLY, compass_use_parameter
 from mavattitude.link.requests import LOW_FRACTION, RateMonitor, StreamRequest
 from mavattitude.link.session import LinkSession
 from mavattitude.link.source import AutopilotAttitude, AutopilotParameter, MavlinkDecoder, Sender
@@ -86,6 +86,8 @@ from mavattitude.reports import (
     ServiceCounters,
     compass_event_words,
     compass_statustext,
+    compass_unused_statustext,
+    compass_unused_warning,
     counters_line,
     heading_lost,
     input_lost_statustext,
@@ -250,8 +252,16 @@ class AttitudeService:
         self._published_s: float | None = None  # vehicle time of the last difference published
         now = time.monotonic()
         trim = TRIM_PARAMETERS if config.mounting.autopilot_trim else ()
+        own = self.other_compasses.own  # the compass input.message carries (None: HIGHRES_IMU, PX4's, says none)
+        self._compass_use = () if own is None else (compass_use_parameter(own),)
+        self._compass_unused = False  # the autopilot said it does not use that compass (said once)
         self.session = LinkSession(
-            link, self._stream_requests(config), config.link.request_repeat_s, now, self.counters, trim
+            link,
+            self._stream_requests(config),
+            config.link.request_repeat_s,
+            now,
+            self.counters,
+            trim + self._compass_use,
         )
         self._tick = Every(TICK_S, now)
         self._publish = Every(1.0 / config.crosscheck.publish_rate_hz, now)
@@ -418,6 +428,24 @@ class AttitudeService:
 
     def on_parameter(self, parameter: AutopilotParameter) -> None:
         self.session.parameter_received(parameter.name)
+        if parameter.name in self._compass_use:
+            self._say_compass_use(parameter.name, parameter.value)
+
+    def _say_compass_use(self, name: str, value: float) -> None:
+        """Whether the autopilot uses the compass our heading comes from: said when it does not (it may have set
+        it aside for a reason the pilot knows), with the input messages that carry the others; and when again."""
+        unused = value == 0.0
+        if unused == self._compass_unused:
+            return
+        self._compass_unused, own = unused, self.other_compasses.own
+        assert own is not None  # asked only for a compass input.message carries
+        if not unused:
+            log.info("the autopilot uses compass %d again (%s %g)", own + 1, name, value)
+            return
+        others = {k: m for m, k in reversed(units.COMPASS_INSTANCES.items()) if k != own}  # the first message of each
+        remedy = "input.message " + " or ".join(f"{m} follows compass {k + 1}" for k, m in sorted(others.items()))
+        log.warning("%s", compass_unused_warning(own, name, value, remedy))
+        self._statustext("compass_unused", compass_unused_statustext(own), "warning", log_it=False)
 
     def on_message(self, msg: Any, t_rx: float) -> None:
         self.session.on_message(msg, time.monotonic())

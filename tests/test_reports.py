@@ -12,6 +12,7 @@ from mavattitude.link.connection import STATUSTEXT_LEN
 from mavattitude.reports import (
     DEGENERATE_STATUSTEXT,
     REFUSAL_HINTS,
+    compass_unused_statustext,
     input_lost_statustext,
     refusals_text,
     refused_statustext,
@@ -31,6 +32,7 @@ def test_every_statustext_fits_for_every_input_message(message):
         start_statustext(__version__, message),
         input_lost_statustext(message, 12.5),  # the longest a gap is said at (2.5 intervals of a 0.2 Hz stream)
         *(refused_statustext(message, Counter({reason: 1000})) for reason in REASONS),
+        *(compass_unused_statustext(instance) for instance in range(3)),
     ]
     assert [t for t in texts if len(t) > STATUSTEXT_LEN] == []
     assert refused_statustext(message, Counter({"duplicate": 5, "nonfinite": 1})).endswith(" duplicate: no attitude")

@@ -88,11 +88,16 @@ class Compasses:
     why: str | None = None
 
 
+def compass_use_parameter(instance: int) -> str:
+    """ArduPilot's parameter that says whether it uses compass ``instance`` (0-based: COMPASS_USE, COMPASS_USE2, …)."""
+    return f"COMPASS_USE{instance + 1 if instance else ''}"
+
+
 def autopilot_compass(params: Mapping[str, float], instances: Sequence[int]) -> tuple[int, str] | None:
     """The compass ArduPilot uses for heading, from its parameters, and the parameters that say so; ``None``
     when none of them is in the log. Its primary (``COMPASS_PRIMARY``, 0-based, older firmware) if that one is
     used, else the first instance whose ``COMPASS_USE``/``USE2``/``USE3`` is 1 (an absent one defaults to 1)."""
-    use_names = {k: f"COMPASS_USE{k + 1 if k else ''}" for k in instances}
+    use_names = {k: compass_use_parameter(k) for k in instances}
     said = [name for name in ("COMPASS_PRIMARY", *use_names.values()) if name in params]
     if not said:
         return None

@@ -22,7 +22,8 @@ It behaves like an autopilot on a companion-computer link:
 - records every ATTITUDE_QUATERNION, STATUSTEXT and COMMAND_LONG it receives, and scores the attitude
   against the truth at the same vehicle time (:mod:`mavattitude.sim.scoring`);
 - answers PARAM_REQUEST_READ of its level trim (AHRS_TRIM_X/Y, ``trim_deg``: its board so turned in the
-  frame, its IMU messages the board's, its ATTITUDE and the truth the frame's).
+  frame, its IMU messages the board's, its ATTITUDE and the truth the frame's) and of whether it uses each
+  compass (COMPASS_USE, COMPASS_USE2, COMPASS_USE3: ``compass_use``).
 
 The vehicle clock is the script clock scaled by ``speed`` (an accelerated soak runs faster than real
 time); ``time_boot_ms``/``time_usec`` count from the last (simulated) boot. Faults are injected through
@@ -48,6 +49,7 @@ import numpy as np
 
 from mavattitude.errors import InputError, LinkError
 from mavattitude.estimation.conventions import Array, euler_from_quat
+from mavattitude.link.logstreams import compass_use_parameter
 from mavattitude.link.mavlink2 import force_mavlink2, mavlink2, mavutil, message_id
 from mavattitude.sensors.mounting import TRIM_PARAMETERS, trim_matrix
 from mavattitude.sensors.units import (
@@ -113,6 +115,7 @@ class VehicleConfig:
     # ArduPilot's level trim, roll and pitch: the autopilot's board sits so turned in the frame; its IMU messages
     # are the board's, its ATTITUDE the frame's, and PARAM_REQUEST_READ of AHRS_TRIM_X/Y answers it
     trim_deg: tuple[float, float] = (0.0, 0.0)
+    compass_use: tuple[int, int, int] = (1, 1, 1)  # COMPASS_USE, COMPASS_USE2, COMPASS_USE3: which it heads by
 
 
 @dataclass(frozen=True)
@@ -561,11 +564,13 @@ class FakeVehicle:
             self._parameter(msg.param_id)
 
     def _parameter(self, name: str) -> None:
-        """PARAM_VALUE of one of the parameters it has (its level trim); another name is not answered."""
-        if name in TRIM_PARAMETERS:
-            value = math.radians(self.config.trim_deg[TRIM_PARAMETERS.index(name)])
+        """PARAM_VALUE of one of the parameters it has (its level trim, its compasses' use); another name is not
+        answered, as ArduPilot does not."""
+        parameters = dict(zip(TRIM_PARAMETERS, np.radians(self.config.trim_deg).tolist(), strict=True))
+        parameters |= {compass_use_parameter(k): float(use) for k, use in enumerate(self.config.compass_use)}
+        if name in parameters:
             real32 = mavlink2.MAV_PARAM_TYPE_REAL32
-            self.send(mavlink2.MAVLink_param_value_message(name.encode(), value, real32, len(TRIM_PARAMETERS), 0))
+            self.send(mavlink2.MAVLink_param_value_message(name.encode(), parameters[name], real32, len(parameters), 0))
 
     def _command(self, msg: Any) -> None:
         result = mavlink2.MAV_RESULT_UNSUPPORTED

@@ -31,10 +31,11 @@ def test_moving_is_a_turn_or_a_specific_force_off_g(acc_norm: float, gyr_norm: f
 
 def test_the_rule_on_rows_is_the_rule_on_each_sample() -> None:
     rng = np.random.default_rng(7)
-    acc = rng.normal(0.0, 1.0, (500, 3)) + (0.0, 0.0, -G)  # |a| around g, some rows beyond 3 %
+    acc = rng.normal(0.0, 1.0, (500, 3)) + np.array([0.0, 0.0, -G])  # |a| around g, some rows beyond 3 %
     gyr = rng.normal(0.0, RATE, (500, 3))  # about half the rows turning faster than RATE
     rows = motion.moving(motion.norm_rows(acc), motion.norm_rows(gyr), 0.03, RATE)
-    each = [motion.moving(motion.norm(a), motion.norm(g), 0.03, RATE) for a, g in zip(acc.tolist(), gyr.tolist())]
+    pairs = zip(acc.tolist(), gyr.tolist(), strict=True)
+    each = [motion.moving(motion.norm(a), motion.norm(g), 0.03, RATE) for a, g in pairs]
     assert rows.tolist() == each
     assert 0 < rows.sum() < len(rows)  # both verdicts occur: the comparison is not vacuous
     # the same operations in the same order: the norms agree to the bit, not to a tolerance
