@@ -84,6 +84,8 @@ class Replayed:
     #: every magnetometer judged (the replayed one's from the pipeline), where the log holds several
     compasses: list[JudgedCompass] = field(default_factory=list)
     compass_used: str = ""  # which magnetometer was replayed and why ("1: the autopilot's: COMPASS_USE 0, …")
+    #: (instance, parameter, value) when the log's parameters say the autopilot does not use the one replayed
+    unused_compass: tuple[int, str, float] | None = None
 
     def output_array(self) -> np.ndarray:
         """Rows ``t_s, qw, qx, qy, qz`` of every output."""
@@ -223,6 +225,7 @@ def _replay_in_log_order(
         streams = streams.with_compass(own, f"{message}'s own, as live")
         result.compass_used = f"{own}: {message}'s own, as live"
         _collect_compasses(streams, _judge_compasses(streams, result.pipeline, -math.inf), result)
+    result.unused_compass = streams.unused_compass()
     return result
 
 
@@ -333,6 +336,7 @@ def _chosen_compass(s: LogStreams, judged: list[JudgedCompass], result: Replayed
     """``s`` with the magnetometer to replay: the one the log names (``--mag``, the autopilot's), else the most
     consistent of those judged (fewest warnings, then vouched for, then the lowest instance); said in
     :attr:`Replayed.compass_used`."""
+    result.unused_compass = s.unused_compass()  # of the one the log names, if it names one
     if s.compasses is None:
         result.compass_used = "the only one"
         return s
@@ -343,4 +347,5 @@ def _chosen_compass(s: LogStreams, judged: list[JudgedCompass], result: Replayed
             log.info("replaying magnetometer %d, the most consistent of %d", best.instance, len(judged))
     assert s.compasses is not None
     result.compass_used = f"{s.compasses.used}: {s.compasses.why or 'the first'}"
+    result.unused_compass = s.unused_compass()
     return s

@@ -31,7 +31,9 @@ the vehicle moved), xc_rms_deg and xc_warnings, and a note on what was wrong wit
 Every magnetometer a log holds (a .bin's MAG instances; a .tlog's RAW_IMU, SCALED_IMU2, SCALED_IMU3) is
 judged by the compass monitor against the same IMU: the summary's compasses column ("0 ok; 1 turns unlike
 the gyro: turned?"), and compass, the one replayed and why: --mag, else the one the autopilot used where
-the log says (COMPASS_USE / COMPASS_USE2 / COMPASS_PRIMARY in PARM or PARAM_VALUE), else the most consistent.
+the log says (COMPASS_USE / COMPASS_USE2 / COMPASS_PRIMARY in PARM or PARAM_VALUE), else the most consistent;
+one the autopilot did not use (its COMPASS_USE 0: the only one logged, or --mag's) is said (a warning, and
+"unused by the autopilot" in compass).
 -j N replays N logs at a time in worker processes. Where a log holds the autopilot's own attitude, a
 PNG comparison plot is written beside its CSV (needs matplotlib: pip install mavattitude[plot]), shaded where
 the compass was judged off and where the cross-check warned.
@@ -77,7 +79,7 @@ from mavattitude.estimation import METHODS
 from mavattitude.estimation.conventions import euler_from_quat
 from mavattitude.files import refuse_overwriting
 from mavattitude.link.logstreams import TILT_ONLY
-from mavattitude.reports import heading_lost, rate_handling
+from mavattitude.reports import compass_unused_warning, heading_lost, rate_handling
 from mavattitude.sensors.frontend import SampleFlag
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
 
@@ -395,6 +397,10 @@ def _compasses_columns(replayed: Any, job: Job, result: LogResult) -> None:
     """Which magnetometer was replayed and why, and every one's verdict (docs/vehicle.md); each one found off is
     said once in the log."""
     result.columns["compass"] = replayed.compass_used
+    if replayed.unused_compass is not None:
+        instance, name, value = replayed.unused_compass
+        result.columns["compass"] += f"; unused by the autopilot ({name} {value:g})"
+        log.warning("%s", compass_unused_warning(instance, name, value, "--mag I replays another the log holds"))
     if not replayed.compasses:
         return
     result.columns["compasses"] = "; ".join(f"{j.instance} {j.verdict()}" for j in replayed.compasses)

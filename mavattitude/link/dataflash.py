@@ -315,7 +315,7 @@ def _streams(reader: _Reader, imu_instance: int, mag_instance: int | None) -> Lo
     streams = LogStreams(t, acc, gyr, mag_t, mag, att_t, att_q, pos_t, positions, date, wrap, reader.damage)
     streams.check(str(path), imu_name, mag_name)
     streams.gps_t_s, streams.gps_velocity = gps_t, gps_velocity
-    streams.parameters = parameters
+    streams.parameters, streams.mag_instance = parameters, used
     if len(readings) > 1 and used in readings:
         streams.compasses = Compasses(readings, used, why)
     return streams

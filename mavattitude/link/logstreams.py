@@ -138,15 +138,27 @@ class LogStreams:
     compasses: Compasses | None = None  # every magnetometer, where the log holds several
     #: the autopilot's parameters, each at its last value in the log (its level trim is used from the start)
     parameters: dict[str, float] = field(default_factory=dict)
+    #: the autopilot's number (0-based) of the compass in mag_uT, where it numbers them as its parameters do
+    #: (ArduPilot's COMPASS_USE, COMPASS_USE2, …); None: a ULog's (PX4's field has no such parameter)
+    mag_instance: int | None = None
 
     def with_compass(self, instance: int, why: str | None) -> LogStreams:
         """These streams with the magnetometer ``instance`` of :attr:`compasses` replayed (and ``why``)."""
         assert self.compasses is not None
         compasses = replace(self.compasses, used=instance, why=why)
         if instance == self.compasses.used:  # its streams as they are (a caller may have changed them)
-            return replace(self, compasses=compasses)
+            return replace(self, compasses=compasses, mag_instance=instance)
         mag_t, mag = self.compasses.readings[instance]
-        return replace(self, mag_t_s=mag_t, mag_uT=mag, imu_mag_index=None, compasses=compasses)
+        return replace(self, mag_t_s=mag_t, mag_uT=mag, imu_mag_index=None, compasses=compasses, mag_instance=instance)
+
+    def unused_compass(self) -> tuple[int, str, float] | None:
+        """``(instance, parameter, value)`` when the log's parameters say the autopilot does not use the compass
+        replayed (its ``COMPASS_USE…`` is 0), else ``None``: the live service's question, asked of the log."""
+        if self.mag_instance is None:
+            return None
+        name = compass_use_parameter(self.mag_instance)
+        value = self.parameters.get(name)
+        return (self.mag_instance, name, value) if value == 0.0 else None
 
     def carried_mag(self) -> NDArray[np.int64]:
         """Which magnetometer row each IMU sample carries, -1 where none."""

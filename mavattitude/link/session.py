@@ -5,9 +5,9 @@ vehicle's system id), asks for the streams with MAV_CMD_SET_MESSAGE_INTERVAL on 
 every ``repeat_s``, at once after a reconnect or when told: a rebooted autopilot has forgotten them), and
 matches each COMMAND_ACK to the request it answers (:class:`~.requests.PendingRequests`), saying each
 stream's answer, or its absence, once. It reads the autopilot's ``parameters`` the service needs (its level
-trim, whether it uses the compass the input carries) with PARAM_REQUEST_READ, on locking and with every stream request after, until each is answered or has
-been asked ``PARAMETER_TRIES`` times (an autopilot without it, a PX4, never answers: said once). ``tick(now)``
-does what is due; the service and live ``calibrate`` keep one each.
+trim, whether it uses the compass the input carries) with PARAM_REQUEST_READ, on locking and with every stream
+request after, until each is answered or has been asked ``PARAMETER_TRIES`` times (an autopilot without it, a
+PX4, never answers: said once). ``tick(now)`` does what is due; the service and live ``calibrate`` keep one each.
 """
 
 from __future__ import annotations

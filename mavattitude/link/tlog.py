@@ -368,6 +368,7 @@ class TlogSource:
         if "GPS_RAW_INT" in tables:
             streams.gps_t_s, streams.gps_velocity = _velocities(tables["GPS_RAW_INT"], imu_index, t)
         streams.parameters = _parameters(tables.get("PARAM_VALUE"))
+        streams.mag_instance = units.COMPASS_INSTANCES.get(self.decoder.message)
         return self._with_compasses(streams, tables)
 
     def _with_compasses(self, streams: LogStreams, tables: dict[str, _Table]) -> LogStreams:

@@ -111,3 +111,28 @@ def test_with_the_example_config_every_compass_is_judged_on_the_reference_the_re
     config = load_config(Path(__file__).parents[2] / "configs" / "ardupilot.yaml", {}, env={})
     result = replay(open_log(shared_path("data", "ardupilot-sitl", name), config), config)
     assert _verdicts(result) == verdicts and result.compass_used.startswith("0: the autopilot's: COMPASS_USE 1")
+
+
+@pytest.mark.parametrize("name", ["twocompass.BIN", "twocompass.tlog"])
+@pytest.mark.parametrize(("mag", "unused"), [(None, None), (1, (1, "COMPASS_USE2", 0.0))])
+def test_a_compass_the_autopilot_did_not_use_is_known_when_it_is_replayed(name, mag, unused):
+    # the two-compass flight's compass 2 (MAG[1], SCALED_IMU2) has COMPASS_USE2 0; --mag 1 replays it all the same
+    result = _replayed(shared_path("data", "ardupilot-sitl", name), mag=mag)
+    assert result.unused_compass == unused
+
+
+def test_the_only_compass_of_a_log_unused_by_the_autopilot_is_said(tmp_path, caplog):
+    # one MAG instance, its COMPASS_USE 0: replayed (there is no other), with the live service's words
+    config = load_config(None, TRUE_FIELD, env={})
+    log = write_dataflash(tmp_path / "one.bin", manoeuvring_log(20.0, seed=1), parameters={"COMPASS_USE": 0.0})
+    columns = replay_log(Job(log, tmp_path / "out.csv", None, config, 0, None, False)).columns
+    assert columns["compass"] == "the only one; unused by the autopilot (COMPASS_USE 0)"
+    said = [r.getMessage() for r in caplog.records if "does not use compass" in r.getMessage()]
+    assert said == [
+        "the autopilot does not use compass 1 (COMPASS_USE 0), the one our heading comes from: it may have set it "
+        "aside for a reason (interference, its mounting); --mag I replays another the log holds"
+    ]
+    in_use = write_dataflash(tmp_path / "used.bin", manoeuvring_log(20.0, seed=1), parameters={"COMPASS_USE": 1.0})
+    assert replay_log(Job(in_use, tmp_path / "out2.csv", None, config, 0, None, False)).columns["compass"] == (
+        "the only one"
+    )
