@@ -67,7 +67,7 @@ from mavattitude.sensors.frontend import (
     flag_set,
     process_batch,
 )
-from mavattitude.sensors.magref import ReferenceTracker
+from mavattitude.sensors.magref import DECLINATION_PARAMETER, ReferenceTracker
 from mavattitude.sensors.mounting import TRIM_LIMIT_RAD, TRIM_PARAMETERS
 from mavattitude.sensors.units import GpsVelocity, ImuSample
 
@@ -632,6 +632,15 @@ class AttitudePipeline:
         self.frontend.set_expected_field_uT(intensity_uT)
         self.compass.set_reference(tuple(ref.tolist()), intensity_uT, measured)
 
+    def _set_declination(self, name: str, value_rad: float) -> bool:
+        if not abs(value_rad) <= math.pi:  # NaN too
+            log.warning("%s %g rad is no declination: not applied", name, value_rad)
+            return False
+        changed = self.magref.set_declination(math.degrees(value_rad), name)
+        if changed:
+            self._apply_reference()
+        return changed
+
     def push(self, sample: ImuSample, attitudes: bool = True) -> Pushed:
         """What one input sample completes (see :class:`Pushed`); ``attitudes=False``: the compass monitor's
         verdicts alone, no estimator (how the vehicle's other magnetometers are judged)."""
@@ -651,7 +660,11 @@ class AttitudePipeline:
     def set_autopilot_parameter(self, name: str, value: float) -> bool:
         """One of the autopilot's parameters (PARAM_VALUE, a log's PARM), received after the last sample. Its level
         trim (:data:`~mavattitude.sensors.mounting.TRIM_PARAMETERS`, with ``mounting.autopilot_trim``) turns the
-        readings into the vehicle's frame from the next sample on; True when that changed the trim."""
+        readings into the vehicle's frame from the next sample on; its declination (:data:`DECLINATION_PARAMETER`)
+        turns a field measured from the compass to true north
+        (:meth:`~mavattitude.sensors.magref.ReferenceTracker.set_declination`). True when either changed."""
+        if name == DECLINATION_PARAMETER:
+            return self._set_declination(name, value)
         if name not in TRIM_PARAMETERS or not self.config.mounting.autopilot_trim:
             return False
         if not abs(value) <= TRIM_LIMIT_RAD:  # NaN too

@@ -99,6 +99,7 @@ from mavattitude.reports import (
 )
 from mavattitude.sensors import units
 from mavattitude.sensors.frontend import SampleFlag
+from mavattitude.sensors.magref import DECLINATION_PARAMETER
 from mavattitude.sensors.mounting import TRIM_PARAMETERS
 from mavattitude.sensors.units import ImuSample
 from mavattitude.systemd_notify import SystemdNotifier, default_notifier
@@ -255,13 +256,15 @@ class AttitudeService:
         own = self.other_compasses.own  # the compass input.message carries (None: HIGHRES_IMU, PX4's, says none)
         self._compass_use = () if own is None else (compass_use_parameter(own),)
         self._compass_unused = False  # the autopilot said it does not use that compass (said once)
+        # its declination turns a field measured from the compass (no position) to true north
+        declination = (DECLINATION_PARAMETER,) if config.reference.magnetic.mode == "auto" else ()
         self.session = LinkSession(
             link,
             self._stream_requests(config),
             config.link.request_repeat_s,
             now,
             self.counters,
-            trim + self._compass_use,
+            trim + self._compass_use + declination,
         )
         self._tick = Every(TICK_S, now)
         self._publish = Every(1.0 / config.crosscheck.publish_rate_hz, now)

@@ -494,6 +494,31 @@ def test_after_a_reboot_the_fused_filter_goes_on_at_once(reference, yaw_deg):
     assert np.degrees(angle_between(after[-1].q, truth)) < MAX_ERR_DEG
 
 
+@pytest.mark.parametrize("method", ["ign", "fused"])
+def test_the_autopilots_declination_turns_a_measured_field_to_true_north_at_once(method, caplog):
+    """No position: the field measured from the compass points to magnetic north, 12.8° off the true north the
+    vehicle's attitude (and the autopilot's) is of. The autopilot's COMPASS_DEC says by how much: from the next
+    output on, ours is of true north too (the fused filter's heading turned with it, no restart)."""
+    declination_deg = 12.8
+    field = np.array(field_from_angles(declination_deg, 60.0, 50.0))
+    p = AttitudePipeline(from_dict({"estimator": {"method": method}, "reference": {"position_wait_s": 1.0}}))
+    samples = static_samples(n=1000, field_ned_uT=field)
+    magnetic = run(p, samples[:600])
+    assert p.magref.measured
+    turned = quat_from_euler(np.radians(10.0), np.radians(-20.0), np.radians(135.0 - declination_deg))
+    assert np.degrees(angle_between(magnetic[-1].q, turned)) < MAX_ERR_DEG
+    assert not p.set_autopilot_parameter("COMPASS_DEC", np.nan) and not p.set_autopilot_parameter("COMPASS_DEC", 4.0)
+    assert [r.getMessage() for r in caplog.records if "no declination" in r.getMessage()] == [
+        "COMPASS_DEC nan rad is no declination: not applied",
+        "COMPASS_DEC 4 rad is no declination: not applied",
+    ]
+    assert p.set_autopilot_parameter("COMPASS_DEC", np.radians(declination_deg))
+    true = run(p, samples[600:])
+    assert np.degrees(angle_between(np.array([o.q for o in true]), Q_TRUE)).max() < MAX_ERR_DEG
+    if method == "fused":
+        assert p.estimator.counters()["restarts"] == 0
+
+
 def test_a_position_after_the_measured_field_turns_the_fused_heading_to_true_north_at_once():
     """Measured field (magnetic north), then a position: the WMM's field, and the fused filter's heading turned by
     the declination with it from the next output on (the state kept, no restart)."""

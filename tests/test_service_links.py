@@ -333,3 +333,13 @@ def test_a_snapshot_attitude_while_the_vehicle_accelerates_is_published_not_judg
     pairs = dict(item.split("=") for item in line.removeprefix("counters (final): ").split())
     assert int(pairs["xc_pairs"]) >= 55 and pairs["xc_warnings"] == str(warnings)
     assert int(pairs["xc_unjudged"]) == (int(pairs["xc_pairs"]) if method == "ign" else 0)
+
+
+@pytest.mark.parametrize(("magnetic", "asked"), [("auto", True), ({"field_ned_uT": [20.0, 0.0, 45.0]}, False)])
+def test_the_declination_is_asked_for_only_where_the_field_may_be_measured(magnetic, asked):
+    """With reference.magnetic auto and no position the field is the compass's own, its north magnetic: the
+    autopilot's COMPASS_DEC makes it true (docs/frames.md); a field given in the config has its own north."""
+    service, link = _service(**{"reference.magnetic": magnetic, "mounting.autopilot_trim": False})
+    link.deliver(Peer().heartbeat())
+    _step_until(service, lambda: service.counters.interval_requests >= 1)
+    assert ("COMPASS_DEC" in [r.param_id for r in sent(link, "PARAM_REQUEST_READ")]) is asked

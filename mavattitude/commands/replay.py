@@ -6,8 +6,9 @@ format is read from the file's content) goes through the service's own dispatche
 input.profile, and replay follows one autopilot as the service does (link.vehicle_system_id, or the first
 autopilot HEARTBEAT); a .bin, .log or .ulg is the autopilot's own log (IMU and MAG instances chosen with
 --imu / --mag). With reference.magnetic auto, the World Magnetic Model is evaluated at the log's positions,
-on the log's date; a log without a position is replayed with heading from magnetic north and the dip and
-|B| its compass shows while the vehicle is still (reference.position_wait_s after its start, as the live service does).
+on the log's date; a log without a position is replayed with the dip and |B| its compass shows while the
+vehicle is still (reference.position_wait_s after its start, as the live service does), heading from magnetic
+north, or from true north by the autopilot's declination where its parameters give it (ArduPilot's COMPASS_DEC).
 
 One log and OUT ending in .csv (or .csv.gz): the attitude is written there. Several logs, or a
 directory of them: OUT is a directory, with one CSV per log (the columns of `mavattitude solve`), and

@@ -14,10 +14,15 @@ never an error.
 
 Until a position arrives the reference is *waiting*. A vehicle without a position (no GPS, no fix, indoors,
 under water) is given a *measured* reference after ``position_wait_s`` of vehicle time from its first tick:
-declination 0 (heading is magnetic north) and the inclination and intensity the compass itself shows while
-the vehicle is quiet: the mean of the dip ``asin(d̂ · b̂)`` and of ``|B|`` over the quiet ticks seen so far
-(at least ``MIN_MEASURED_TICKS``; the compass monitor's quiet test and dip,
-:mod:`mavattitude.estimation.compass`). A position that arrives later replaces it with the WMM's field.
+the inclination and intensity the compass itself shows while the vehicle is quiet: the mean of the dip
+``asin(d̂ · b̂)`` and of ``|B|`` over the quiet ticks seen so far (at least ``MIN_MEASURED_TICKS``; the compass
+monitor's quiet test and dip, :mod:`mavattitude.estimation.compass`), and declination 0: heading is magnetic
+north, unless the autopilot says the declination it heads by (:meth:`ReferenceTracker.set_declination`:
+ArduPilot's ``COMPASS_DEC``, set from its last GPS fix or by hand). Then heading is true north, as the
+autopilot's is and as MAVLink's NED frame is, and the two attitudes compare on one north; a constant yaw
+difference of the local declination (13° in much of the United States or Australia) would otherwise read as
+a disagreement. A position that arrives later replaces it with the WMM's field, the autopilot's word on the
+declination no longer used (an independent model is the better second opinion).
 """
 
 from __future__ import annotations
@@ -35,6 +40,9 @@ log = logging.getLogger(__name__)
 
 EARTH_RADIUS_KM = 6371.0088
 MIN_MEASURED_TICKS = 25  # the fewest quiet ticks a measured field is the mean of (as the compass monitor judges on)
+#: The autopilot's declination parameter (ArduPilot's, radians east of true north: from its last GPS fix with
+#: COMPASS_AUTODEC, else as set); PX4 has no such one parameter, and does not answer
+DECLINATION_PARAMETER = "COMPASS_DEC"
 
 
 @dataclass(frozen=True)
@@ -189,6 +197,8 @@ class ReferenceTracker:
         self._clamp_said = False
         self._first_s = math.nan  # vehicle time of the first tick while waiting
         self._quiet = [0, 0.0, 0.0]  # quiet ticks while waiting: count, Σ dip (deg), Σ |B| (µT)
+        self._measured = (math.nan, math.nan)  # the measured field's dip (deg) and |B| (µT), once there is one
+        self._declination: tuple[float, str] | None = None  # the autopilot's (deg), and the parameter that said it
         self.reference = setting.fixed_field()
         # what describe() says: the first reference's label and the latest's, and how many came between
         self._labels: list[str] = [] if self.reference.waiting else [self.reference.label]
@@ -235,19 +245,43 @@ class ReferenceTracker:
         n, dip_sum, field_sum = self._quiet
         if time_s - self._first_s < self.position_wait_s or n < MIN_MEASURED_TICKS:
             return False
-        dip, intensity = dip_sum / n, field_sum / n
-        label = f"measured: dip {dip:.1f}°, {intensity:.1f} µT, magnetic north"
-        self._use(ReferenceField(field_from_angles(0.0, dip, intensity), intensity, "measured", label))
+        self._measured = dip_sum / n, field_sum / n
+        self._use_measured()
         log.log(
             self.level,
-            "no GPS position: heading is magnetic north, field measured from the compass: dip %.1f°, %.1f µT "
+            "no GPS position: heading is %s, field measured from the compass: dip %.1f°, %.1f µT "
             "(%d quiet ticks in %.1f s)",
-            dip,
-            intensity,
+            self._north(),
+            *self._measured,
             n,
             time_s - self._first_s,
         )
         return True
+
+    def set_declination(self, declination_deg: float, parameter: str) -> bool:
+        """The declination the autopilot heads by (said by its ``parameter``): a measured field's heading, now
+        or when there is one, is then true north as the autopilot's (module docstring). True when that changed
+        the reference."""
+        if self._declination is not None and self._declination[0] == declination_deg:
+            return False
+        self._declination = declination_deg, parameter
+        if not self.measured:
+            return False
+        self._use_measured()
+        log.log(self.level, "heading is now %s (the field measured from the compass)", self._north())
+        return True
+
+    def _north(self) -> str:
+        """The north a measured field's heading is."""
+        if self._declination is None:
+            return "magnetic north"
+        return "north as the autopilot's: declination {:+.1f}° ({})".format(*self._declination)
+
+    def _use_measured(self) -> None:
+        dip, intensity = self._measured
+        declination_deg = 0.0 if self._declination is None else self._declination[0]
+        label = f"measured: dip {dip:.1f}°, {intensity:.1f} µT, {self._north()}"
+        self._use(ReferenceField(field_from_angles(declination_deg, dip, intensity), intensity, "measured", label))
 
     def update_position(self, lat_deg: float, lon_deg: float, alt_m: float, when: dt.date | None = None) -> bool:
         """Feed a position (``auto`` only); True when the reference changed: the first position, a move

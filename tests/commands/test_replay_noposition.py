@@ -1,18 +1,28 @@
-"""The shared logs without a GPS position, replayed on the field measured from the compass: none refused."""
+"""Logs without a GPS position, replayed on the field measured from the compass: the shared ones, none refused,
+and the autopilot's declination (a written log) turning it to true north."""
 
 from __future__ import annotations
 
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from mavattitude.cli import main
+from mavattitude.commands.replay import Job, replay_log
+from mavattitude.config import load_config
+from mavattitude.sim.logwriter import static_log, write_dataflash
 from tests.commands.test_replay_logs import summary
 from tests.shared import shared_path
 
 EXAMPLE_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "ardupilot.yaml"
-MEASURED = re.compile(r"measured: dip (-?[\d.]+)°, ([\d.]+) µT, magnetic north")
+#: the dip, |B| and north of a measured field: these logs' autopilots never had a fix, their COMPASS_DEC 0 (the
+#: ArduPilot logs'), or say no declination (PX4's)
+MEASURED = re.compile(
+    r"measured: dip (-?[\d.]+)°, ([\d.]+) µT, "
+    r"(magnetic north|north as the autopilot's: declination \+0\.0° \(COMPASS_DEC\))"
+)
 
 
 def measured(row: dict[str, str]) -> tuple[float, float]:
@@ -31,7 +41,8 @@ def test_the_gps_less_sitl_flight_with_the_example_config(tmp_path, capsys):
     said = [line for line in capsys.readouterr().err.splitlines() if "no GPS position" in line]
     # said once, of the replayed compass, naming the log: the log's two other compasses, judged beside it, each
     # measure a field of their own without saying so (their verdicts are the summary's compasses column)
-    assert len(said) == 1 and f"{flight}: no GPS position: heading is magnetic north" in said[0]
+    north = "north as the autopilot's: declination +0.0° (COMPASS_DEC)"  # its PARM: never a fix, COMPASS_DEC 0
+    assert len(said) == 1 and f"{flight}: no GPS position: heading is {north}" in said[0]
     row = summary(out / "summary.csv")["nogps.BIN"]
     dip, intensity = measured(row)
     # the simulator's field is the WMM's at CMAC (README: inclination −65.77°, 58.0 µT); SITL's compass is exact
@@ -77,3 +88,27 @@ def test_the_fused_filter_waits_for_the_measured_field_on_a_tracked_tilt(tmp_pat
     # gets), the heading within the given-field run's 0.33° plus a fifth; measured 0.04 / 0.08°, yaw 0.25°
     assert float(row["roll_rms_deg"]) <= 0.15 and float(row["pitch_rms_deg"]) <= 0.15
     assert float(row["yaw_rms_deg"]) <= 0.4
+
+
+def test_the_autopilots_declination_in_a_log_without_a_position_makes_the_heading_true(tmp_path):
+    """A vehicle turning slowly on the ground where the declination is +12.8°, in a log with no position: on the
+    field measured from the compass its heading is magnetic, 12.8° off the autopilot's ATT (true); with the
+    autopilot's COMPASS_DEC among its PARM records, true."""
+    log = static_log(20.0, yaw_rate_dps=5.0)
+    log.position_t_s = log.position = None
+    assert log.attitude_rpy_rad is not None
+    log.attitude_rpy_rad[:, 2] += np.radians(12.8)  # the field's north is magnetic: true north is 12.8° west of it
+    declination = {"COMPASS_DEC": float(np.radians(12.8))}
+    config = load_config(None, {}, env={})
+    rows = {}
+    for name, parameters in (("with", declination), ("without", {})):
+        path = write_dataflash(tmp_path / f"{name}.bin", log, parameters=parameters)
+        rows[name] = replay_log(Job(path, tmp_path / f"{name}.csv", None, config, 0, None, False)).row()
+    # noise-free but for the logged MAG's 0.1 mGauss steps and the 10 Hz compass's lag in the 5°/s turn
+    assert float(rows["with"]["yaw_rms_deg"]) < 0.3 and float(rows["without"]["yaw_rms_deg"]) == pytest.approx(
+        12.8, abs=0.3
+    )
+    # without it the cross-check warns of the declination, which is no fault of either attitude
+    assert (rows["with"]["xc_warnings"], rows["without"]["xc_warnings"]) == (0, 1)
+    assert rows["with"]["reference"].endswith("north as the autopilot's: declination +12.8° (COMPASS_DEC)")
+    assert rows["without"]["reference"].endswith("magnetic north")

@@ -75,7 +75,12 @@ def test_without_a_gps_fix_the_field_is_measured_then_a_fix_switches_to_the_mode
     field = field_from_angles(0.0, 63.0, 48.0)  # declination 0: magnetic north is the truth's north
     script = Script([Hold(2.0), Rotate(118.0, (0.03, -0.05, 0.08))], field)
     with fly(script, scenarios.paper_sensors(200.0), {"reference": {"magnetic": "auto"}}, gps_fix=False) as (v, svc):
-        line = svc.wait_for_line(r"no GPS position: heading is magnetic north, field measured from the compass", 10.0)
+        # the vehicle says its declination, 0 as its field's (COMPASS_DEC, asked on locking): north is the same
+        line = svc.wait_for_line(
+            r"no GPS position: heading is north as the autopilot's: declination \+0\.0° \(COMPASS_DEC\), field "
+            "measured from the compass",
+            10.0,
+        )
         assert line is not None and "dip 63.0°, 48.0 µT" in line, svc.log_tail()
         wait_outputs(v, 75)
         _, first_s, _ = v.outputs_since(0)
@@ -99,3 +104,18 @@ def test_without_a_gps_fix_the_field_is_measured_then_a_fix_switches_to_the_mode
     # within the 1° RMS bound of the flight before (the median of 75 outputs is tighter still)
     assert np.median((yaw_deg + 180.0) % 360.0 - 180.0) == pytest.approx(np.degrees(np.arctan2(e, n)), abs=1.0)
     assert_all_outputs_valid(v)
+
+
+def test_without_a_fix_the_autopilots_declination_makes_the_measured_heading_true(fly: Callable[..., Any]) -> None:
+    """The field has a declination of 12.8° (CMAC's) and the vehicle no fix: a field measured from the compass
+    alone would head 12.8° off the truth's north, but the autopilot's COMPASS_DEC, asked on locking, says it."""
+    field = field_from_angles(12.8, -65.8, 58.0)
+    script = Script([Hold(2.0), Rotate(118.0, (0.03, -0.05, 0.08))], field)
+    with fly(script, scenarios.paper_sensors(200.0), {"reference": {"magnetic": "auto"}}, gps_fix=False) as (v, svc):
+        line = svc.wait_for_line(r"no GPS position: heading is north as the autopilot's: declination \+12\.8°", 10.0)
+        assert line is not None, svc.log_tail()
+        wait_outputs(v, 75)
+        assert svc.stop() == 0
+    score = v.score()
+    # as with the field given (the measured dip and |B| are the compass's own, within its noise)
+    assert score.broken == 0 and score.angle_rms_deg < 1.0, score

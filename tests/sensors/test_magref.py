@@ -181,3 +181,27 @@ def test_the_summary_names_the_first_and_the_last_reference_and_counts_those_bet
         ref.update_position(lat, 8.0, 500.0, DATE)
     first, last = (f"WMM2025 at {lat:.4f}°, 8.0000° on {DATE}" for lat in (47.0, 47.3))
     assert ref.describe() == f"{first}; then {last} (+2 more WMM look-ups)"
+
+
+def test_the_autopilots_declination_turns_a_measured_field_to_its_north(caplog):
+    """A measured field has no declination of its own: the autopilot's (ArduPilot's COMPASS_DEC) makes its heading
+    the autopilot's north; a field from the model keeps the model's."""
+    caplog.set_level(logging.INFO, logger="mavattitude.sensors.magref")
+    ref = ReferenceTracker(MagneticReference("auto"), position_wait_s=2.0)
+    assert not ref.set_declination(12.8, "COMPASS_DEC")  # nothing measured yet: kept for the field to come
+    assert any(quiet_ticks(ref, 100.0 + np.arange(150) / 50.0, 60.0, 50.0))
+    n, e, d = ref.reference.field_ned_uT
+    assert math.degrees(math.atan2(e, n)) == pytest.approx(12.8) and math.degrees(math.atan2(d, math.hypot(n, e))) == (
+        pytest.approx(60.0)
+    )
+    said = "no GPS position: heading is north as the autopilot's: declination +12.8° (COMPASS_DEC), field measured"
+    assert said in caplog.records[-1].getMessage()
+    assert not ref.set_declination(12.8, "COMPASS_DEC")  # said again: nothing changes
+    assert ref.set_declination(-3.0, "COMPASS_DEC")  # changed in flight: the measured field turned at once
+    n, e, _ = ref.reference.field_ned_uT
+    assert math.degrees(math.atan2(e, n)) == pytest.approx(-3.0) and ref.reference.intensity_uT == 50.0
+    measured = "measured: dip 60.0°, 50.0 µT, north as the autopilot's: declination {} (COMPASS_DEC)"
+    assert ref.describe() == measured.format("+12.8°") + "; then " + measured.format("-3.0°")  # the first and last
+    assert ref.update_position(47.0, 8.0, 500.0, DATE)
+    wmm = ref.reference.field_ned_uT
+    assert not ref.set_declination(20.0, "COMPASS_DEC") and ref.reference.field_ned_uT == wmm  # the model's own
