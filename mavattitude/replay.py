@@ -63,7 +63,7 @@ class JudgedCompass:
         warned = next((e for e in self.events if e.inconsistent), None)
         if warned is not None:
             return warned.figures.short()
-        return "ok" if self.monitor.samples >= self.monitor.settings.min_samples else "not judged"
+        return "ok" if self.monitor.ever_judged else "not judged"
 
 
 @dataclass

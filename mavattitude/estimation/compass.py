@@ -61,7 +61,9 @@ and slow rotation (``|ω| ≤ max_rate_dps``): elsewhere the specific force is n
 centripetal and tangential acceleration of a sensor off the rotation axis, and the small time offset
 between the filtered accelerometer and magnetometer, which together bias the dip by −6° on BROAD's fast
 rotation trial at 100–800°/s) and the dip is not the field's. :class:`CompassMonitor` keeps both figures over a
-sliding window of vehicle time (mean and spread) and over the first minute, and judges the compass
+sliding window of vehicle time (mean and spread; ``window_s``, or as long as the stream takes to give
+``min_samples`` ticks when that is longer: a telemetry stream's 2 Hz fills ``window_s`` = 10 s with 20, and would
+never be judged) and over the first minute, and judges the compass
 *inconsistent* when a window mean is further from its reference than the threshold (or the turn mismatch,
 below, is beyond its own):
 
@@ -560,6 +562,9 @@ class CompassMonitor:
         self._mag_sigma2 = rms_sigma(mag_std_uT) ** 2  # σ̄_mag², every judgement's
         self._window: deque[tuple[float, float, float | None]] = deque()  # (t, dip, |B| or None)
         self._win = _Stats()
+        self._last_tick_s = math.nan
+        self._intervals_s = (math.inf, math.inf)  # the last two between ticks: a stream's pace, not one gap's
+        self.ever_judged = False  # the window once held enough quiet samples to judge
         self._first = _Stats()
         self._first_until_s = math.nan
         self._expected_dip = math.nan
@@ -729,10 +734,16 @@ class CompassMonitor:
         field: float | None,
     ) -> CompassEvent | None:
         """One tick into the turn check, the quiet window (when ``quiet``: its ``dip``, ``field``), the verdict."""
+        interval = time_s - self._last_tick_s
+        self._last_tick_s = time_s
+        self._intervals_s = (self._intervals_s[1], interval if interval > 0.0 else math.inf)  # NaN: the first
         self._turn.update(time_s, mag_uT, gyr_radps, mag_age_s)
         if quiet:
             self._add_quiet(time_s, dip, field)
-        return self._judge(time_s) if self.judged or self.turn_judged else None
+        if not (self.judged or self.turn_judged):
+            return None
+        self.ever_judged = True
+        return self._judge(time_s)
 
     def _add_quiet(self, time_s: float, dip: float, field: float | None) -> None:
         self.samples += 1
@@ -742,7 +753,8 @@ class CompassMonitor:
             self._first.add(dip, field)
         self._window.append((time_s, dip, field))
         self._win.add(dip, field)
-        while self._window and self._window[0][0] <= time_s - self.settings.window_s:
+        span_s = max(self.settings.window_s, self.settings.min_samples * min(self._intervals_s))  # (inf: first)
+        while self._window and self._window[0][0] <= time_s - span_s:
             _, old_dip, old_field = self._window.popleft()
             self._win.add(old_dip, old_field, -1)
 

@@ -8,6 +8,7 @@ import csv
 from pathlib import Path
 
 import numpy as np
+import pytest
 import yaml
 
 from mavattitude.cli import main
@@ -38,7 +39,9 @@ def test_the_dive_s_level_trim_is_applied_and_explains_its_pitch_offset(tmp_path
     # the 2 Hz snapshots' own scatter in the thruster-driven motion (0.38°), roll likewise (0.57° → 0.47°).
     assert float(untrimmed["pitch_rms_deg"]) > 1.5 and float(trimmed["pitch_rms_deg"]) < 0.6
     assert float(trimmed["roll_rms_deg"]) < float(untrimmed["roll_rms_deg"])
-    assert trimmed["yaw_rms_deg"] == untrimmed["yaw_rms_deg"]  # a roll and pitch trim: the heading is the same
+    # a roll and pitch trim: the heading is the same, but for the yaw angle's second-order share of two small
+    # turns (0.41° · 1.64° ≈ 0.01°) and the compass's heading-only samples after its tilted spell (docs/vehicle.md)
+    assert float(trimmed["yaw_rms_deg"]) == pytest.approx(float(untrimmed["yaw_rms_deg"]), abs=0.05)
 
 
 def _board_turned_log(path: Path, trim: dict[str, float]) -> Path:

@@ -28,6 +28,7 @@ from mavattitude.estimation.conventions import (
     rotate_ned_to_body,
     rotvec_from_quat,
 )
+from mavattitude.replay import JudgedCompass
 from mavattitude.sensors.magref import field_from_angles
 
 G = 9.80665
@@ -330,3 +331,33 @@ def test_against_a_field_measured_from_the_compass_a_change_is_judged_not_the_co
     level = [_body(quat_from_euler(0.0, 0.0, math.radians(7.0 * i))) for i in range(100)]
     verdicts = [model.update(0.02 * i, acc, tuple(upside_down * mag), STILL) for i, (acc, mag) in enumerate(level)]
     assert [e.inconsistent for e in verdicts if e is not None] == [True]
+
+
+@pytest.mark.parametrize("rate_hz", [2.0, 0.5])
+def test_a_stream_at_telemetry_rates_is_judged_over_its_last_25_quiet_samples(rate_hz):
+    """At 2 Hz (a ground station's RAW_IMU) the 10 s window holds 20 quiet samples, fewer than the 25 a judgement
+    needs: the window spans the 25 instead (12.5 s; 50 s at 0.5 Hz), and an upside-down compass is found at the
+    25th, not left unjudged for the whole flight."""
+    m, rng = _monitor(), np.random.default_rng(5)
+    events = []
+    for i in range(40):
+        acc, mag = _body(quat_from_euler(*np.radians(rng.uniform([-20, -20, -180], [20, 20, 180]))), flip_z=True)
+        event = m.update(i / rate_hz, acc, mag, STILL)
+        events += [event] if event is not None else []
+    assert m.ever_judged and [e.inconsistent for e in events] == [True]
+    assert events[0].time_s == pytest.approx(24 / rate_hz)  # the 25th sample
+
+
+def test_a_compass_never_judged_is_not_said_to_be_ok():
+    """Quiet for 0.4 s every 15 s (20 ticks at 50 Hz), accelerating between: 100 quiet samples in all, never 25
+    in one window. The replay's verdict is "not judged", not "ok"."""
+    m = _monitor()
+    acc, mag = _body(quat_from_euler(0.1, -0.2, 1.0))
+    pushing = tuple(1.2 * a for a in acc)  # |f| 20 % over g: not quiet
+    t = 0.0
+    for _ in range(5):
+        for k in range(750):
+            m.update(t, acc if k < 20 else pushing, mag, STILL)
+            t += 0.02
+    assert m.samples == 100 and not m.ever_judged
+    assert JudgedCompass(0, [], m).verdict() == "not judged"
