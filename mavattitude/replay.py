@@ -14,8 +14,8 @@ from the compass of a log without a position: :class:`~mavattitude.sensors.magre
 which the pipeline applies to the batch's ticks as it would one by one); otherwise, and with
 ``at_once=False``, the samples go into the pipeline one by one as they would live. A telemetry log across a
 reboot of the autopilot is read item by item in its own order (:func:`_replay_in_log_order`). The autopilot's
-parameters (its level trim) are taken before the first sample, each at its last value in the log; read item by
-item, where they come in it.
+parameters (its level trim, its declination) are taken before the first sample, each at its last value in the
+log, when the batch has one reference; one by one, each record where it comes in the log, as live.
 """
 
 from __future__ import annotations

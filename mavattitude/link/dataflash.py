@@ -295,7 +295,8 @@ def _streams(reader: _Reader, imu_instance: int, mag_instance: int | None) -> Lo
     try:  # a record without a field read here: a log of another layout, or its FMT damaged in the column names
         imu_name, imu_table = reader.instance("IMU", imu_instance)
         readings = _magnetometers(reader)
-        parameters = _parameters(reader)
+        parameter_t, names, values = _parameters(reader)
+        parameters = dict(zip(names, values, strict=True))  # each at its last value
         chosen = autopilot_compass(parameters, list(readings)) if mag_instance is None else None
         used, why = (mag_instance, f"--mag {mag_instance}") if mag_instance is not None else chosen or (0, None)
         mag_name, mag_table = reader.instance("MAG", used)
@@ -315,7 +316,8 @@ def _streams(reader: _Reader, imu_instance: int, mag_instance: int | None) -> Lo
     streams = LogStreams(t, acc, gyr, mag_t, mag, att_t, att_q, pos_t, positions, date, wrap, reader.damage)
     streams.check(str(path), imu_name, mag_name)
     streams.gps_t_s, streams.gps_velocity = gps_t, gps_velocity
-    streams.parameters, streams.mag_instance = parameters, used
+    streams.set_parameters(parameter_t, names, values)
+    streams.mag_instance = used
     if len(readings) > 1 and used in readings:
         streams.compasses = Compasses(readings, used, why)
     return streams
@@ -375,13 +377,13 @@ def _refuse_for_others(reader: _Reader, name: str) -> None:
         raise DataFileError(f"{reader.path}: no {name} records; the log has IMU instance {has}: --imu {others[0]}")
 
 
-def _parameters(reader: _Reader) -> dict[str, float]:
-    """The PARM records' parameters, each at its last logged value."""
+def _parameters(reader: _Reader) -> tuple[np.ndarray, list[str], list[float]]:
+    """The PARM records: their times (s), names and values, in log order."""
     parm = reader.table("PARM")
     if not parm:
-        return {}
+        return np.empty(0), [], []
     names = [n.split(b"\0")[0].decode("ascii", "replace") for n in parm["Name"].tolist()]
-    return dict(zip(names, np.asarray(parm["Value"], dtype=float).tolist(), strict=True))
+    return du.time_s(parm)[0], names, np.asarray(parm["Value"], dtype=float).tolist()
 
 
 def _date(reader: _Reader) -> Any:

@@ -12,8 +12,9 @@ order:
   is no reading, as in MAVLink's integer messages;
 - the autopilot's attitude and the positions (with the log's date, for the World Magnetic Model);
 - the GPS receiver's velocities (:class:`~mavattitude.estimation.velocity.GpsVelocity`), for the fused filter;
-- first of all, the autopilot's parameters (:class:`~mavattitude.link.source.AutopilotParameter`, each at its last
-  value in the log: its level trim).
+- the autopilot's parameters (:class:`~mavattitude.link.source.AutopilotParameter`: its level trim, its
+  declination, whether it uses a compass), each record at its time, as the live service hears them: a
+  declination set at the first GPS fix comes when the fix does, not before the field measured without one.
 """
 
 from __future__ import annotations
@@ -136,8 +137,12 @@ class LogStreams:
     gps_t_s: Array = field(default_factory=lambda: np.empty(0))
     gps_velocity: list[GpsVelocity] = field(default_factory=list)
     compasses: Compasses | None = None  # every magnetometer, where the log holds several
-    #: the autopilot's parameters, each at its last value in the log (its level trim is used from the start)
+    #: the autopilot's parameters, each at its last value in the log (replay at once uses them from the start)
     parameters: dict[str, float] = field(default_factory=dict)
+    #: every parameter record, in time order, at the vehicle time it is handed in at (before the IMU sample at or
+    #: after it): what replay item by item takes (:meth:`set_parameters`)
+    parameter_t_s: Array = field(default_factory=lambda: np.empty(0))
+    parameter_records: list[tuple[str, float]] = field(default_factory=list)
     #: the autopilot's number (0-based) of the compass in mag_uT, where it numbers them as its parameters do
     #: (ArduPilot's COMPASS_USE, COMPASS_USE2, …); None: a ULog's (PX4's field has no such parameter)
     mag_instance: int | None = None
@@ -150,6 +155,14 @@ class LogStreams:
             return replace(self, compasses=compasses, mag_instance=instance)
         mag_t, mag = self.compasses.readings[instance]
         return replace(self, mag_t_s=mag_t, mag_uT=mag, imu_mag_index=None, compasses=compasses, mag_instance=instance)
+
+    def set_parameters(self, time_s: Array, names: Sequence[str], values: Sequence[float]) -> None:
+        """The log's parameter records in log order, at vehicle times ``time_s``: each at its last value in
+        :attr:`parameters`, every record in time order in :attr:`parameter_records`."""
+        order = np.argsort(time_s, kind="stable").tolist()
+        self.parameter_t_s = np.asarray(time_s, dtype=float)[order]
+        self.parameter_records = [(names[i], values[i]) for i in order]
+        self.parameters = dict(zip(names, values, strict=True))  # in log order: the last record's value stays
 
     def unused_compass(self) -> tuple[int, str, float] | None:
         """``(instance, parameter, value)`` when the log's parameters say the autopilot does not use the compass
@@ -210,14 +223,14 @@ class StreamSource:
 
     @functools.cached_property
     def _items(self) -> tuple[list[float], list[int], list[int]]:
-        """Every item's time, kind (0 position, 1 IMU sample, 2 attitude, 3 GPS velocity) and row, in time
-        order; at equal times a position and a velocity first, the autopilot's attitude after the sample.
-        Built at the first recv: a reader that takes the arrays (replay) never pays for it."""
+        """Every item's time, kind (0 position, 1 IMU sample, 2 attitude, 3 GPS velocity, 4 parameter) and row,
+        in time order; at equal times a position, a velocity and a parameter first, the autopilot's attitude after
+        the sample. Built at the first recv: a reader that takes the arrays (replay) never pays for it."""
         s = self.streams
-        times = np.concatenate([s.position_t_s, s.imu_t_s, s.attitude_t_s, s.gps_t_s])
-        counts = (len(s.position_t_s), len(s.imu_t_s), len(s.attitude_t_s), len(s.gps_t_s))
-        kinds = np.repeat(np.arange(4, dtype=np.int8), counts)
-        order_key = np.repeat(np.array([0, 1, 2, 0], dtype=np.int8), counts)  # a velocity before the sample
+        times = np.concatenate([s.position_t_s, s.imu_t_s, s.attitude_t_s, s.gps_t_s, s.parameter_t_s])
+        counts = (len(s.position_t_s), len(s.imu_t_s), len(s.attitude_t_s), len(s.gps_t_s), len(s.parameter_t_s))
+        kinds = np.repeat(np.arange(5, dtype=np.int8), counts)
+        order_key = np.repeat(np.array([0, 1, 2, 0, 0], dtype=np.int8), counts)  # before the sample at its time
         index = np.concatenate([np.arange(n) for n in counts])
         order = np.lexsort((order_key, times))
         return times[order].tolist(), kinds[order].tolist(), index[order].tolist()
@@ -250,8 +263,6 @@ class StreamSource:
         self.finished = stop >= len(times)
         s, vehicle, wrap, repeats = self.streams, self.vehicle, self.streams.time_wrap_s, self.streams.mag_repeats
         out: list[Received] = []
-        if start == 0 and times:  # the autopilot's parameters before its first sample, as a link's would come
-            out += [(times[0], vehicle, AutopilotParameter(n, v)) for n, v in s.parameters.items()]
         for t, kind, i in zip(times[start:stop], kinds[start:stop], index[start:stop], strict=True):
             if kind == 1:
                 m = mag_index[i]
@@ -269,6 +280,8 @@ class StreamSource:
                 out.append((t, vehicle, AutopilotAttitude(t, tuple(s.attitude_q[i].tolist()))))
             elif kind == 3:
                 out.append((t, vehicle, s.gps_velocity[i]))
+            elif kind == 4:
+                out.append((t, vehicle, AutopilotParameter(*s.parameter_records[i])))
             else:
                 lat, lon, alt = s.position[i].tolist()
                 out.append((t, vehicle, PositionFix(Position(lat, lon, alt), s.date)))

@@ -367,7 +367,8 @@ class TlogSource:
         )
         if "GPS_RAW_INT" in tables:
             streams.gps_t_s, streams.gps_velocity = _velocities(tables["GPS_RAW_INT"], imu_index, t)
-        streams.parameters = _parameters(tables.get("PARAM_VALUE"))
+        if "PARAM_VALUE" in tables:
+            streams.set_parameters(*_parameters(tables["PARAM_VALUE"], imu_index, t))
         streams.mag_instance = units.COMPASS_INSTANCES.get(self.decoder.message)
         return self._with_compasses(streams, tables)
 
@@ -481,12 +482,13 @@ def _velocities(
     ]
 
 
-def _parameters(table: _Table | None) -> dict[str, float]:
-    """The PARAM_VALUE messages' parameters, each at its last value."""
-    if table is None:
-        return {}
+def _parameters(
+    table: _Table, imu_index: NDArray[np.int64], imu_t: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], list[str], list[float]]:
+    """The PARAM_VALUE messages' parameters, each at the next IMU sample's time."""
     names = [n.split(b"\0")[0].decode("ascii", "replace") for n in table.fields["param_id"].tolist()]
-    return dict(zip(names, np.asarray(table.fields["param_value"], dtype=float).tolist(), strict=True))
+    values = np.asarray(table.fields["param_value"], dtype=float).tolist()
+    return _at_next_sample(table.index, imu_index, imu_t), names, values
 
 
 def _heartbeat_items(table: _Table) -> Iterator[tuple[int, Received]]:

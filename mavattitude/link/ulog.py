@@ -103,8 +103,15 @@ def read_ulog(path: str | Path, imu_instance: int = 0, mag_instance: int | None 
     streams.check(str(path), f"sensor_combined[{imu_instance}]", mag_name)
     streams.gps_t_s, streams.gps_velocity = gps_t, gps_velocity
     streams.compasses = _compasses(ulog)
-    streams.parameters = {k: float(v) for k, v in ulog.initial_parameters.items()}
+    streams.set_parameters(*_parameters(ulog, float(t[0]) if len(t) else 0.0))
     return streams
+
+
+def _parameters(ulog: Any, start_s: float) -> tuple[np.ndarray, list[str], list[float]]:
+    """The parameters: times (s), names and values; the initial ones at ``start_s``, then each change at its time."""
+    records = [(start_s, k, v) for k, v in ulog.initial_parameters.items()]
+    records += [(stamp * uu.TIMESTAMP_S, k, v) for stamp, k, v in ulog.changed_parameters]
+    return np.array([r[0] for r in records]), [r[1] for r in records], [float(r[2]) for r in records]
 
 
 def data_section_at(data: bytes) -> int | None:

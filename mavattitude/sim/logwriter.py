@@ -160,20 +160,22 @@ def write_dataflash(
     instances: int = 1,
     mags: Sequence[Array] = (),
     parameters: Mapping[str, float] | None = None,
+    parameter_changes: Sequence[tuple[float, str, float]] = (),
 ) -> Path:
     """Write ``log`` as a DataFlash file in ``layout`` (:data:`LAYOUTS`); with ``instances`` > 1 every IMU and
     MAG row is logged again for instance 1, … (the copies scaled by 1 + instance/100, so a reader that takes
     the wrong one is seen), and the positions by a second GPS receiver where the layout has one. ``mags``:
     instance k's magnetometer readings (µT, at ``log.mag_t_s``) instead of ``log.mag_uT``, for k below its
-    length; ``parameters``: PARM records (name → value) at the log's start, as the autopilot logs them."""
+    length; ``parameters``: PARM records (name → value) at the log's start, as the autopilot logs them, and
+    ``parameter_changes`` more at their times, ``(t_s, name, value)`` (a parameter set in flight)."""
     formats = _formats(layout)
-    if parameters:
+    records = [(float(log.imu_t_s[0]), k, v) for k, v in (parameters or {}).items()] + list(parameter_changes)
+    parts: list[tuple[Array, NDArray]] = []
+    if records:
         imu = formats["IMU"]
         formats["PARM"] = _Format(150, "PARM", imu.format[0] + "Nf", (imu.columns[0], "Name", "Value"))
-    parts: list[tuple[Array, NDArray]] = []
-    if parameters:
-        t0 = np.full(len(parameters), float(log.imu_t_s[0]))
-        parts.append(_records(formats["PARM"], t0, {"Name": list(parameters), "Value": list(parameters.values())}))
+        t, names, values = zip(*records, strict=True)
+        parts.append(_records(formats["PARM"], np.array(t), {"Name": list(names), "Value": list(values)}))
     for k in range(instances):
         gain = 1.0 + k / 100.0
         imu_cols = {**_split(du.GYR_FIELDS, log.gyr_radps * gain), **_split(du.ACC_FIELDS, log.acc_mps2 * gain)}
