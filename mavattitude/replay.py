@@ -335,17 +335,16 @@ def _judge_compasses(s: LogStreams, pipeline: AttitudePipeline, reference_after_
 def _chosen_compass(s: LogStreams, judged: list[JudgedCompass], result: Replayed) -> LogStreams:
     """``s`` with the magnetometer to replay: the one the log names (``--mag``, the autopilot's), else the most
     consistent of those judged (fewest warnings, then vouched for, then the lowest instance); said in
-    :attr:`Replayed.compass_used`."""
-    result.unused_compass = s.unused_compass()  # of the one the log names, if it names one
+    :attr:`Replayed.compass_used`, and in :attr:`Replayed.unused_compass` whether the autopilot used it."""
     if s.compasses is None:
         result.compass_used = "the only one"
-        return s
-    if s.compasses.why is None and judged:
-        best = min(judged, key=lambda j: (j.warnings, not j.monitor.confirmed, j.instance))
-        s = s.with_compass(best.instance, f"the most consistent of {len(judged)}")
-        if best.instance != 0:
-            log.info("replaying magnetometer %d, the most consistent of %d", best.instance, len(judged))
-    assert s.compasses is not None
-    result.compass_used = f"{s.compasses.used}: {s.compasses.why or 'the first'}"
+    else:
+        if s.compasses.why is None and judged:
+            best = min(judged, key=lambda j: (j.warnings, not j.monitor.confirmed, j.instance))
+            s = s.with_compass(best.instance, f"the most consistent of {len(judged)}")
+            if best.instance != 0:
+                log.info("replaying magnetometer %d, the most consistent of %d", best.instance, len(judged))
+        assert s.compasses is not None
+        result.compass_used = f"{s.compasses.used}: {s.compasses.why or 'the first'}"
     result.unused_compass = s.unused_compass()
     return s

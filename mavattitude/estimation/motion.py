@@ -45,7 +45,7 @@ def norm_rows(a: Array) -> Array:
 
 
 def off_gravity(acc_norm_mps2: Any, fraction: float, gravity_mps2: float = STANDARD_GRAVITY_MPS2) -> Any:
-    """``| |f| − g | > fraction · g``: the specific force is more than gravity's (False for NaN)."""
+    """``| |f| − g | > fraction · g``: the specific force's magnitude is off g, above or below (False for NaN)."""
     return abs(acc_norm_mps2 - gravity_mps2) > fraction * gravity_mps2
 
 
