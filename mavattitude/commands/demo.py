@@ -2,8 +2,10 @@
 
 Starts the fake vehicle on an ephemeral UDP port of 127.0.0.1, then `mavattitude run` as a subprocess
 connected to it (exactly as it runs on a companion computer), and prints once a second how far the
-ATTITUDE_QUATERNION the service sends is from the truth. Finite (``--duration``) and Ctrl-C safe: both
-processes are stopped and the whole run is scored at the end.
+ATTITUDE_QUATERNION the service sends is from the truth, and under it every STATUSTEXT the service sent the
+vehicle since (what a ground station shows the pilot: its start, a cross-check that disagrees with
+``--autopilot-error``, a compass judged off). Finite (``--duration``) and Ctrl-C safe: both processes are
+stopped and the whole run is scored at the end.
 """
 
 from __future__ import annotations
@@ -78,7 +80,7 @@ def _table(vehicle: FakeVehicle, service: ServiceProcess, duration_s: float, int
     if not vehicle.wait_for_outputs(1, START_TIMEOUT_S):
         raise MavAttitudeError("the service sent no attitude in time; its log:\n" + service.log_tail())
     print("     t " + Score.header().replace("\n", "\n       "))
-    start = len(vehicle.attitude_log)
+    start, said = len(vehicle.attitude_log), 0
     while vehicle.script_time() < duration_s:
         if not service.running:
             raise MavAttitudeError("the service stopped; its log:\n" + service.log_tail())
@@ -87,3 +89,12 @@ def _table(vehicle: FakeVehicle, service: ServiceProcess, duration_s: float, int
         if index > start:
             print(f"{vehicle.script_time():6.1f} {vehicle.score(start).row()}", flush=True)
         start = index
+        said = _statustexts(vehicle, said)
+
+
+def _statustexts(vehicle: FakeVehicle, said: int) -> int:
+    """The STATUSTEXTs the vehicle received after the first ``said``, each on a line; how many it has now."""
+    texts = vehicle.statustexts[said:]
+    for text in texts:
+        print(f"{'':6} STATUSTEXT {text}", flush=True)
+    return said + len(texts)

@@ -45,6 +45,34 @@ def test_demo_runs_finite_and_prints_the_error_table() -> None:
     assert count > 0 and err_rms < 1.0, done.stdout
 
 
+def test_demo_shows_what_the_service_tells_the_ground_station() -> None:
+    """An autopilot whose attitude is 10° off in roll: the cross-check's STATUSTEXT under the table, as a ground
+    station would show it (the hold is 3 s of judged pairs at rest: well within 8 s)."""
+    done = subprocess.run(
+        [
+            *CLI,
+            "demo",
+            "--duration",
+            "8",
+            "--script",
+            "static",
+            "--sensors",
+            "paper",
+            "--autopilot-error",
+            "10",
+            "0",
+            "0",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT_S,
+    )
+    assert done.returncode == 0, done.stderr
+    said = [line.split("STATUSTEXT ", 1)[1] for line in done.stdout.splitlines() if "STATUSTEXT " in line]
+    assert said[0].startswith("mavattitude ") and said[0].endswith(": attitude from RAW_IMU"), done.stdout
+    assert "mavattitude: 10 deg off the autopilot's attitude" in said, done.stdout
+
+
 def test_demo_is_ctrl_c_safe() -> None:
     proc = subprocess.Popen(
         [*CLI, "demo", "--duration", "600", "--script", "static", "--sensors", "paper"],
