@@ -173,7 +173,7 @@ def test_a_level_trim_never_answered_is_asked_for_three_times_then_gone_without(
     names = ("AHRS_TRIM_X", "AHRS_TRIM_Y", "COMPASS_USE")
     assert [r.param_id for r in sent(link, "PARAM_REQUEST_READ")] == list(names) * 3
     said = [r.getMessage() for r in caplog.records if "did not answer" in r.getMessage()]
-    assert said == [f"the autopilot did not answer for {n} in 3 requests: going without" for n in names]
+    assert said == [f"the autopilot did not answer for {', '.join(names)} in 3 requests: going without"]
     service.step(1.0)
     assert len(sent(link, "PARAM_REQUEST_READ")) == 9
 

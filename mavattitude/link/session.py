@@ -98,8 +98,14 @@ class LinkSession:
     def _ask_parameters(self, vehicle: Sender, now: float) -> None:
         self._parameters_next_s = now + self._requests.repeat_s
         tries = self._parameter_tries
-        for name in [n for n, k in tries.items() if k == PARAMETER_TRIES]:
-            log.info("the autopilot did not answer for %s in %d requests: going without", name, PARAMETER_TRIES)
+        unanswered = [n for n, k in tries.items() if k == PARAMETER_TRIES]
+        if unanswered:  # one line for all: a PX4 answers none of ArduPilot's
+            log.info(
+                "the autopilot did not answer for %s in %d requests: going without",
+                ", ".join(unanswered),
+                PARAMETER_TRIES,
+            )
+        for name in unanswered:
             del tries[name]
         for name in tries:
             if self.link.request_parameter(vehicle, name):
