@@ -3,12 +3,14 @@
 Each log (a telemetry log .tlog, an ArduPilot DataFlash .bin or its text form .log, a PX4 ULog .ulg: the
 format is read from the file's content) goes through the service's own dispatcher and pipeline
 (mavattitude.replay), as fast as the CPU goes. From a .tlog the IMU messages are input.message decoded with
-input.profile, and replay follows one autopilot as the service does (link.vehicle_system_id, or the first
-autopilot HEARTBEAT); a .bin, .log or .ulg is the autopilot's own log (IMU and MAG instances chosen with
---imu / --mag). With reference.magnetic auto, the World Magnetic Model is evaluated at the log's positions,
-on the log's date; a log without a position is replayed with the dip and |B| its compass shows while the
-vehicle is still (reference.position_wait_s after its start, as the live service does), heading from magnetic
-north, or from true north by the autopilot's declination where its parameters give it (ArduPilot's COMPASS_DEC).
+input.profile (without --message, a log whose autopilot sent none is replayed with the first other IMU message
+of the profile it sent, and said: a PX4's HIGHRES_IMU), and replay follows one autopilot as the service does
+(link.vehicle_system_id, or the first autopilot HEARTBEAT); a .bin, .log or .ulg is the autopilot's own log
+(IMU and MAG instances chosen with --imu / --mag). With reference.magnetic auto, the World Magnetic Model is
+evaluated at the log's positions, on the log's date; a log without a position is replayed with the dip and |B|
+its compass shows while the vehicle is still (reference.position_wait_s after its start, as the live service
+does), heading from magnetic north, or from true north by the autopilot's declination where its parameters
+give it (ArduPilot's COMPASS_DEC).
 
 One log and OUT ending in .csv (or .csv.gz): the attitude is written there. Several logs, or a
 directory of them: OUT is a directory, with one CSV per log (the columns of `mavattitude solve`), and
@@ -82,7 +84,7 @@ from mavattitude.files import refuse_overwriting
 from mavattitude.link.logstreams import TILT_ONLY
 from mavattitude.reports import compass_unused_warning, heading_lost, rate_handling
 from mavattitude.sensors.frontend import SampleFlag
-from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES
+from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES, get_profile
 
 NAME = "replay"
 HELP = (
@@ -186,6 +188,7 @@ class Job:
     imu: int
     mag: int | None
     table: bool  # print the comparison table (one log only)
+    message_given: bool = False  # --message: a telemetry log without it fails, not replayed with another
 
 
 def run(args: argparse.Namespace) -> int:
@@ -251,7 +254,7 @@ def _jobs(args: argparse.Namespace, config: Config) -> list[Job]:
     if len(logs) == 1 and out.name.endswith((".csv", ".csv.gz")):
         png = Path(args.plot) if args.plot else Path(str(out).removesuffix(".gz")).with_suffix(".png")
         refuse_overwriting(logs, out, png if plot else None)
-        return [Job(logs[0], out, png if plot else None, config, args.imu, args.mag, True)]
+        return [Job(logs[0], out, png if plot else None, config, args.imu, args.mag, True, args.message is not None)]
     if out.name.endswith((".csv", ".csv.gz")) and not out.is_dir():
         raise DataFileError(f"-o {out}: {len(logs)} logs write a CSV each and a summary: give a directory")
     try:
@@ -259,7 +262,16 @@ def _jobs(args: argparse.Namespace, config: Config) -> list[Job]:
     except OSError as exc:
         raise DataFileError(f"{out}: cannot make the output directory: {exc.strerror or exc}") from exc
     return [
-        Job(p, out / f"{name}.csv", out / f"{name}.png" if plot else None, config, args.imu, args.mag, False)
+        Job(
+            p,
+            out / f"{name}.csv",
+            out / f"{name}.png" if plot else None,
+            config,
+            args.imu,
+            args.mag,
+            False,
+            args.message is not None,
+        )
         for p, name in zip(logs, _output_names(logs), strict=True)
     ]
 
@@ -310,12 +322,25 @@ def _replay_log(job: Job) -> LogResult:
 
     result = LogResult(str(job.log))
     try:
+        progress = Progress(job.log.name) if job.table and sys.stderr.isatty() else None
         source = open_log(job.log, job.config, job.imu, job.mag)
-        replayed = replay(source, job.config, Progress(job.log.name) if job.table and sys.stderr.isatty() else None)
-        _check_found(str(job.log), job.config.input.message, replayed)
+        replayed = replay(source, job.config, progress)
+        if replayed.counters.received == 0 and (other := _other_message_sent(job, source)) is not None:
+            if job.message_given:
+                raise DataFileError(
+                    f"{job.log}: no {job.config.input.message} from the autopilot; it sent "
+                    f"{_telemetry_message(other)}: --message {_telemetry_message(other)}"
+                )
+            log.info(
+                "the autopilot sent no %s: replaying %s, the first IMU message it sent (--message chooses)",
+                job.config.input.message,
+                _telemetry_message(other),
+            )
+            source, replayed = other, replay(other, job.config, progress)
+        _check_found(str(job.log), _telemetry_message(source) or job.config.input.message, replayed)
     except MavAttitudeError as exc:
         return dataclasses.replace(result, status="failed", note=str(exc))
-    message = _telemetry_message(source, job.config)
+    message = _telemetry_message(source)
     _fill(result, replayed, message or "IMU")
     log.info("%s", result.columns["rate_handling"])
     if message and not replayed.pipeline.compass_seen:  # a .bin's or .ulg's reader said it as it read the log
@@ -338,11 +363,24 @@ def _replay_log(job: Job) -> LogResult:
     return result
 
 
-def _telemetry_message(source: Any, config: Config) -> str | None:
+def _telemetry_message(source: Any) -> str | None:
     """A telemetry log's IMU message (None: the autopilot's own log, whose IMU records are called IMU)."""
     from mavattitude.link.tlog import TlogSource
 
-    return config.input.message if isinstance(source, TlogSource) else None
+    return source.decoder.message if isinstance(source, TlogSource) else None
+
+
+def _other_message_sent(job: Job, source: Any) -> Any:
+    """For a telemetry log whose autopilot sent no ``input.message`` (a PX4's HIGHRES_IMU, a log of SCALED_IMU2
+    only): the log opened on the first other IMU message of ``input.profile`` it sent; None if it sent none of
+    them either, or for the autopilot's own log."""
+    from mavattitude.link.logs import open_log
+
+    if _telemetry_message(source) is None:
+        return None
+    others = [m for m in get_profile(job.config.input.profile).messages if m != job.config.input.message]
+    other = open_log(job.log, job.config, job.imu, job.mag, first_of=others)
+    return None if _telemetry_message(other) == job.config.input.message else other
 
 
 def _heading(outputs: list[Any]) -> str:
