@@ -250,6 +250,7 @@ class AttitudeService:
         self._xcheck = CrossCheck(config.crosscheck) if config.crosscheck.enabled else None
         self._snapshot = METHODS[config.estimator.method].snapshot  # its attitudes read acceleration as tilt
         self.other_compasses = OtherCompasses(config)
+        self.other_imu_messages: set[str] = set()  # IMU messages the vehicle sent other than input.message
         self._published_s: float | None = None  # vehicle time of the last difference published
         now = time.monotonic()
         trim = TRIM_PARAMETERS if config.mounting.autopilot_trim else ()
@@ -373,10 +374,14 @@ class AttitudeService:
         if waiting is Waiting.IMU_STREAM:
             assert self.vehicle is not None
             source = f"{self._input_name} from system {self.vehicle[0]}, component {self.vehicle[1]}"
+            # a PX4 sends HIGHRES_IMU, not the default RAW_IMU: what it does send is the likely fix
+            sends = ", ".join(sorted(self.other_imu_messages))
+            instead = f"; it sends {sends}: set input.message (and input.profile) to read one" if sends else ""
             if link.request_messages:
-                return f"waiting for the IMU stream: {source}, asked for at {link.request_rate_hz:g} Hz"
+                return f"waiting for the IMU stream: {source}, asked for at {link.request_rate_hz:g} Hz{instead}"
             return (
-                f"waiting for the IMU stream: {source} (link.request_messages is off: is the autopilot streaming it?)"
+                f"waiting for the IMU stream: {source} (link.request_messages is off: is the autopilot streaming "
+                f"it?){instead}"
             )
         if waiting is Waiting.POSITION:
             return (
@@ -453,6 +458,8 @@ class AttitudeService:
     def on_message(self, msg: Any, t_rx: float) -> None:
         self.session.on_message(msg, time.monotonic())
         self.other_compasses.reading(msg)
+        if msg.get_type() in units.MESSAGES:
+            self.other_imu_messages.add(msg.get_type())
 
     def on_autopilot_attitude(self, attitude: AutopilotAttitude, t_rx: float) -> None:
         if self._xcheck is not None:

@@ -21,6 +21,7 @@ from mavattitude.estimation.conventions import (
 )
 from mavattitude.link.memory import MemoryLink
 from mavattitude.pipeline import AttitudePipeline
+from mavattitude.sensors import units
 from mavattitude.service import AttitudeService
 from mavattitude.sim import scenarios
 from mavattitude.sim.daemon import config_for
@@ -343,3 +344,17 @@ def test_the_declination_is_asked_for_only_where_the_field_may_be_measured(magne
     link.deliver(Peer().heartbeat())
     _step_until(service, lambda: service.counters.interval_requests >= 1)
     assert ("COMPASS_DEC" in [r.param_id for r in sent(link, "PARAM_REQUEST_READ")]) is asked
+
+
+def test_waiting_for_the_imu_stream_names_the_imu_message_the_vehicle_sends_instead():
+    """A PX4 sends HIGHRES_IMU, never the default RAW_IMU: the wait says so, with what to set."""
+    service, link = _service()
+    vehicle = Peer()
+    sample = units.ImuSample(100.0, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), (20.0, 0.0, 45.0))
+    highres = mavlink2.MAVLink_highres_imu_message(**units.encode(sample, units.PROFILES["px4"], "HIGHRES_IMU"))
+    link.deliver(vehicle.heartbeat(), vehicle.pack(highres))
+    _step_until(service, lambda: not link.inbox)
+    assert service.waiting_text() == (
+        "waiting for the IMU stream: RAW_IMU from system 1, component 1, asked for at 200 Hz; it sends HIGHRES_IMU: "
+        "set input.message (and input.profile) to read one"
+    )
