@@ -16,7 +16,7 @@ import signal
 import time
 
 from mavattitude.commands import EXIT_INTERRUPTED
-from mavattitude.commands.simulate import add_vehicle_arguments, vehicle_from_args
+from mavattitude.commands.simulate import add_vehicle_arguments, say_statustexts, vehicle_from_args
 from mavattitude.config import DEFAULTS
 from mavattitude.errors import MavAttitudeError
 from mavattitude.estimation import METHODS
@@ -89,12 +89,4 @@ def _table(vehicle: FakeVehicle, service: ServiceProcess, duration_s: float, int
         if index > start:
             print(f"{vehicle.script_time():6.1f} {vehicle.score(start).row()}", flush=True)
         start = index
-        said = _statustexts(vehicle, said)
-
-
-def _statustexts(vehicle: FakeVehicle, said: int) -> int:
-    """The STATUSTEXTs the vehicle received after the first ``said``, each on a line; how many it has now."""
-    texts = vehicle.statustexts[said:]
-    for text in texts:
-        print(f"{'':6} STATUSTEXT {text}", flush=True)
-    return said + len(texts)
+        said = say_statustexts(vehicle, said, lambda text: print(f"{'':6} STATUSTEXT {text}", flush=True))

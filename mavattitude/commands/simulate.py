@@ -1,8 +1,9 @@
 """`mavattitude simulate`: run the scripted fake vehicle on a MAVLink connection.
 
 The vehicle flies a truth script, streams IMU messages of a unit profile once asked (or at once with
-``--stream-on-start``), and at the end prints how the ATTITUDE_QUATERNION it received compares with the
-truth. Point a running `mavattitude run` (or a router) at it.
+``--stream-on-start``), logs each STATUSTEXT it receives (what a ground station would show the pilot), and at
+the end prints how the ATTITUDE_QUATERNION it received compares with the truth. Point a running
+`mavattitude run` (or a router) at it.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from __future__ import annotations
 import argparse
 import logging
 import time
+from collections.abc import Callable
 
 from mavattitude.commands import EXIT_INTERRUPTED
 from mavattitude.config import DEFAULTS
@@ -122,13 +124,23 @@ def run(args: argparse.Namespace) -> int:
     return EXIT_INTERRUPTED if interrupted else 0
 
 
+def say_statustexts(vehicle: FakeVehicle, said: int, say: Callable[[str], None]) -> int:
+    """Each STATUSTEXT the vehicle received after its first ``said`` to ``say`` (what a ground station shows the
+    pilot); how many it has now."""
+    texts = vehicle.statustexts[said:]
+    for text in texts:
+        say(text)
+    return said + len(texts)
+
+
 def _fly(vehicle: FakeVehicle, args: argparse.Namespace) -> None:
     """Until the script's end; while nobody asks for the IMU stream, say so now and then."""
     where = args.connect.removesuffix(":0") + f":{vehicle.port}" if args.connect.endswith(":0") else args.connect
     log.info("fake vehicle on %s: %s for %.0f s once asked for IMU", where, args.script, args.duration)
-    reports = WaitReports(False, time.monotonic())
+    reports, said = WaitReports(False, time.monotonic()), 0
     while vehicle.script_time() < args.duration:
         time.sleep(0.1)  # pacing the end of the run, not a synchronisation
+        said = say_statustexts(vehicle, said, lambda text: log.info("STATUSTEXT from the service: %s", text))
         now = time.monotonic()
         if not reports.changed(vehicle.flying, now) and not vehicle.flying and (waited_s := reports.due(now)):
             log.info(

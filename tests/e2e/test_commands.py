@@ -113,3 +113,5 @@ def test_simulate_serves_a_running_service() -> None:
     # residual biases.
     assert count > 0 and err_rms < 3.0, out
     assert f"ATTITUDE_QUATERNION received: {int(count)}" in out
+    # what the service told the vehicle, as a ground station shows it: its start, first of all
+    assert re.search(r"STATUSTEXT from the service: mavattitude \S+: attitude from RAW_IMU", err), err
