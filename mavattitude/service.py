@@ -255,8 +255,12 @@ class AttitudeService:
         now = time.monotonic()
         trim = TRIM_PARAMETERS if config.mounting.autopilot_trim else ()
         own = self.other_compasses.own  # the compass input.message carries (None: HIGHRES_IMU, PX4's, says none)
-        self._compass_use = () if own is None else (compass_use_parameter(own),)
-        self._compass_unused = False  # the autopilot said it does not use that compass (said once)
+        # whether the autopilot uses each compass: input.message's asked last, so that the others' answers (in the
+        # order asked, as ArduPilot answers) are in when its own is judged, and the pilot is told which it uses
+        compasses = [] if own is None else [k for k in sorted(set(units.COMPASS_INSTANCES.values())) if k != own]
+        self._compass_use = tuple(compass_use_parameter(k) for k in [*compasses, *([] if own is None else [own])])
+        self._compass_uses: dict[str, float] = {}  # their answers
+        self._compass_unused = False  # the autopilot said it does not use input.message's compass (said once)
         # its declination turns a field measured from the compass (no position) to true north
         declination = (DECLINATION_PARAMETER,) if config.reference.magnetic.mode == "auto" else ()
         self.session = LinkSession(
@@ -437,11 +441,13 @@ class AttitudeService:
     def on_parameter(self, parameter: AutopilotParameter) -> None:
         self.session.parameter_received(parameter.name)
         if parameter.name in self._compass_use:
-            self._say_compass_use(parameter.name, parameter.value)
+            self._compass_uses[parameter.name] = parameter.value
+            if parameter.name == self._compass_use[-1]:
+                self._say_compass_use(parameter.name, parameter.value)
 
     def _say_compass_use(self, name: str, value: float) -> None:
         """Whether the autopilot uses the compass our heading comes from: said when it does not (it may have set
-        it aside for a reason the pilot knows), with the input messages that carry the others; and when again."""
+        it aside for a reason the pilot knows), with which it uses instead; and when it uses it again."""
         unused = value == 0.0
         if unused == self._compass_unused:
             return
@@ -450,10 +456,20 @@ class AttitudeService:
         if not unused:
             log.info("the autopilot uses compass %d again (%s %g)", own + 1, name, value)
             return
-        others = {k: m for m, k in reversed(units.COMPASS_INSTANCES.items()) if k != own}  # the first message of each
-        remedy = "input.message " + " or ".join(f"{m} follows compass {k + 1}" for k, m in sorted(others.items()))
-        log.warning("%s", compass_unused_warning(own, name, value, remedy))
+        log.warning("%s", compass_unused_warning(own, name, value, self._compass_remedy(own)))
         self._statustext("compass_unused", compass_unused_statustext(own), "warning", log_it=False)
+
+    def _compass_remedy(self, own: int) -> str:
+        """Which compass the autopilot uses instead, as far as it said, and the input message that carries it."""
+        messages = {k: m for m, k in reversed(units.COMPASS_INSTANCES.items()) if k != own}  # each one's first
+        uses = {k: self._compass_uses.get(compass_use_parameter(k)) for k in messages}
+        used = [k for k, use in uses.items() if use is not None and use != 0.0]
+        if used:
+            k = min(used)
+            return f"it uses compass {k + 1}: input.message {messages[k]} carries it"
+        if all(use is not None for use in uses.values()):
+            return "it uses none of its compasses (its heading comes from elsewhere: a GPS, or nowhere)"
+        return "input.message " + " or ".join(f"{m} carries compass {k + 1}" for k, m in sorted(messages.items()))
 
     def on_message(self, msg: Any, t_rx: float) -> None:
         self.session.on_message(msg, time.monotonic())

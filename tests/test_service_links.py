@@ -144,12 +144,12 @@ def test_the_autopilots_level_trim_is_asked_for_and_turns_the_attitude_into_the_
     service, link = _service()
     vehicle = Peer()
     link.deliver(vehicle.heartbeat())
-    _step_until(service, lambda: len(sent(link, "PARAM_REQUEST_READ")) == 3)
+    _step_until(service, lambda: len(sent(link, "PARAM_REQUEST_READ")) == 5)
     asked = sent(link, "PARAM_REQUEST_READ")
     assert [(r.param_id, r.param_index, r.target_system, r.target_component) for r in asked] == [
         ("AHRS_TRIM_X", -1, 1, 1),
         ("AHRS_TRIM_Y", -1, 1, 1),
-        ("COMPASS_USE", -1, 1, 1),  # whether it uses the compass RAW_IMU carries (their own tests below)
+        *((f"COMPASS_USE{n}", -1, 1, 1) for n in ("2", "3", "")),  # whether it uses each compass (tests below)
     ]
     link.deliver(*vehicle.stream(100))
     _step_until(service, lambda: not link.inbox)
@@ -163,7 +163,7 @@ def test_the_autopilots_level_trim_is_asked_for_and_turns_the_attitude_into_the_
     q = [np.array([m.q1, m.q2, m.q3, m.q4]) for m in (untrimmed, trimmed)]
     # RAW_IMU quantisation moves ours by < 0.2° (test_service's tolerance is 0.5°)
     assert np.degrees(angle_between(q[0], Q_TRUE)) < 0.5 and np.degrees(angle_between(q[1], frame)) < 0.5
-    assert service.counters.parameter_requests == 3  # each asked once (the repeat is a minute away)
+    assert service.counters.parameter_requests == 5  # each asked once (the repeat is a minute away)
 
 
 def test_a_level_trim_never_answered_is_asked_for_three_times_then_gone_without(caplog):
@@ -171,19 +171,20 @@ def test_a_level_trim_never_answered_is_asked_for_three_times_then_gone_without(
     service, link = _service(**{"link.request_repeat_s": 0.5})
     link.deliver(Peer().heartbeat())
     _step_until(service, lambda: any("did not answer" in r.getMessage() for r in caplog.records))
-    names = ("AHRS_TRIM_X", "AHRS_TRIM_Y", "COMPASS_USE")
+    names = ("AHRS_TRIM_X", "AHRS_TRIM_Y", "COMPASS_USE2", "COMPASS_USE3", "COMPASS_USE")
     assert [r.param_id for r in sent(link, "PARAM_REQUEST_READ")] == list(names) * 3
     said = [r.getMessage() for r in caplog.records if "did not answer" in r.getMessage()]
     assert said == [f"the autopilot did not answer for {', '.join(names)} in 3 requests: going without"]
     service.step(1.0)
-    assert len(sent(link, "PARAM_REQUEST_READ")) == 9
+    assert len(sent(link, "PARAM_REQUEST_READ")) == 15
 
 
 def test_the_level_trim_is_not_asked_for_when_configured_off():
     service, link = _service(**{"mounting.autopilot_trim": False, "link.request_repeat_s": 0.5})
     link.deliver(Peer().heartbeat())
     _step_until(service, lambda: service.counters.interval_requests >= 2)  # two rounds of stream requests
-    assert [r.param_id for r in sent(link, "PARAM_REQUEST_READ")] == ["COMPASS_USE"] * 2  # the compass's only
+    compasses = ["COMPASS_USE2", "COMPASS_USE3", "COMPASS_USE"]  # the compasses' only
+    assert [r.param_id for r in sent(link, "PARAM_REQUEST_READ")] == compasses * 2
 
 
 def test_a_compass_the_autopilot_does_not_use_is_said_once_and_its_use_again_too(caplog):
@@ -193,21 +194,46 @@ def test_a_compass_the_autopilot_does_not_use_is_said_once_and_its_use_again_too
     service, link = _service(**{"output.statustext_interval_s": 0.0})
     vehicle = Peer()
     link.deliver(vehicle.heartbeat())
-    _step_until(service, lambda: len(sent(link, "PARAM_REQUEST_READ")) == 3)
-    # answered twice (a ground station asking too): said once
+    _step_until(service, lambda: len(sent(link, "PARAM_REQUEST_READ")) == 5)
+    # answered twice (a ground station asking too): said once; the others' use not answered (lost)
     link.deliver(_param_value(vehicle, "COMPASS_USE", 0.0), _param_value(vehicle, "COMPASS_USE", 0.0))
     _step_until(service, lambda: not link.inbox)
     link.deliver(_param_value(vehicle, "COMPASS_USE", 1.0))  # the pilot set it back in use
     _step_until(service, lambda: not link.inbox)
     said = [r.getMessage() for r in caplog.records if "compass 1" in r.getMessage()]
     assert len(said) == 2 and said[0].startswith("the autopilot does not use compass 1 (COMPASS_USE 0)")
-    assert said[0].endswith("input.message SCALED_IMU2 follows compass 2 or SCALED_IMU3 follows compass 3")
+    assert said[0].endswith("input.message SCALED_IMU2 carries compass 2 or SCALED_IMU3 carries compass 3")
     assert said[1] == "the autopilot uses compass 1 again (COMPASS_USE 1)"
     texts = [m.text for m in sent(link, "STATUSTEXT") if "compass" in m.text]
     assert texts == ["mavattitude: compass 1 unused by autopilot"]
 
 
-@pytest.mark.parametrize(("message", "asked"), [("SCALED_IMU2", ["COMPASS_USE2"]), ("HIGHRES_IMU", [])])
+@pytest.mark.parametrize(
+    ("others", "instead"),
+    [
+        ((1.0, 1.0), "it uses compass 2: input.message SCALED_IMU2 carries it"),
+        ((0.0, 1.0), "it uses compass 3: input.message SCALED_IMU3 carries it"),
+        ((0.0, 0.0), "it uses none of its compasses (its heading comes from elsewhere: a GPS, or nowhere)"),
+    ],
+)
+def test_the_compass_the_autopilot_uses_instead_is_named(others, instead, caplog):
+    """Its other compasses' use is asked first: answered (as ArduPilot answers, in the order asked) before the one
+    RAW_IMU carries, they say which it heads by, and the input message that carries that one."""
+    caplog.set_level(logging.WARNING, logger="mavattitude.service")
+    service, link = _service()
+    vehicle = Peer()
+    link.deliver(vehicle.heartbeat())
+    _step_until(service, lambda: len(sent(link, "PARAM_REQUEST_READ")) == 5)
+    answers = zip(("COMPASS_USE2", "COMPASS_USE3", "COMPASS_USE"), (*others, 0.0), strict=True)
+    link.deliver(*(_param_value(vehicle, name, value) for name, value in answers))
+    _step_until(service, lambda: not link.inbox)
+    (said,) = [r.getMessage() for r in caplog.records if "does not use compass 1" in r.getMessage()]
+    assert said.endswith(instead)
+
+
+@pytest.mark.parametrize(
+    ("message", "asked"), [("SCALED_IMU2", ["COMPASS_USE", "COMPASS_USE3", "COMPASS_USE2"]), ("HIGHRES_IMU", [])]
+)
 def test_the_compass_asked_about_is_the_one_the_input_message_carries(message, asked):
     service, link = _service(**{"input.message": message, "mounting.autopilot_trim": False})
     link.deliver(Peer().heartbeat())

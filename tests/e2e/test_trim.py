@@ -23,8 +23,8 @@ def test_the_vehicles_level_trim_is_asked_for_and_the_attitude_is_its_frames(fly
     with fly(script, scenarios.paper_sensors(200.0), trim_deg=TRIM_DEG) as (vehicle, service):
         wait_outputs(vehicle, 100)
         assert service.stop() == 0
-        # the trim's two and the use of the compass RAW_IMU carries, each answered at the first asking
-        assert counter(service, "parameter_requests") == 3
+        # the trim's two and the use of each of the three compasses, each answered at the first asking
+        assert counter(service, "parameter_requests") == 5
     assert not [t for t in vehicle.statustexts if "compass" in t]  # it uses that compass: nothing to say
     # the trim arrives before the IMU stream's first second is through; scored after it, as test_profiles'
     # estimator runs are (under a degree with the paper's noise)
