@@ -122,7 +122,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="I",
         help="magnetometer instance (a .tlog: 0 RAW_IMU's, 1 SCALED_IMU2's, 2 SCALED_IMU3's); default: the one "
-        "the autopilot used where the log says (ArduPilot COMPASS_USE/_PRIMARY), else the most consistent",
+        "the autopilot used where the log says (ArduPilot COMPASS_USE/_PRIMARY), else the most consistent; one the "
+        "log lacks is refused, naming those it has",
     )
     parser.add_argument(
         "--message",

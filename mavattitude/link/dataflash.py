@@ -24,7 +24,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from pymavlink import DFReader
 
 from mavattitude.errors import DataFileError
-from mavattitude.link.logstreams import Compasses, LogStreams, autopilot_compass, struct_dtype
+from mavattitude.link.logstreams import Compasses, LogStreams, autopilot_compass, no_such_instance, struct_dtype
 from mavattitude.sensors import dataflash_units as du
 
 OFFSET = "_offset"  # the column of a table holding each record's byte offset: no DataFlash field is named so
@@ -300,6 +300,8 @@ def _streams(reader: _Reader, imu_instance: int, mag_instance: int | None) -> Lo
         chosen = autopilot_compass(parameters, list(readings)) if mag_instance is None else None
         used, why = (mag_instance, f"--mag {mag_instance}") if mag_instance is not None else chosen or (0, None)
         mag_name, mag_table = reader.instance("MAG", used)
+        if mag_instance is not None and mag_instance not in readings and readings:
+            raise no_such_instance(path, mag_name, "MAG", "--mag", readings)
         if imu_table and len(imu_table["AccX"]):
             t, acc, gyr, wrap = du.imu(imu_table)
         else:
@@ -371,10 +373,9 @@ def _instances(reader: _Reader, base: str, column: str) -> Iterator[tuple[int, d
 def _refuse_for_others(reader: _Reader, name: str) -> None:
     """The chosen IMU instance has no records: a DataFileError naming those the log has (an autopilot whose
     first IMU is disabled), if any; without any, the streams' own check says so."""
-    others = [str(k) for k, _ in _instances(reader, "IMU", "AccX")]
+    others = [k for k, _ in _instances(reader, "IMU", "AccX")]
     if others:
-        has = ", ".join(others)
-        raise DataFileError(f"{reader.path}: no {name} records; the log has IMU instance {has}: --imu {others[0]}")
+        raise no_such_instance(reader.path, name, "IMU", "--imu", others)
 
 
 def _parameters(reader: _Reader) -> tuple[np.ndarray, list[str], list[float]]:

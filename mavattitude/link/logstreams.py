@@ -89,6 +89,14 @@ class Compasses:
     why: str | None = None
 
 
+def no_such_instance(path: object, records: str, kind: str, option: str, present: Iterable[int]) -> DataFileError:
+    """``--imu``/``--mag`` asked for an instance the log lacks, where it has others: the refusal naming them (a
+    typo replayed with another sensor, or none, would be silently not what was asked)."""
+    has = sorted(present)
+    listed = ", ".join(map(str, has))
+    return DataFileError(f"{path}: no {records} records; the log has {kind} instance {listed}: {option} {has[0]}")
+
+
 def compass_use_parameter(instance: int) -> str:
     """ArduPilot's parameter that says whether it uses compass ``instance`` (0-based: COMPASS_USE, COMPASS_USE2, …)."""
     return f"COMPASS_USE{instance + 1 if instance else ''}"

@@ -35,7 +35,14 @@ from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
 from mavattitude.errors import DataFileError, SensorError
-from mavattitude.link.logstreams import Compasses, Follower, LogStreams, autopilot_compass, struct_dtype
+from mavattitude.link.logstreams import (
+    Compasses,
+    Follower,
+    LogStreams,
+    autopilot_compass,
+    no_such_instance,
+    struct_dtype,
+)
 from mavattitude.link.mavlink2 import mavlink2
 from mavattitude.link.source import (
     ATTITUDE_MESSAGES,
@@ -387,6 +394,8 @@ class TlogSource:
                 keep = imu.has_mag & ~imu.refused
                 if keep.any():
                     readings[instance] = (imu.time_s[keep], imu.mag_uT[keep])
+        if self.mag_instance is not None and self.mag_instance not in readings and readings:
+            raise no_such_instance(self.path, f"compass {self.mag_instance}", "compass", "--mag", readings)
         if own is None or own not in readings or len(readings) < 2:
             return streams
         streams.compasses = Compasses(readings, own)

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from mavattitude.errors import DataFileError
-from mavattitude.link.logstreams import Compasses, LogStreams
+from mavattitude.link.logstreams import Compasses, LogStreams, no_such_instance
 from mavattitude.sensors import ulog_units as uu
 from mavattitude.sensors.units import GAUSS_UT
 
@@ -75,10 +75,15 @@ def read_ulog(path: str | Path, imu_instance: int = 0, mag_instance: int | None 
     path = Path(path)
     data = path.read_bytes()
     ulog = _open(path, data)
-    mag_instance = mag_instance or 0
+    asked, mag_instance = mag_instance, mag_instance or 0
     empty3 = np.empty((0, 3))
     combined = _topic(ulog, "sensor_combined", imu_instance)
     vehicle_mag = _topic(ulog, "vehicle_magnetometer", mag_instance)
+    # the instances there are: vehicle_magnetometer's, or an old log's one in sensor_combined
+    present = [d.multi_id for d in ulog.data_list if d.name == "vehicle_magnetometer" and len(d.data["timestamp"])]
+    present = present or ([0] if combined is not None and f"{uu.MAG_FIELD}[0]" in combined else [])
+    if asked is not None and asked not in present and present:
+        raise no_such_instance(path, f"vehicle_magnetometer[{asked}]", "magnetometer", "--mag", present)
     try:
         t, acc, gyr = uu.imu(combined) if combined is not None else (np.empty(0), empty3, empty3)
         if vehicle_mag is not None:

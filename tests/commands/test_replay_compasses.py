@@ -11,6 +11,7 @@ import pytest
 
 from mavattitude.commands.replay import Job, replay_log
 from mavattitude.config import load_config
+from mavattitude.errors import DataFileError
 from mavattitude.link.logs import open_log
 from mavattitude.replay import Replayed, replay
 from mavattitude.sim.logwriter import manoeuvring_log, write_dataflash, write_tlog
@@ -136,3 +137,18 @@ def test_the_only_compass_of_a_log_unused_by_the_autopilot_is_said(tmp_path, cap
     assert replay_log(Job(in_use, tmp_path / "out2.csv", None, config, 0, None, False)).columns["compass"] == (
         "the only one"
     )
+
+
+@pytest.mark.parametrize(
+    ("where", "mag", "refusal"),
+    [
+        (("ardupilot-sitl", "twocompass.tlog"), 7, "no compass 7 records; the log has compass instance 0, 1: --mag 0"),
+        (("ardupilot-sitl", "twocompass.BIN"), 7, r"no MAG\[I=7\] records; the log has MAG instance 0, 1, 2: --mag 0"),
+        (("px4", "sample.ulg"), 3, r"no vehicle_magnetometer\[3\] records; the log has magnetometer instance 0"),
+    ],
+)
+def test_a_compass_the_log_lacks_is_refused_naming_those_it_has(where, mag, refusal):
+    """--mag with a typo: replayed, the .tlog took the autopilot's compass, the .BIN none (roll and pitch only)
+    and the .ulg its one, each without a word of what was asked."""
+    with pytest.raises(DataFileError, match=refusal):
+        _replayed(shared_path("data", *where), mag=mag)
