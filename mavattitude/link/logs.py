@@ -57,6 +57,11 @@ def _stream_reader(read: Callable[[Path, int, int | None], LogStreams]) -> Calla
 def _tlog(
     path: Path, config: Config, imu: int, mag: int | None, first_of: Sequence[str], system_id: int | None
 ) -> LogSource:
+    if imu:  # a telemetry log numbers no IMU: each of its IMU messages is one
+        raise DataFileError(
+            f"{path}: a telemetry log's IMU is its message, not an instance (--imu {imu}): --message SCALED_IMU2 "
+            "reads the second IMU, SCALED_IMU3 the third"
+        )
     return TlogSource(path, MavlinkDecoder.from_config(config), first_of, system_id, mag)
 
 

@@ -79,6 +79,9 @@ def read_ulog(path: str | Path, imu_instance: int = 0, mag_instance: int | None 
     empty3 = np.empty((0, 3))
     combined = _topic(ulog, "sensor_combined", imu_instance)
     vehicle_mag = _topic(ulog, "vehicle_magnetometer", mag_instance)
+    imus = [d.multi_id for d in ulog.data_list if d.name == "sensor_combined" and len(d.data["timestamp"])]
+    if combined is None and imus:
+        raise no_such_instance(path, f"sensor_combined[{imu_instance}]", "sensor_combined", "--imu", imus)
     # the instances there are: vehicle_magnetometer's, or an old log's one in sensor_combined
     present = [d.multi_id for d in ulog.data_list if d.name == "vehicle_magnetometer" and len(d.data["timestamp"])]
     present = present or ([0] if combined is not None and f"{uu.MAG_FIELD}[0]" in combined else [])

@@ -196,6 +196,23 @@ def test_what_a_log_lacks_is_one_error_naming_the_file(tmp_path):
         read_dataflash(write_dataflash(tmp_path / "one.bin", log), imu_instance=3)
 
 
+@pytest.mark.parametrize(
+    ("where", "imu", "refusal"),
+    [
+        (("px4", "sample.ulg"), 3, r"no sensor_combined\[3\] records; the log has sensor_combined instance 0: --imu 0"),
+        (
+            ("ardupilot-sitl", "twocompass.tlog"),
+            1,
+            r"IMU is its message, not an instance \(--imu 1\): --message SCALED_IMU2",
+        ),
+    ],
+)
+def test_an_imu_instance_a_log_cannot_give_is_refused_with_what_it_can(where, imu, refusal):
+    """Not replayed with another IMU than asked: a ULog's other sensor_combined, a telemetry log's IMU message."""
+    with pytest.raises(DataFileError, match=refusal):
+        open_log(shared_path("data", *where), make_config(), imu_instance=imu)
+
+
 def test_a_log_without_a_magnetometer_is_read_and_said_in_one_line(tmp_path, caplog):
     """No MAG records, or MAG reading zero in all: the IMU is there (roll and pitch), the compass is not."""
     log = static_log(1.0)
