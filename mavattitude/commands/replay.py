@@ -326,18 +326,8 @@ def _replay_log(job: Job) -> LogResult:
         progress = Progress(job.log.name) if job.table and sys.stderr.isatty() else None
         source = open_log(job.log, job.config, job.imu, job.mag)
         replayed = replay(source, job.config, progress)
-        if replayed.counters.received == 0 and (other := _other_message_sent(job, source)) is not None:
-            if job.message_given:
-                raise DataFileError(
-                    f"{job.log}: no {job.config.input.message} from the autopilot; it sent "
-                    f"{_telemetry_message(other)}: --message {_telemetry_message(other)}"
-                )
-            log.info(
-                "the autopilot sent no %s: replaying %s, the first IMU message it sent (--message chooses)",
-                job.config.input.message,
-                _telemetry_message(other),
-            )
-            source, replayed = other, replay(other, job.config, progress)
+        if replayed.counters.received == 0:
+            source, replayed = _with_the_message_it_sent(job, source, replayed, progress)
         _check_found(str(job.log), _telemetry_message(source) or job.config.input.message, replayed)
     except MavAttitudeError as exc:
         return dataclasses.replace(result, status="failed", note=str(exc))
@@ -371,17 +361,26 @@ def _telemetry_message(source: Any) -> str | None:
     return source.decoder.message if isinstance(source, TlogSource) else None
 
 
-def _other_message_sent(job: Job, source: Any) -> Any:
-    """For a telemetry log whose autopilot sent no ``input.message`` (a PX4's HIGHRES_IMU, a log of SCALED_IMU2
-    only): the log opened on the first other IMU message of ``input.profile`` it sent; None if it sent none of
-    them either, or for the autopilot's own log."""
+def _with_the_message_it_sent(job: Job, source: Any, replayed: Any, progress: Any) -> tuple[Any, Any]:
+    """A telemetry log whose autopilot sent no ``input.message`` (a PX4's HIGHRES_IMU, a log of SCALED_IMU2
+    only): replayed with the first other IMU message of ``input.profile`` it sent, and said; refused naming it
+    when ``--message`` asked for the one it lacks. As it was if it sent none of them, or for the autopilot's own
+    log."""
     from mavattitude.link.logs import open_log
+    from mavattitude.replay import replay
 
+    wanted = job.config.input.message
     if _telemetry_message(source) is None:
-        return None
-    others = [m for m in get_profile(job.config.input.profile).messages if m != job.config.input.message]
+        return source, replayed
+    others = [m for m in get_profile(job.config.input.profile).messages if m != wanted]
     other = open_log(job.log, job.config, job.imu, job.mag, first_of=others)
-    return None if _telemetry_message(other) == job.config.input.message else other
+    found = _telemetry_message(other)
+    if found == wanted:
+        return source, replayed
+    if job.message_given:
+        raise DataFileError(f"{job.log}: no {wanted} from the autopilot; it sent {found}: --message {found}")
+    log.info("the autopilot sent no %s: replaying %s, the first IMU message it sent (--message chooses)", wanted, found)
+    return other, replay(other, job.config, progress)
 
 
 def _heading(outputs: list[Any]) -> str:
