@@ -257,8 +257,8 @@ class AttitudeService:
         own = self.other_compasses.own  # the compass input.message carries (None: HIGHRES_IMU, PX4's, says none)
         # whether the autopilot uses each compass: input.message's asked last, so that the others' answers (in the
         # order asked, as ArduPilot answers) are in when its own is judged, and the pilot is told which it uses
-        compasses = [] if own is None else [k for k in sorted(set(units.COMPASS_INSTANCES.values())) if k != own]
-        self._compass_use = tuple(compass_use_parameter(k) for k in [*compasses, *([] if own is None else [own])])
+        compasses = [] if own is None else [*sorted(set(units.COMPASS_INSTANCES.values()) - {own}), own]
+        self._compass_use = tuple(compass_use_parameter(k) for k in compasses)
         self._compass_uses: dict[str, float] = {}  # their answers
         self._compass_unused = False  # the autopilot said it does not use input.message's compass (said once)
         # its declination turns a field measured from the compass (no position) to true north
