@@ -241,6 +241,7 @@ REFUSAL_HINTS = {
 #: What the service says to the ground station, each within STATUSTEXT's 50 characters for every input message
 #: (its log line says more).
 DEGENERATE_STATUSTEXT = "mavattitude: acc and mag collinear, no attitude"
+CLOCKS_APART_STATUSTEXT = "mavattitude: no cross-check: clocks apart"
 
 
 def start_statustext(version: str, message: str) -> str:

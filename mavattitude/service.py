@@ -82,6 +82,7 @@ from mavattitude.link.source import AutopilotAttitude, AutopilotParameter, Mavli
 from mavattitude.periodic import Every
 from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, Pushed, snapshot_while_moving
 from mavattitude.reports import (
+    CLOCKS_APART_STATUSTEXT,
     DEGENERATE_STATUSTEXT,
     ServiceCounters,
     compass_event_words,
@@ -107,6 +108,7 @@ from mavattitude.systemd_notify import SystemdNotifier, default_notifier
 log = logging.getLogger(__name__)
 
 TICK_S = 0.05  # periodic work runs at least this often; also the longest wait on the link
+ATTITUDE_FRESH_S = 2.0  # the autopilot's attitudes still come: one within this long (its stream at 0.5 Hz or more)
 UNLOCKED_SYSTEM_ID = 1  # our system id before locking onto an autopilot in automatic mode
 RATE_WINDOW_S = 5.0  # the input rate is measured over windows this long
 DEGENERATE = DegenerateGeometryError.__name__  # the pipeline's reject reason for collinear acc and mag
@@ -252,6 +254,8 @@ class AttitudeService:
         self.other_compasses = OtherCompasses(config)
         self.other_imu_messages: set[str] = set()  # IMU messages the vehicle sent other than input.message
         self._published_s: float | None = None  # vehicle time of the last difference published
+        self._autopilot_heard = -math.inf  # the last autopilot attitude's arrival, time.monotonic()
+        self._unpairable_said = False  # its attitudes can never be paired with ours (said once)
         now = time.monotonic()
         trim = TRIM_PARAMETERS if config.mounting.autopilot_trim else ()
         own = self.other_compasses.own  # the compass input.message carries (None: HIGHRES_IMU, PX4's, says none)
@@ -337,6 +341,7 @@ class AttitudeService:
             self._check_rate(self._rate, now)
         if self._xcheck is not None and self._publish.due(now):
             self._publish_difference(self._xcheck)
+            self._watch_pairing(self._xcheck, now)
         if not self._input_lost and self._last_input is not None:
             silent_s = now - self._last_input
             if silent_s > self.pipeline.frontend.gap_limit_s:  # input_timeout_s, or longer for a slow input
@@ -478,6 +483,7 @@ class AttitudeService:
             self.other_imu_messages.add(msg.get_type())
 
     def on_autopilot_attitude(self, attitude: AutopilotAttitude, t_rx: float) -> None:
+        self._autopilot_heard = t_rx
         if self._xcheck is not None:
             self._xcheck.add_autopilot(attitude.time_s, attitude.q)
             self._cross_check(self._xcheck)
@@ -502,6 +508,24 @@ class AttitudeService:
             else:
                 log.info("our attitude agrees with the autopilot's again (%.1f°)", event.total_deg)
                 self._statustext("crosscheck_clear", "mavattitude: agrees with the autopilot again", "info")
+
+    def _watch_pairing(self, xcheck: CrossCheck, now: float) -> None:
+        """Said once: the autopilot's attitudes keep coming but none can ever be paired with ours (its clock and
+        our input's are apart), so the cross-check, on as configured, checks nothing."""
+        if self._unpairable_said or not now - self._autopilot_heard < ATTITUDE_FRESH_S:
+            return
+        offset_s = xcheck.unpairable_offset_s()
+        if offset_s is None:
+            return
+        self._unpairable_said = True
+        log.warning(
+            "the autopilot's ATTITUDE is stamped %+.0f s from our %s time: none can be paired with ours, so there "
+            "is no cross-check (is %s stamped with Unix time, or from another clock than the attitude?)",
+            offset_s,
+            self._input_name,
+            self._input_name,
+        )
+        self._statustext("crosscheck_clock", CLOCKS_APART_STATUSTEXT, "warning", log_it=False)
 
     def _publish_difference(self, xcheck: CrossCheck) -> None:
         """The latest difference as NAMED_VALUE_FLOAT, stamped with its vehicle time; nothing new, nothing sent."""

@@ -10,6 +10,7 @@ import pytest
 from mavattitude import __version__
 from mavattitude.link.connection import STATUSTEXT_LEN
 from mavattitude.reports import (
+    CLOCKS_APART_STATUSTEXT,
     DEGENERATE_STATUSTEXT,
     REFUSAL_HINTS,
     compass_unused_statustext,
@@ -29,6 +30,7 @@ REASONS = [e.value for e in ClockEvent] + ["nonfinite", "saturated_acc", "no_mag
 def test_every_statustext_fits_for_every_input_message(message):
     texts = [
         DEGENERATE_STATUSTEXT,
+        CLOCKS_APART_STATUSTEXT,
         start_statustext(__version__, message),
         input_lost_statustext(message, 12.5),  # the longest a gap is said at (2.5 intervals of a 0.2 Hz stream)
         *(refused_statustext(message, Counter({reason: 1000})) for reason in REASONS),

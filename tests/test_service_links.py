@@ -303,13 +303,14 @@ def test_the_covariance_message_is_off_when_configured():
     assert sent(link, "ATTITUDE_QUATERNION") and not sent(link, "ATTITUDE_QUATERNION_COV")
 
 
-def _autopilot_8_deg_off(vehicle: Peer, **raw_imu: object) -> list[bytes]:
-    """6 s of RAW_IMU at 200 Hz with the autopilot's ATTITUDE at 10 Hz, its roll 8° off Q_TRUE's."""
+def _autopilot_8_deg_off(vehicle: Peer, clock_offset_s: float = 0.0, **raw_imu: object) -> list[bytes]:
+    """6 s of RAW_IMU at 200 Hz with the autopilot's ATTITUDE at 10 Hz, its roll 8° off Q_TRUE's (stamped
+    ``clock_offset_s`` from the IMU's clock)."""
     roll_deg, pitch_deg, yaw_deg = 10.0 + 8.0, -20.0, 135.0
     datagrams = [vehicle.heartbeat()]
     for _ in range(60):  # 0.1 s of RAW_IMU, then the autopilot's ATTITUDE for its middle
         datagrams += vehicle.stream(20, **raw_imu)
-        stamp_ms = round((vehicle.time_s - 0.05) * 1000)
+        stamp_ms = round((vehicle.time_s - 0.05 + clock_offset_s) * 1000)
         attitude = mavlink2.MAVLink_attitude_message(
             stamp_ms, np.radians(roll_deg), np.radians(pitch_deg), np.radians(yaw_deg), 0.0, 0.0, 0.0
         )
@@ -333,12 +334,28 @@ def test_the_cross_check_publishes_the_difference_and_warns_once(caplog):
     texts = [m.text for m in sent(link, "STATUSTEXT") if "autopilot" in m.text]
     assert texts == ["mavattitude: 8 deg off the autopilot's attitude"]
     assert sum("differ by" in r.getMessage() for r in caplog.records) == 1
+    assert not any("none can be paired" in r.getMessage() for r in caplog.records)  # one clock: paired
     caplog.set_level(logging.INFO, logger="mavattitude.service")
     service._log_counters(final=True)
     line = [r.getMessage() for r in caplog.records if r.getMessage().startswith("counters (final):")][-1]
     pairs = dict(item.split("=") for item in line.removeprefix("counters (final): ").split())
     assert pairs["xc_warnings"] == "1" and int(pairs["xc_pairs"]) >= 55  # 60 less the first, before ours
     assert float(pairs["xc_total_deg"]) == pytest.approx(8.0, abs=0.5) and pairs["xc_unjudged"] == "0"
+
+
+def test_an_autopilot_attitude_on_another_clock_than_the_imu_is_said_to_leave_no_cross_check(caplog):
+    """RAW_IMU stamped an hour from the autopilot's ATTITUDE (a bridge filling time_usec with Unix time, say): no
+    attitude of the autopilot's can ever be paired with ours, and the cross-check, on, would check nothing."""
+    caplog.set_level(logging.WARNING, logger="mavattitude.service")
+    service, link = _service(**{"crosscheck.enabled": True})
+    link.deliver(*_autopilot_8_deg_off(Peer(), clock_offset_s=3600.0))
+    _step_until(service, lambda: any("none can be paired" in r.getMessage() for r in caplog.records))
+    (said,) = [r.getMessage() for r in caplog.records if "none can be paired" in r.getMessage()]
+    assert said.startswith("the autopilot's ATTITUDE is stamped +3600 s from our RAW_IMU time")
+    assert [m.text for m in sent(link, "STATUSTEXT") if "cross-check" in m.text] == [
+        "mavattitude: no cross-check: clocks apart"
+    ]
+    assert not any("differ by" in r.getMessage() for r in caplog.records)
 
 
 @pytest.mark.parametrize(("method", "warnings"), [("ign", 0), ("fused", 1)])

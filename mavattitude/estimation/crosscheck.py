@@ -138,6 +138,7 @@ class CrossCheck:
         self._moved: deque[float] = deque()  # for each of ours, the time of the last moving one up to it
         # autopilot attitudes ahead of our outputs (bounded: while we output nothing, the oldest go)
         self._waiting: deque[tuple[float, Quat]] = deque()
+        self._newest_autopilot_s = math.nan
         self._first_s = math.inf  # our first output since the start or our last reset
         self._dropped_s = -math.inf  # the newest of ours forgotten (KEEP_S behind the newest)
         self._resets = 0
@@ -188,7 +189,18 @@ class CrossCheck:
             self._headings.popleft()
             self._moved.popleft()
 
+    def unpairable_offset_s(self) -> float | None:
+        """How far the autopilot's clock is from ours (its newest attitude's time less our newest output's, s) when
+        none of its attitudes was ever paired though both came, more than we keep apart (``KEEP_S``): its
+        attitudes can never be paired (an IMU message stamped with Unix time, the attitude from another clock);
+        else None."""
+        if self.pairs or not self._times or self._newest_autopilot_s != self._newest_autopilot_s:
+            return None
+        offset_s = self._newest_autopilot_s - self._times[-1]
+        return offset_s if abs(offset_s) > KEEP_S else None
+
     def add_autopilot(self, time_s: float, q: Iterable[float]) -> None:
+        self._newest_autopilot_s = time_s
         w, x, y, z = map(float, q)
         norm = math.sqrt(w * w + x * x + y * y + z * z)
         if not MIN_NORM < norm < math.inf:  # NaN too

@@ -242,3 +242,24 @@ def test_an_autopilot_quaternion_that_is_no_rotation_is_counted_invalid_and_one_
     (d,), _ = check.update()
     assert check.unpaired == {"invalid": 3} and check.pairs == 1
     assert d.total_deg < 1e-3  # 0.9 × ours, normalised: the same attitude
+
+
+def test_an_autopilot_on_another_clock_is_found_unpairable_and_only_then():
+    ours_t = np.arange(100.0, 110.0, 0.02)
+    apart, paired, near = (
+        CrossCheck(CrossCheckSettings()),
+        CrossCheck(CrossCheckSettings()),
+        CrossCheck(CrossCheckSettings()),
+    )
+    for check, offset_s in ((apart, 3600.0), (paired, 0.0), (near, -KEEP_S / 2)):
+        for t, q in zip(ours_t, truth(ours_t), strict=True):
+            check.add_ours(float(t), q)
+            if round(t * 50) % 5 == 0:  # 10 Hz
+                check.add_autopilot(float(t) + offset_s, q)
+                check.update()
+    # its newest (10 Hz) less our newest (50 Hz): the offset, less up to one of its intervals
+    assert apart.pairs == 0 and apart.unpairable_offset_s() == pytest.approx(3600.0, abs=0.1)
+    assert paired.pairs > 0 and paired.unpairable_offset_s() is None
+    # half a kept span behind ours: they will pair as ours go on, not said to be apart
+    assert near.unpairable_offset_s() is None
+    assert CrossCheck(CrossCheckSettings()).unpairable_offset_s() is None  # nothing came yet
