@@ -579,7 +579,9 @@ def _compare(replayed: Any, job: Job, result: LogResult) -> None:
     if check.missed:
         log.info("%s", _pairing(check))
     if not pairs:
-        log.warning("no autopilot attitude falls within our output times: no comparison")
+        offset_s = check.unpairable_offset_s()  # as the service says it: its clock another than our input's
+        apart = "" if offset_s is None else f" (its clock {offset_s:+.0f} s from our IMU's: stamped with Unix time?)"
+        log.warning("no autopilot attitude falls within our output times: no comparison%s", apart)
         return
     t = np.array([d.time_s for d in pairs])
     diff = np.array([(d.roll_deg, d.pitch_deg, d.yaw_deg, d.total_deg) for d in pairs])

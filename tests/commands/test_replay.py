@@ -46,11 +46,12 @@ def write_tlog(
     gimbal_first: bool = False,
     mag_every: int = 1,
     heartbeats: bool = True,
+    imu_clock_offset_s: float = 0.0,
 ) -> Path:
     """A ground station's recording: its own heartbeat, the autopilot(s') heartbeats, RAW_IMU at 100 Hz
     (ArduPilot units, seeded noise; each compass reading repeated in ``mag_every`` messages, as ArduPilot
-    sends a slower compass), ATTITUDE at 10 Hz, optionally GLOBAL_POSITION_INT at 5 Hz from ``position_from_s``;
-    without ``heartbeats``, the station's alone."""
+    sends a slower compass; stamped ``imu_clock_offset_s`` from the other messages), ATTITUDE at 10 Hz, optionally
+    GLOBAL_POSITION_INT at 5 Hz from ``position_from_s``; without ``heartbeats``, the station's alone."""
     field = field_from_angles(DECL, INCL, F_UT) if field_ned_uT is None else field_ned_uT
     rng = np.random.default_rng(3)
     profile = PROFILES["ardupilot"]
@@ -77,7 +78,7 @@ def write_tlog(
         mag = mag[np.arange(len(t)) // mag_every * mag_every]  # the newest reading of a slower compass
         gyr = np.tile([0.0, 0.0, np.radians(YAW_RATE_DEG_S) if s == 1 else 0.0], (len(t), 1))
         for i, ti in enumerate(t):
-            sample = ImuSample(float(ti), tuple(acc[i]), tuple(gyr[i]), tuple(mag[i]))
+            sample = ImuSample(float(ti) + imu_clock_offset_s, tuple(acc[i]), tuple(gyr[i]), tuple(mag[i]))
             add(ti, s, links[s].raw_imu_encode(**encode(sample, profile, "RAW_IMU")))
             if attitude and i % 10 == 5:
                 r, p, y = rpy[i] + [0.0, 0.0, np.radians(AUTOPILOT_YAW_OFFSET_DEG)]
@@ -312,3 +313,14 @@ def test_a_telemetry_log_without_the_configured_message_is_replayed_with_the_one
     assert float(row["roll_rms_deg"]) < 0.1 and float(row["pitch_rms_deg"]) < 0.1 and int(row["compared"]) > 90
     assert main(["replay", str(log), "-o", str(tmp_path / "asked"), "--message", "RAW_IMU"]) == 2
     assert "no RAW_IMU from the autopilot; it sent HIGHRES_IMU: --message HIGHRES_IMU" in capsys.readouterr().err
+
+
+def test_an_imu_stamped_on_another_clock_than_the_autopilots_attitude_is_said(tmp_path, capsys):
+    """RAW_IMU stamped with Unix time (a bridge's, an old firmware's), ATTITUDE with time since boot: nothing can
+    be compared, and the refusal to compare says why, as the service does live."""
+    log = write_tlog(tmp_path / "unix.tlog", second_vehicle=False, imu_clock_offset_s=1.7e9)
+    assert main(["replay", str(log), "-o", str(tmp_path / "unix.csv"), "--no-plot", *REF]) == 0
+    said = [line for line in capsys.readouterr().err.splitlines() if "no comparison" in line]
+    assert len(said) == 1 and said[0].endswith(" s from our IMU's: stamped with Unix time?)")
+    offset_s = float(said[0].split("(its clock ")[1].split(" s from")[0])
+    assert offset_s == pytest.approx(-1.7e9, abs=5.0)  # the newest of each, within the log's 3 s
