@@ -441,6 +441,12 @@ class AttitudeService:
         if config.crosscheck.enabled:
             rate_hz = config.crosscheck.attitude_rate_hz
             streams.append(StreamRequest(ATTITUDE_MESSAGE, message_id(ATTITUDE_MESSAGE), rate_hz, optional=True))
+        own = units.COMPASS_INSTANCES.get(config.input.message)
+        if config.compass.enabled and config.compass.others_rate_hz > 0.0 and own is not None:
+            # the vehicle's other compasses, each judged beside ours (optional: a vehicle has one, two or three)
+            rate_hz = config.compass.others_rate_hz
+            others = [m for k, m in sorted(units.COMPASS_MESSAGES.items()) if k != own]
+            streams += [StreamRequest(m, message_id(m), rate_hz, optional=True) for m in others]
         return streams
 
     def on_parameter(self, parameter: AutopilotParameter) -> None:
@@ -466,7 +472,7 @@ class AttitudeService:
 
     def _compass_remedy(self, own: int) -> str:
         """Which compass the autopilot uses instead, as far as it said, and the input message that carries it."""
-        messages = {k: m for m, k in reversed(units.COMPASS_INSTANCES.items()) if k != own}  # each one's first
+        messages = {k: m for k, m in units.COMPASS_MESSAGES.items() if k != own}
         uses = {k: self._compass_uses.get(compass_use_parameter(k)) for k in messages}
         used = [k for k, use in uses.items() if use is not None and use != 0.0]
         if used:

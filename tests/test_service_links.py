@@ -401,3 +401,16 @@ def test_waiting_for_the_imu_stream_names_the_imu_message_the_vehicle_sends_inst
         "waiting for the IMU stream: RAW_IMU from system 1, component 1, asked for at 200 Hz; it sends HIGHRES_IMU: "
         "set input.message (and input.profile) to read one"
     )
+
+
+@pytest.mark.parametrize(("rate_hz", "asked"), [(5.0, ["SCALED_IMU2", "SCALED_IMU3"]), (0.0, [])])
+def test_the_other_compasses_messages_are_asked_for_when_configured(rate_hz, asked):
+    """compass.others_rate_hz: the other compasses' IMU messages at that rate, each judged beside ours; off by
+    default (a judge costs a front end per IMU sample), when only what the vehicle streams is judged."""
+    service, link = _service(**{"compass.others_rate_hz": rate_hz})
+    link.deliver(Peer().heartbeat())
+    _step_until(service, lambda: service.counters.interval_requests >= 1)
+    ids = {mavlink2.MAVLINK_MSG_ID_SCALED_IMU2: "SCALED_IMU2", mavlink2.MAVLINK_MSG_ID_SCALED_IMU3: "SCALED_IMU3"}
+    requests = [c for c in sent(link, "COMMAND_LONG") if c.param1 in ids]
+    assert [ids[int(c.param1)] for c in requests] == asked
+    assert all(c.param2 == pytest.approx(1e6 / rate_hz) for c in requests)

@@ -164,6 +164,9 @@ class CompassSettings:
     dip_allowance_deg: float = ranged(10.0, "dip error calibration and field model explain, deg", 0.0, 90.0)
     field_allowance: float = ranged(0.15, "|B| error calibration and field model explain, fraction", 0.0, 1.0)
     turn_allowance: float = ranged(0.2, "share of the field's turn it may make unlike the gyroscope", 0.0, 10.0)
+    others_rate_hz: float = ranged(
+        0.0, "live: ask for the other compasses' IMU messages at this rate, to judge them too (0: if sent)", 0.0, 50.0
+    )
     min_samples: ClassVar[int] = 25  # quiet samples in the window before judging (0.5 s at 50 Hz)
 
 

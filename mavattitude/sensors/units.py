@@ -454,6 +454,8 @@ class Position:
 POSITION_MESSAGES = ("GLOBAL_POSITION_INT", "GPS_RAW_INT")  # what decode_position reads
 #: the IMU messages that carry a compass, and which (ArduPilot sends compass 1, 2, 3 in RAW_IMU, SCALED_IMU2, 3)
 COMPASS_INSTANCES = {"RAW_IMU": 0, "SCALED_IMU": 0, "SCALED_IMU2": 1, "SCALED_IMU3": 2}
+#: each compass's IMU message, the first that carries it (RAW_IMU for compass 1)
+COMPASS_MESSAGES = {k: m for m, k in reversed(COMPASS_INSTANCES.items())}
 
 
 #: The World Magnetic Model's altitudes (m above the ellipsoid): a position outside is a garbled field
