@@ -51,7 +51,7 @@ class OtherCompasses:
         for instance, mag in self._newest.items():
             judge = self.judges.get(instance)
             if judge is None:
-                judge = self.judges[instance] = AttitudePipeline(self.config)
+                judge = self.judges[instance] = AttitudePipeline(self.config.for_another_compass())
             if main.mag_ref_ned_uT is not None and judge.mag_ref_ned_uT is not main.mag_ref_ned_uT:
                 known = main.frontend.expected_field_uT is not None
                 judge.set_magnetic_reference(main.mag_ref_ned_uT, known, main.magref.measured)

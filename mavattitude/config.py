@@ -41,7 +41,7 @@ from mavattitude.estimation.conventions import Mat3, Vec3
 from mavattitude.estimation.crosscheck import CrossCheckSettings
 from mavattitude.estimation.fused.settings import FusedSettings
 from mavattitude.estimation.solve import DEFAULT_METHOD, MAX_ITERATIONS, MIN_ANGLE_DEG, TOLERANCE_RAD
-from mavattitude.sensors.calibration import Calibration
+from mavattitude.sensors.calibration import Calibration, MagCalibration
 from mavattitude.sensors.frontend import FrontEndSettings
 from mavattitude.sensors.magref import MagneticReference
 from mavattitude.sensors.mounting import mounting_matrix
@@ -362,6 +362,12 @@ class Config:
     crosscheck: CrossCheckSettings = field(default_factory=CrossCheckSettings)
     output: OutputConfig = field(default_factory=OutputConfig)
     logging: LoggingConfig = field(default_factory=LoggingConfig)
+
+    def for_another_compass(self) -> Config:
+        """This config for judging a compass other than the one ``calibration.mag`` was fitted to (input.message's,
+        the one replayed): without it, as that compass's readings carry the autopilot's own calibration, and the
+        hard iron of another would put its dip and |B| off."""
+        return dataclasses.replace(self, calibration=dataclasses.replace(self.calibration, mag=MagCalibration()))
 
     def to_dict(self) -> dict[str, Any]:
         """Plain YAML-ready data (lists, not tuples), the same shape the loader reads."""

@@ -320,7 +320,8 @@ def _judge_compasses(s: LogStreams, pipeline: AttitudePipeline, reference_after_
     for instance in s.compasses.readings:
         if instance == s.compasses.used and s.compasses.why is not None:
             continue  # the pipeline judges it
-        judge = AttitudePipeline(pipeline.config)
+        config = pipeline.config if instance == s.compasses.used else pipeline.config.for_another_compass()
+        judge = AttitudePipeline(config)
         judge.magref.level = logging.DEBUG  # its field is its own verdict's business: the log says the replayed one's
         if pipeline.mag_ref_ned_uT is not None:  # else each measures its own field: its turn is judged all the same
             known = pipeline.frontend.expected_field_uT is not None

@@ -9,10 +9,22 @@ import pytest
 
 from mavattitude.estimation.conventions import rotate_ned_to_body
 from mavattitude.link.mavlink2 import mavlink2
+from mavattitude.link.memory import MemoryLink
+from mavattitude.pipeline import AttitudePipeline
 from mavattitude.reports import compass_statustext
 from mavattitude.sensors import units
+from mavattitude.service import AttitudeService
+from mavattitude.systemd_notify import SystemdNotifier
 from tests.test_dispatch import Peer, memory_service, sent, serve  # noqa: F401 (memory_service: a fixture)
-from tests.test_service import G_NED_MPS2, GYRO_RADPS, Q_TRUE, mag_ned_uT
+from tests.test_service import (
+    DECLINATION_DEG,
+    G_NED_MPS2,
+    GYRO_RADPS,
+    INCLINATION_DEG,
+    Q_TRUE,
+    mag_ned_uT,
+    make_config,
+)
 
 ACC = rotate_ned_to_body(Q_TRUE, G_NED_MPS2)
 UPSIDE_DOWN = rotate_ned_to_body(Q_TRUE, mag_ned_uT()) * np.array([1.0, 1.0, -1.0])
@@ -73,3 +85,25 @@ def test_a_second_compass_upside_down_is_named_and_the_first_one_is_not(memory_s
     assert len(texts) == 1 and texts[0].startswith("compass 2 dip") and len(texts[0]) <= 50
     assert service.pipeline.compass.warnings == 0  # compass 1, the one replayed, is not warned about
     assert service.other_compasses.judges[1].compass.warnings == 1
+
+
+def test_the_calibration_fitted_to_our_compass_is_not_applied_to_the_others(caplog):
+    """calibration.mag is fitted to input.message's compass (RAW_IMU's: 30 µT of hard iron here); compass 2 comes
+    calibrated by the autopilot. Its judge takes it as it comes: with our hard iron it read |B| 30 µT off."""
+    caplog.set_level(logging.WARNING, logger="mavattitude.service")
+    hard_iron = np.array([30.0, 0.0, 0.0])
+    field = {"declination_deg": DECLINATION_DEG, "inclination_deg": INCLINATION_DEG}
+    field["intensity_uT"] = float(np.linalg.norm(mag_ned_uT()))  # known: the thresholds are the noise's, not 96°
+    config = make_config(**{"calibration.mag.hard_iron_uT": hard_iron.tolist(), "reference.magnetic": field})
+    link = MemoryLink()
+    service = AttitudeService(config, link, AttitudePipeline(config), SystemdNotifier(environ={}))
+    vehicle = Peer()
+    truth = rotate_ned_to_body(Q_TRUE, mag_ned_uT())
+    messages = [vehicle.heartbeat()]
+    for _ in range(1000):  # 5 s at 200 Hz
+        messages += [vehicle.raw_imu(mag_uT=truth + hard_iron), _scaled_imu2(vehicle, truth)]
+    link.deliver(*messages)
+    serve(service, link)
+    assert service.other_compasses.judges[1].compass.samples > 25  # judged, and
+    assert not [r.getMessage() for r in caplog.records if "compass" in r.getMessage()]  # neither is off
+    assert service.pipeline.compass.warnings == 0 and service.other_compasses.judges[1].compass.warnings == 0

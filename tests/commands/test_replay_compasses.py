@@ -152,3 +152,21 @@ def test_a_compass_the_log_lacks_is_refused_naming_those_it_has(where, mag, refu
     and the .ulg its one, each without a word of what was asked."""
     with pytest.raises(DataFileError, match=refusal):
         _replayed(shared_path("data", *where), mag=mag)
+
+
+def test_our_mag_calibration_is_applied_to_the_replayed_compass_only(tmp_path):
+    """calibration.mag fitted to the replayed compass (25 µT of hard iron in its readings), the other calibrated by
+    the autopilot: judged as it comes, ok; with our hard iron it read dip and |B| off."""
+    log = manoeuvring_log(60.0, seed=1)
+    hard_iron = np.array([25.0, -10.0, 5.0])
+    path = write_dataflash(
+        tmp_path / "cal.bin",
+        log,
+        instances=2,
+        mags=[log.mag_uT + hard_iron, log.mag_uT],
+        parameters={"COMPASS_USE": 1.0, "COMPASS_USE2": 1.0},
+    )
+    config = load_config(None, {"calibration.mag.hard_iron_uT": hard_iron.tolist()}, env={})  # the WMM's field
+    result = replay(open_log(path, config), config)
+    assert result.compass_used.startswith("0: the autopilot's")
+    assert _verdicts(result) == {0: "ok", 1: "ok"}
