@@ -21,14 +21,18 @@ service is the dispatcher's listener. What it does on the link:
   every ``request_repeat_s``, and as soon as the link (re)opens
   (unless ``request_messages`` is off); each COMMAND_ACK is matched to the request it answers
   (:mod:`mavattitude.link.requests`), and each stream's answer (or its absence) is said once;
-- asks for ArduPilot's level trim (``AHRS_TRIM_X/Y``, PARAM_REQUEST_READ, with ``mounting.autopilot_trim``)
-  until answered or asked three times; the pipeline turns the readings by it, so the attitude is of the
-  vehicle's frame, as the autopilot's (docs/frames.md);
+- asks for ArduPilot's parameters (PARAM_REQUEST_READ, until answered or asked three times): its level trim
+  (``AHRS_TRIM_X/Y``, with ``mounting.autopilot_trim``), which the pipeline turns the readings by, so the
+  attitude is of the vehicle's frame, as the autopilot's (docs/frames.md); whether it uses each compass
+  (``COMPASS_USE…``: the one input.message carries set aside is said once, with the one it uses); and with
+  ``reference.magnetic: auto`` its declination (``COMPASS_DEC``), which turns a field measured without a
+  position to its north;
 - cross-checks the autopilot (``crosscheck:``): asks for its ATTITUDE, pairs it with our output by vehicle
   time (:mod:`mavattitude.estimation.crosscheck`), publishes the difference as NAMED_VALUE_FLOAT
   (``xc_roll``, ``xc_pitch``, ``xc_yaw``, ``xc_total``, degrees) at ``publish_rate_hz``, and says once (log +
   STATUSTEXT) when the total stays above ``threshold_deg`` for ``hold_s``, and when it clears; a snapshot
   solve while the vehicle moves is published, not judged (:func:`~mavattitude.pipeline.snapshot_while_moving`);
+  attitudes that can never be paired with ours (another clock than the input's) are said once;
 - measures the input rate it receives, and says once (log + STATUSTEXT) when it stays below the requested
   rate (a slow serial link, a busy autopilot), with the measured rate and what to do, and when it recovers;
 - emits ATTITUDE_QUATERNION per pipeline output, stamped with the vehicle time of the sample, and (unless
@@ -259,9 +263,10 @@ class AttitudeService:
         now = time.monotonic()
         trim = TRIM_PARAMETERS if config.mounting.autopilot_trim else ()
         own = self.other_compasses.own  # the compass input.message carries (None: HIGHRES_IMU, PX4's, says none)
+        self._others = units.other_compasses(config.input.message)  # the rest, each with its message
         # whether the autopilot uses each compass: input.message's asked last, so that the others' answers (in the
         # order asked, as ArduPilot answers) are in when its own is judged, and the pilot is told which it uses
-        compasses = [] if own is None else [*sorted(set(units.COMPASS_INSTANCES.values()) - {own}), own]
+        compasses = [] if own is None else [*self._others, own]
         self._compass_use = tuple(compass_use_parameter(k) for k in compasses)
         self._compass_uses: dict[str, float] = {}  # their answers
         self._compass_unused = False  # the autopilot said it does not use input.message's compass (said once)
@@ -441,11 +446,10 @@ class AttitudeService:
         if config.crosscheck.enabled:
             rate_hz = config.crosscheck.attitude_rate_hz
             streams.append(StreamRequest(ATTITUDE_MESSAGE, message_id(ATTITUDE_MESSAGE), rate_hz, optional=True))
-        own = units.COMPASS_INSTANCES.get(config.input.message)
-        if config.compass.enabled and config.compass.others_rate_hz > 0.0 and own is not None:
+        if config.compass.enabled and config.compass.others_rate_hz > 0.0:
             # the vehicle's other compasses, each judged beside ours (optional: a vehicle has one, two or three)
             rate_hz = config.compass.others_rate_hz
-            others = [m for k, m in sorted(units.COMPASS_MESSAGES.items()) if k != own]
+            others = units.other_compasses(config.input.message).values()
             streams += [StreamRequest(m, message_id(m), rate_hz, optional=True) for m in others]
         return streams
 
@@ -467,20 +471,20 @@ class AttitudeService:
         if not unused:
             log.info("the autopilot uses compass %d again (%s %g)", own + 1, name, value)
             return
-        log.warning("%s", compass_unused_warning(own, name, value, self._compass_remedy(own)))
+        log.warning("%s", compass_unused_warning(own, name, value, self._compass_remedy()))
         self._statustext("compass_unused", compass_unused_statustext(own), "warning", log_it=False)
 
-    def _compass_remedy(self, own: int) -> str:
+    def _compass_remedy(self) -> str:
         """Which compass the autopilot uses instead, as far as it said, and the input message that carries it."""
-        messages = {k: m for k, m in units.COMPASS_MESSAGES.items() if k != own}
-        uses = {k: self._compass_uses.get(compass_use_parameter(k)) for k in messages}
+        messages = self._others
+        uses = {k: self._compass_uses.get(compass_use_parameter(k)) for k in messages}  # None: not answered
         used = [k for k, use in uses.items() if use is not None and use != 0.0]
         if used:
             k = min(used)
             return f"it uses compass {k + 1}: input.message {messages[k]} carries it"
         if all(use is not None for use in uses.values()):
             return "it uses none of its compasses (its heading comes from elsewhere: a GPS, or nowhere)"
-        return "input.message " + " or ".join(f"{m} carries compass {k + 1}" for k, m in sorted(messages.items()))
+        return "input.message " + " or ".join(f"{m} carries compass {k + 1}" for k, m in messages.items())
 
     def on_message(self, msg: Any, t_rx: float) -> None:
         self.session.on_message(msg, time.monotonic())

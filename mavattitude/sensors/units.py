@@ -454,8 +454,15 @@ class Position:
 POSITION_MESSAGES = ("GLOBAL_POSITION_INT", "GPS_RAW_INT")  # what decode_position reads
 #: the IMU messages that carry a compass, and which (ArduPilot sends compass 1, 2, 3 in RAW_IMU, SCALED_IMU2, 3)
 COMPASS_INSTANCES = {"RAW_IMU": 0, "SCALED_IMU": 0, "SCALED_IMU2": 1, "SCALED_IMU3": 2}
-#: each compass's IMU message, the first that carries it (RAW_IMU for compass 1)
-COMPASS_MESSAGES = {k: m for m, k in reversed(COMPASS_INSTANCES.items())}
+#: each compass's IMU message, the first that carries it (RAW_IMU for compass 1), by instance
+_COMPASS_MESSAGES = dict(sorted({k: m for m, k in reversed(COMPASS_INSTANCES.items())}.items()))
+
+
+def other_compasses(message: str) -> dict[int, str]:
+    """The compasses other than the one ``message`` carries, by instance, each with the IMU message that carries
+    it; none when ``message`` carries no numbered compass (HIGHRES_IMU, PX4's)."""
+    own = COMPASS_INSTANCES.get(message)
+    return {} if own is None else {k: m for k, m in _COMPASS_MESSAGES.items() if k != own}
 
 
 #: The World Magnetic Model's altitudes (m above the ellipsoid): a position outside is a garbled field
