@@ -865,8 +865,8 @@ METHOD = """\
   caches and branch predictors found cold after the sleep cost.
 - **service**: `mavattitude run` as a real subprocess, the fake vehicle (`mavattitude.sim`) on loopback
   UDP. Latency and CPU: at 200 Hz, over one whole counters window of steady running (30 s); the
-  service's own latency is from the datagram's arrival to the ATTITUDE_QUATERNION's send; the vehicle's
-  is from its IMU send to its receipt of the answer (two UDP hops and two Python processes); CPU is
+  service's own latency is from the datagram's arrival (the kernel's stamp) to the ATTITUDE_QUATERNION's send;
+  the vehicle's is from its IMU send to its receipt of the answer (two UDP hops and two Python processes); CPU is
   user + system time from `/proc/PID/stat` over wall time. Rates: the vehicle streams at each rate for
   20 s (2 000 Hz) or 10 s; between rates the stream pauses until the service's received count settles,
   so the loss is exact.

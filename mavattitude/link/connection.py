@@ -24,6 +24,8 @@ import functools
 import logging
 import math
 import socket
+import struct
+import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -45,6 +47,12 @@ Sender = tuple[int, int]  # MAVLink (system id, component id)
 MAX_MESSAGES_PER_RECV = 64  # bound one recv() so a burst cannot starve heartbeats and the watchdog
 MIN_SLEEP_S = 0.001  # a shorter quiet spell is waited for on the socket: a sleep's wake-up would cost as much
 UDP_RECEIVE_BUFFER_BYTES = 1 << 20
+#: Linux's SO_TIMESTAMPNS, which Python's socket module does not name (the generic value, x86's and ARM's): the
+#: kernel stamps each datagram with its arrival (CLOCK_REALTIME, a ``struct timespec`` of two C longs).
+SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
+_TIMESPEC = struct.Struct("@ll")
+_TIMESPEC_SPACE = socket.CMSG_SPACE(_TIMESPEC.size)
+CLOCK_STEP_S = 0.001  # the wall clock moved this much against the monotonic one between reads: it was set
 UDP_PEER_TIMEOUT_S = 5.0  # a udpin peer silent this long is no longer sent to (unless it is the only one)
 CONNECT_TIMEOUT_S = 0.5  # a TCP connect attempt; short, so a stop request is never held up for long
 SIGNING_CLOCK_UPDATE_S = 1.0
@@ -220,6 +228,8 @@ class DatagramConnection:
     mav: Any
     on_truncated: Any = None  # called once per dropped incomplete frame
     direct: _FrameReader | None = None
+    stamps_arrivals = False  # the OS stamps each datagram's arrival: :attr:`arrival_s`
+    arrival_s: float | None = None  # the last datagram's arrival (``time.monotonic()``) when known
 
     def recv(self, n: int | None = None) -> bytes:
         raise NotImplementedError
@@ -268,6 +278,22 @@ class DatagramConnection:
             return mavlink2.MAVLink_bad_data(mbuf, reason.message)
 
 
+def arrival_on_monotonic(
+    ancillary: list[tuple[int, int, bytes]], wall_minus_monotonic_s: float, before_s: float, now_s: float
+) -> float | None:
+    """A datagram's arrival on ``time.monotonic()`` from the kernel's wall-clock stamp in its ``ancillary`` data
+    (``recvmsg``), given the wall clock's offset from the monotonic one now and at the previous read
+    (``before_s``); None without a stamp, or when the offset moved by ``CLOCK_STEP_S`` or more (the wall clock
+    was set: the stamp may be on either side). Never later than ``now_s``."""
+    if abs(wall_minus_monotonic_s - before_s) >= CLOCK_STEP_S:
+        return None
+    for level, kind, data in ancillary:
+        if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS:
+            seconds, nanoseconds = _TIMESPEC.unpack(data)
+            return min(seconds - wall_minus_monotonic_s + 1e-9 * nanoseconds, now_s)
+    return None
+
+
 class _Udp(DatagramConnection, mavutil.mavudp):
     """pymavlink's UDP socket, read as :class:`DatagramConnection`, answering only real peers.
 
@@ -284,13 +310,35 @@ class _Udp(DatagramConnection, mavutil.mavudp):
         # room for a burst while the loop is busy (the kernel caps this at net.core.rmem_max)
         self.port.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, UDP_RECEIVE_BUFFER_BYTES)
         self._sender: tuple[str, int] | None = None
+        self.stamps_arrivals = self._stamp_arrivals()
 
     def recv(self, n: int | None = None) -> bytes:
         try:
-            data, self._sender = self.port.recvfrom(mavutil.UDP_MAX_PACKET_LEN)
+            if not self.stamps_arrivals:
+                data, self._sender = self.port.recvfrom(mavutil.UDP_MAX_PACKET_LEN)
+                return data
+            data, ancillary, _, self._sender = self.port.recvmsg(mavutil.UDP_MAX_PACKET_LEN, _TIMESPEC_SPACE)
         except (BlockingIOError, ConnectionRefusedError):  # nothing waiting; an ICMP error from a udpout peer
             return b""
+        self.arrival_s = self._arrival(ancillary)
         return data
+
+    def _stamp_arrivals(self) -> bool:
+        """Ask the kernel to stamp each datagram's arrival (Linux); whether it will."""
+        if not sys.platform.startswith("linux"):
+            return False
+        try:
+            self.port.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+        except OSError:
+            return False
+        self._wall_minus_monotonic = time.time() - time.monotonic()
+        return True
+
+    def _arrival(self, ancillary: list[tuple[int, int, bytes]]) -> float | None:
+        now = time.monotonic()
+        offset, previous = time.time() - now, self._wall_minus_monotonic
+        self._wall_minus_monotonic = offset
+        return arrival_on_monotonic(ancillary, offset, previous, now)
 
     def heard(self) -> None:
         if self.udp_server:
@@ -446,7 +494,7 @@ class MavlinkLink:
         self._conn: Any = None
         self._direct: tuple[DirectFrame, _FrameReader] | None = None  # the last one asked for, ready
         self._backlog_since: float | None = None  # a sleep's backlog is being read: its stamp
-        self.backlog = False  # the last recv_items returned what waited through a sleep (stamped at its start)
+        self.backlog = False  # the last recv_items returned what waited through a sleep, stamped at its start
         self.last_send_s = float("nan")  # time.monotonic() at which the last packet was handed to the OS
         try:
             self._open()
@@ -590,10 +638,11 @@ class MavlinkLink:
         of ``direct``'s message is decoded by it instead, without pymavlink (not while signing is required: then
         every frame is pymavlink's to check).
 
-        ``quiet_until`` (``time.monotonic()``): nothing the caller waits for can arrive before then, so the link
+        ``quiet_until`` (``time.monotonic()``): the caller need not hear of anything before then, so the link
         sleeps until then (within ``timeout_s``) rather than wake for every message, and returns what arrived
-        meanwhile at once, stamped with the time the sleep began (each may have arrived at any moment of it:
-        latency counted from there is never understated). :attr:`backlog` says whether it did.
+        meanwhile at once, stamped with its arrival where the OS stamps datagrams (:attr:`stamps_arrivals`), else
+        with the time the sleep began (each may have arrived at any moment of it: latency counted from there is
+        never understated; :attr:`backlog` says it was).
         """
         conn = self._conn
         if conn is None:
@@ -603,6 +652,7 @@ class MavlinkLink:
         if isinstance(conn, DatagramConnection):
             conn.direct = self._reader(direct)
         asleep_since = self._backlog_since  # a backlog longer than one call is still stamped so
+        self.backlog = False
         if asleep_since is None:
             now = time.monotonic()
             quiet_s = min(quiet_until - now, timeout_s)
@@ -611,27 +661,31 @@ class MavlinkLink:
                 asleep_since, timeout_s = now, timeout_s - quiet_s
         if asleep_since is not None:
             received = self._read(conn, decode, asleep_since)
-            self.backlog = True
             self._backlog_since = asleep_since if len(received) >= MAX_MESSAGES_PER_RECV else None
             if received or self._conn is None:
                 return received
-        self.backlog = False
         if not conn.select(max(timeout_s, 0.0)):
             return []
         return self._read(conn, decode, None)
 
     def _read(
-        self, conn: Any, decode: Callable[[Message], Any], stamp: float | None
+        self, conn: Any, decode: Callable[[Message], Any], slept_since: float | None
     ) -> list[tuple[float, Sender, Any]]:
-        """Every message waiting (at most ``MAX_MESSAGES_PER_RECV``), stamped ``stamp``, else when read."""
+        """Every message waiting (at most ``MAX_MESSAGES_PER_RECV``), stamped with its datagram's arrival where
+        the OS stamps it, else with ``slept_since`` (:attr:`backlog`), else when read."""
         received: list[tuple[float, Sender, Any]] = []
+        stamped = getattr(conn, "stamps_arrivals", False)
         try:
             while len(received) < MAX_MESSAGES_PER_RECV:
                 # before reading and parsing: our whole handling counts as latency
-                t_rx = time.monotonic() if stamp is None else stamp
+                t_rx = time.monotonic() if slept_since is None else slept_since
                 msg = conn.recv_msg()
                 if msg is None:
                     break
+                if stamped and conn.arrival_s is not None:
+                    t_rx = conn.arrival_s
+                elif slept_since is not None:
+                    self.backlog = True
                 if type(msg) is tuple:  # (sender, item), decoded from its frame
                     received.append((t_rx, *msg))
                 elif msg.get_type() == "BAD_DATA":
@@ -644,6 +698,12 @@ class MavlinkLink:
             self.counters.received += len(received)
             self._backoff_s = self._reconnect_range_s[0]  # the link works: the next failure retries fast
         return received
+
+    @property
+    def stamps_arrivals(self) -> bool:
+        """Whether each datagram is stamped with its arrival by the OS (UDP on Linux): a sleep through arrivals
+        then delays them without hiding how long."""
+        return getattr(self._conn, "stamps_arrivals", False)
 
     def _reader(self, direct: DirectFrame | None) -> _FrameReader | None:
         if direct is None or self._require_signing:

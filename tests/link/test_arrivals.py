@@ -4,6 +4,7 @@ link's sleep until then (:meth:`MavlinkLink.recv_items` with ``quiet_until``) ov
 from __future__ import annotations
 
 import math
+import sys
 import time
 
 import numpy as np
@@ -13,6 +14,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from mavattitude.link import MavlinkLink
 from mavattitude.link.arrivals import MARGIN_S, TickArrivals
 from mavattitude.link.connection import MAX_MESSAGES_PER_RECV
+from mavattitude.link.memory import MemoryLink
 from mavattitude.link.source import MavlinkDecoder
 from mavattitude.sensors import units
 from tests.link.peer import UdpPeer
@@ -93,25 +95,54 @@ def _raw_imu(peer: UdpPeer, time_s: float) -> bytes:
     return peer.pack(mavlink2.MAVLink_raw_imu_message(**units.encode(sample, units.PROFILES["ardupilot"], "RAW_IMU")))
 
 
-def test_what_waited_through_a_sleep_is_stamped_with_its_start():
-    decoder = MavlinkDecoder("RAW_IMU", units.PROFILES["ardupilot"])
+DECODER = MavlinkDecoder("RAW_IMU", units.PROFILES["ardupilot"])
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the kernel's arrival stamps are Linux's")
+def test_what_waited_through_a_sleep_is_stamped_with_its_arrival():
+    """Over UDP the kernel stamps each datagram: one read after a 50 ms sleep keeps its own arrival, so its latency
+    is neither hidden nor counted from the sleep's start."""
     link = MavlinkLink("udpin:127.0.0.1:0", source_system=1)
     peer = UdpPeer()
     peer.target = link.local_address
     try:
+        assert link.stamps_arrivals
         count = MAX_MESSAGES_PER_RECV + 10
+        started = time.monotonic()
         for i in range(count):
             peer.send_raw(_raw_imu(peer, 1.0 + i / RATE_HZ))
+        sent = time.monotonic()
+        first = link.recv_items(1.0, DECODER, DECODER.direct, quiet_until=started + 0.05)
+        assert time.monotonic() >= started + 0.05
+        rest = link.recv_items(1.0, DECODER, DECODER.direct)  # the backlog's rest
+        assert len(first) == MAX_MESSAGES_PER_RECV and len(rest) == count - len(first) and not link.backlog
+        stamps = np.array([t_rx for t_rx, _, _ in first + rest])
+        # each between its send and the last one's: well before the sleep ended, 50 ms after they were sent
+        assert np.all(np.diff(stamps) >= 0.0) and started <= stamps[0] and stamps[-1] <= sent
+    finally:
+        link.close()
+        peer.close()
+
+
+def test_without_arrival_stamps_what_waited_through_a_sleep_is_stamped_with_its_start():
+    """A link whose OS does not stamp arrivals (here in memory; serial, TCP) stamps what waited through a sleep
+    with the sleep's start, the earliest it can have come: latency counted from there is never understated."""
+    link = MemoryLink()
+    peer = UdpPeer()  # packs only
+    try:
+        assert not link.stamps_arrivals
+        count = MAX_MESSAGES_PER_RECV + 10
+        link.deliver(*(_raw_imu(peer, 1.0 + i / RATE_HZ) for i in range(count)))
         started = time.monotonic()
-        first = link.recv_items(1.0, decoder, decoder.direct, quiet_until=started + 0.05)
+        first = link.recv_items(1.0, DECODER, DECODER.direct, quiet_until=started + 0.05)
         assert time.monotonic() >= started + 0.05 and link.backlog
-        rest = link.recv_items(1.0, decoder, decoder.direct)  # the backlog's rest: stamped as it
+        rest = link.recv_items(1.0, DECODER, DECODER.direct)  # the backlog's rest: stamped as it
         assert link.backlog and len(first) == MAX_MESSAGES_PER_RECV and len(rest) == count - len(first)
         stamps = {t_rx for t_rx, _, _ in first + rest}
         assert len(stamps) == 1 and started <= stamps.pop() <= started + 0.01
-        peer.send_raw(_raw_imu(peer, 2.0))
+        link.deliver(_raw_imu(peer, 2.0))
         before = time.monotonic()
-        (t_rx, _, sample), *_ = link.recv_items(1.0, decoder, decoder.direct, quiet_until=before - 1.0)
+        (t_rx, _, sample), *_ = link.recv_items(1.0, DECODER, DECODER.direct, quiet_until=before - 1.0)
         assert not link.backlog and t_rx >= before and sample.time_s == 2.0
     finally:
         link.close()

@@ -8,6 +8,7 @@ import math
 import os
 import select
 import socket
+import struct
 import subprocess
 import sys
 import time
@@ -17,7 +18,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavattitude.errors import LinkError
 from mavattitude.link import MavlinkLink, parse_connect
-from mavattitude.link.connection import Endpoint
+from mavattitude.link.connection import SO_TIMESTAMPNS, Endpoint, arrival_on_monotonic
 from tests.link.peer import UdpPeer
 
 MAVLINK2_MAGIC = 0xFD
@@ -348,3 +349,22 @@ print(peer.recv(300)[0], got[0][1].get_type())
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=30, env=env)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == [str(MAVLINK2_MAGIC), "ADAP_TUNING"]
+
+
+def _timespec(wall_s: float) -> list[tuple[int, int, bytes]]:
+    """``recvmsg``'s ancillary data for a kernel arrival stamp at ``wall_s`` (Unix time)."""
+    seconds = int(wall_s)
+    return [(socket.SOL_SOCKET, SO_TIMESTAMPNS, struct.pack("@ll", seconds, round((wall_s - seconds) * 1e9)))]
+
+
+def test_a_kernel_arrival_stamp_goes_on_the_monotonic_clock_unless_the_wall_clock_was_set():
+    offset_s, now_s = 1.7e9, 5000.0  # wall = monotonic + offset
+    stamp = _timespec(offset_s + now_s - 0.004)  # arrived 4 ms ago
+    # float64 at 1.7e9 s resolves 0.24 µs
+    assert arrival_on_monotonic(stamp, offset_s, offset_s, now_s) == pytest.approx(now_s - 0.004, abs=1e-6)
+    assert arrival_on_monotonic(stamp, offset_s, offset_s + 2e-4, now_s) == pytest.approx(now_s - 0.004, abs=1e-6)
+    # the wall clock was set back an hour since the last read: the stamp may be of either clock
+    assert arrival_on_monotonic(stamp, offset_s, offset_s + 3600.0, now_s) is None
+    assert arrival_on_monotonic([], offset_s, offset_s, now_s) is None  # no stamp came with the datagram
+    future = _timespec(offset_s + now_s + 0.5)  # later than now: never later than its reading
+    assert arrival_on_monotonic(future, offset_s, offset_s, now_s) == now_s
