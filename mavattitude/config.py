@@ -341,6 +341,14 @@ class OutputConfig:
         default=True,
         metadata=_meta(_boolean, "send ATTITUDE_QUATERNION_COV (rad², body frame) with every attitude"),
     )
+    wait_ms: float = field(
+        default=0.0,
+        metadata=_meta(
+            _number(0.0, 20.0),
+            "longest an input datagram that completes an output tick waits to be read (UDP on Linux), ms: fewer"
+            " wake-ups for more latency",
+        ),
+    )
 
 
 @dataclass(frozen=True)

@@ -244,6 +244,7 @@ class AttitudeService:
         self._limiter = _RateLimiter(config.output.statustext_interval_s, time.monotonic)
         self._latencies_s: list[float] = []
         self._arrivals = TickArrivals()
+        self._sample_wait_s = config.output.wait_ms / 1000.0
         self._last_input: float | None = None
         self._input_lost = False
         self._output_since = -math.inf  # the last attitude sent (or the input's return), time.monotonic()
@@ -331,11 +332,13 @@ class AttitudeService:
             self._periodic(now)
 
     def _quiet_until(self) -> float:
-        """Until when no input can complete an output tick (:class:`TickArrivals`): the link may sleep till then.
-        Never while each sample is a tick (an input too slow to filter) or the input is silent."""
+        """Until when the link may sleep: no input can complete an output tick before the forecast
+        (:class:`TickArrivals`), and where the OS stamps arrivals the one that does may wait ``output.wait_ms``
+        (its latency still counted from its arrival). Never while each sample is a tick (an input too slow to
+        filter) or the input is silent."""
         if self.pipeline.frontend.per_sample or self._input_lost:
             return -math.inf
-        return self._arrivals.earliest()
+        return self._arrivals.earliest() + (self._sample_wait_s if self.link.stamps_arrivals else 0.0)
 
     def _periodic(self, now: float) -> None:
         """The work due every ``TICK_S`` at most: the link's upkeep, the watches, what is said and touched."""
