@@ -32,14 +32,16 @@ from numpy.typing import NDArray
 from mavattitude import collector
 from mavattitude.config import Config
 from mavattitude.dispatch import DispatchCounters, Dispatcher
+from mavattitude.estimation import METHODS
 from mavattitude.estimation.compass import CompassEvent, CompassMonitor
 from mavattitude.estimation.conventions import Array
+from mavattitude.estimation.crosscheck import CrossCheck, CrossCheckEvent, Difference, cross_check_log
 from mavattitude.link.logs import LogSource
 from mavattitude.link.logstreams import LogStreams
 from mavattitude.link.source import AutopilotAttitude, AutopilotParameter, MessageSource, Sender
 from mavattitude.link.tlog import TlogSource
-from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, Pushed
-from mavattitude.sensors.frontend import median_rate_hz
+from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, Pushed, snapshot_while_moving
+from mavattitude.sensors.frontend import SampleFlag, median_rate_hz
 from mavattitude.sensors.magref import distance_km
 from mavattitude.sensors.units import COMPASS_INSTANCES, ImuSample
 
@@ -103,6 +105,21 @@ class Replayed:
         if not self.autopilot:
             return np.empty((0, 5))
         return np.array([(a.time_s, *a.q) for a in self.autopilot])
+
+    def cross_check(self) -> tuple[CrossCheck, list[Difference], list[CrossCheckEvent]]:
+        """The service's cross-check over the whole replay (:func:`cross_check_log`): ours against the autopilot's
+        attitudes, each pair judged as live (not where ours has no heading's yaw, nor a snapshot's while moving)."""
+        ours, autopilot = self.output_array(), self.autopilot_array()
+        config = self.pipeline.config
+        snapshot = METHODS[config.estimator.method].snapshot
+        moving = np.array([snapshot_while_moving(o, snapshot) for o in self.outputs], dtype=bool)
+        return cross_check_log(
+            ours[:, 0], ours[:, 1:5], autopilot[:, 0], autopilot[:, 1:5], config.crosscheck, self.heading(), moving
+        )
+
+    def heading(self) -> NDArray[np.bool_]:
+        """Which outputs have a heading (not flagged ``NO_HEADING``: their yaw means something)."""
+        return np.array([not o.flags & SampleFlag.NO_HEADING for o in self.outputs], dtype=bool)
 
 
 class _Collector:

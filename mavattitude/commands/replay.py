@@ -559,16 +559,9 @@ def _compare(replayed: Any, job: Job, result: LogResult) -> None:
     two outputs around it. The summary's RMS and p99 of ours minus theirs (yaw where ours has a heading), the
     table, the plot with the compass's and the cross-check's verdicts, and the cross-check's own figures and
     warnings when it is enabled."""
-    from mavattitude.estimation.crosscheck import cross_check_log
-    from mavattitude.pipeline import snapshot_while_moving
-
     ours, autopilot = replayed.output_array(), replayed.autopilot_array()
-    heading = np.array([not o.flags & SampleFlag.NO_HEADING for o in replayed.outputs], dtype=bool)
-    snapshot = METHODS[job.config.estimator.method].snapshot
-    moving = np.array([snapshot_while_moving(o, snapshot) for o in replayed.outputs], dtype=bool)
-    check, pairs, events = cross_check_log(
-        ours[:, 0], ours[:, 1:5], autopilot[:, 0], autopilot[:, 1:5], job.config.crosscheck, heading, moving
-    )
+    heading = replayed.heading()
+    check, pairs, events = replayed.cross_check()
     if job.config.crosscheck.enabled:
         _report_cross_check(check, events, job, result)
     result.columns |= {
