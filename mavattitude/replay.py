@@ -88,6 +88,8 @@ class Replayed:
     compass_used: str = ""  # which magnetometer was replayed and why ("1: the autopilot's: COMPASS_USE 0, …")
     #: (instance, parameter, value) when the log's parameters say the autopilot does not use the one replayed
     unused_compass: tuple[int, str, float] | None = None
+    #: each magnetometer judged that the autopilot does not use, and the parameter that says so ("COMPASS_USE2 0")
+    unused_compasses: dict[int, str] = field(default_factory=dict)
 
     def output_array(self) -> np.ndarray:
         """Rows ``t_s, qw, qx, qy, qz`` of every output."""
@@ -313,6 +315,8 @@ def _collect_compasses(s: LogStreams, others: list[JudgedCompass], result: Repla
     if s.compasses is not None:
         used = JudgedCompass(s.compasses.used, result.compass, result.pipeline.compass)
         result.compasses = sorted([*(j for j in others if j.instance != used.instance), used], key=_instance)
+        unused = {j.instance: s.unused_by_autopilot(j.instance) for j in result.compasses}
+        result.unused_compasses = {k: why for k, why in unused.items() if why is not None}
 
 
 def _instance(judged: JudgedCompass) -> int:

@@ -36,7 +36,8 @@ judged by the compass monitor against the same IMU: the summary's compasses colu
 the gyro: turned?"), and compass, the one replayed and why: --mag, else the one the autopilot used where
 the log says (COMPASS_USE / COMPASS_USE2 / COMPASS_PRIMARY in PARM or PARAM_VALUE), else the most consistent;
 one the autopilot did not use (its COMPASS_USE 0: the only one logged, or --mag's) is said (a warning, and
-"unused by the autopilot" in compass).
+"unused by the autopilot" in compass), and so is each other one it does not use (COMPASS_USE2 0, PX4's
+CAL_MAGn_EN 0) in its verdict and warning.
 -j N replays N logs at a time in worker processes. Where a log holds the autopilot's own attitude, a
 PNG comparison plot is written beside its CSV (needs matplotlib: pip install mavattitude[plot]), shaded where
 the compass was judged off and where the cross-check warned.
@@ -442,11 +443,15 @@ def _compasses_columns(replayed: Any, job: Job, result: LogResult) -> None:
         log.warning("%s", compass_unused_warning(instance, name, value, "--mag I replays another the log holds"))
     if not replayed.compasses:
         return
-    result.columns["compasses"] = "; ".join(f"{j.instance} {j.verdict()}" for j in replayed.compasses)
+    unused = {k: f" (unused by the autopilot: {why})" for k, why in replayed.unused_compasses.items()}
+    result.columns["compasses"] = "; ".join(
+        f"{j.instance} {j.verdict()}{unused.get(j.instance, '')}" for j in replayed.compasses
+    )
     for judged in replayed.compasses:
         warned = next((e for e in judged.events if e.inconsistent), None)
         if warned is not None:
-            log.warning("magnetometer %d: t=%.1f s: %s", judged.instance, warned.time_s, warned.figures.describe())
+            figures = warned.figures.describe() + unused.get(judged.instance, "")
+            log.warning("magnetometer %d: t=%.1f s: %s", judged.instance, warned.time_s, figures)
 
 
 def _report_cross_check(check: Any, events: list[Any], job: Job, result: LogResult) -> None:

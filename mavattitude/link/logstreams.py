@@ -87,6 +87,9 @@ class Compasses:
     used: int  # the instance in LogStreams.mag_t_s / mag_uT
     #: why that one ("--mag 1", "the autopilot's: COMPASS_USE 1, COMPASS_USE2 0"); None: the log does not say
     why: str | None = None
+    #: those the autopilot has disabled, where its parameters number them otherwise than ArduPilot's COMPASS_USE…
+    #: do (PX4's CAL_MAGn_EN, matched by device id): instance → "CAL_MAG0_EN 0"
+    disabled: Mapping[int, str] = field(default_factory=dict)
 
 
 def no_such_instance(path: object, records: str, kind: str, option: str, present: Iterable[int]) -> DataFileError:
@@ -180,6 +183,16 @@ class LogStreams:
         name = compass_use_parameter(self.mag_instance)
         value = self.parameters.get(name)
         return (self.mag_instance, name, value) if value == 0.0 else None
+
+    def unused_by_autopilot(self, instance: int) -> str | None:
+        """The parameter and value by which the autopilot says it does not use compass ``instance``
+        (``COMPASS_USE2 0``, PX4's ``CAL_MAG0_EN 0``), else ``None``."""
+        if self.compasses is not None and instance in self.compasses.disabled:
+            return self.compasses.disabled[instance]
+        if self.mag_instance is None:  # not numbered as ArduPilot's parameters number them
+            return None
+        name = compass_use_parameter(instance)
+        return f"{name} 0" if self.parameters.get(name) == 0.0 else None
 
     def carried_mag(self) -> NDArray[np.int64]:
         """Which magnetometer row each IMU sample carries, -1 where none."""

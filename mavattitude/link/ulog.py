@@ -159,12 +159,15 @@ def _compasses(ulog: Any) -> Compasses | None:
     several; the one PX4 selected (``sensor_selection``'s device, else ``CAL_MAG_PRIME``) is the replayed one,
     whose calibrated field ``vehicle_magnetometer`` holds."""
     params = ulog.initial_parameters
-    readings, devices = {}, {}
+    readings, devices, disabled = {}, {}, {}
     for data in ulog.data_list:
         if data.name == "sensor_mag" and len(data.data["timestamp"]):
             device = int(data.data["device_id"][-1])
             devices[device] = data.multi_id
             readings[data.multi_id] = (uu.times_s(data.data), _calibrated(data.data, device, params))
+            slot = _calibration_slot(device, params)
+            if slot is not None and params.get(f"CAL_MAG{slot}_EN") == 0:
+                disabled[data.multi_id] = f"CAL_MAG{slot}_EN 0"
     if len(readings) < 2:
         return None
     selection = _topic(ulog, "sensor_selection")
@@ -173,14 +176,21 @@ def _compasses(ulog: Any) -> Compasses | None:
     else:
         device, said = int(params.get("CAL_MAG_PRIME", -1)), "CAL_MAG_PRIME"
     if device not in devices:
-        return Compasses(readings, min(readings), "vehicle_magnetometer (the log does not say which sensor it is)")
-    return Compasses(readings, devices[device], f"the autopilot's: {said} {device} (its field: vehicle_magnetometer)")
+        why = "vehicle_magnetometer (the log does not say which sensor it is)"
+        return Compasses(readings, min(readings), why, disabled)
+    why = f"the autopilot's: {said} {device} (its field: vehicle_magnetometer)"
+    return Compasses(readings, devices[device], why, disabled)
+
+
+def _calibration_slot(device: int, params: dict[str, Any]) -> int | None:
+    """The n of the CAL_MAGn parameters that hold the calibration of the magnetometer ``device`` (CAL_MAGn_ID)."""
+    return next((n for n in range(4) if params.get(f"CAL_MAG{n}_ID") == device), None)
 
 
 def _calibrated(topic: dict[str, np.ndarray], device: int, params: dict[str, Any]) -> np.ndarray:
     """A ``sensor_mag`` instance's readings (µT) with the offsets and scales of the CAL_MAGn matching its device."""
     raw = np.column_stack([topic["x"], topic["y"], topic["z"]]).astype(float)
-    slot = next((n for n in range(4) if params.get(f"CAL_MAG{n}_ID") == device), None)
+    slot = _calibration_slot(device, params)
     if slot is not None:
         offset = np.array([params.get(f"CAL_MAG{slot}_{a}OFF", 0.0) for a in "XYZ"])
         scale = np.array([params.get(f"CAL_MAG{slot}_{a}SCALE", 1.0) for a in "XYZ"])

@@ -89,6 +89,17 @@ def test_the_summary_says_which_compass_and_every_ones_verdict(tmp_path):
     assert columns["compasses"] == "0 turns unlike the gyro: turned?; 1 ok"
 
 
+def test_a_compass_the_autopilot_does_not_use_is_said_so_with_its_verdict(tmp_path, caplog):
+    """A compass found off that the autopilot has set aside matters less to a pilot than one it heads by: its
+    verdict and its warning say it is unused, and by which parameter."""
+    config = load_config(None, TRUE_FIELD, env={})
+    log = _two_compass_log(tmp_path, {"COMPASS_USE": 0.0, "COMPASS_USE2": 1.0})
+    columns = replay_log(Job(log, tmp_path / "out.csv", None, config, 0, None, False)).columns
+    assert columns["compasses"] == "0 turns unlike the gyro: turned? (unused by the autopilot: COMPASS_USE 0); 1 ok"
+    (warned,) = [r.getMessage() for r in caplog.records if r.getMessage().startswith("magnetometer 0:")]
+    assert warned.endswith("(unused by the autopilot: COMPASS_USE 0)")
+
+
 def test_a_px4_logs_magnetometers_are_listed_with_the_one_px4_selected():
     # two sensor_mag (internal 589858, external 592905), sensor_selection's mag_device_id 592905: the external one,
     # whose calibrated field is vehicle_magnetometer, the one replayed
@@ -100,6 +111,7 @@ def test_a_px4_logs_magnetometers_are_listed_with_the_one_px4_selected():
         == "1: the autopilot's: sensor_selection's mag_device_id 592905 (its field: vehicle_magnetometer)"
     )
     assert [j.instance for j in result.compasses] == [0, 1]
+    assert result.unused_compasses == {0: "CAL_MAG0_EN 0"}  # the internal one's calibration slot is disabled
 
 
 @pytest.mark.parametrize(
@@ -120,6 +132,7 @@ def test_a_compass_the_autopilot_did_not_use_is_known_when_it_is_replayed(name, 
     # the two-compass flight's compass 2 (MAG[1], SCALED_IMU2) has COMPASS_USE2 0; --mag 1 replays it all the same
     result = _replayed(shared_path("data", "ardupilot-sitl", name), mag=mag)
     assert result.unused_compass == unused
+    assert result.unused_compasses == {1: "COMPASS_USE2 0"}  # among those judged, replayed or not
 
 
 def test_the_only_compass_of_a_log_unused_by_the_autopilot_is_said(tmp_path, caplog):
