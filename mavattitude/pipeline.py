@@ -119,12 +119,13 @@ class AttitudeOutput:
             return np.full((3, 3), np.nan)
 
 
-def snapshot_while_moving(output: AttitudeOutput, snapshot_method: bool) -> bool:
-    """Whether ``output`` is a snapshot solve (``snapshot_method``'s, or any method's on an input too slow to
-    integrate, ``PER_SAMPLE``) at a tick where the vehicle turned or accelerated (``MOVING``): an attitude that
-    may read the vehicle's acceleration as tilt, which the autopilot cross-check does not judge."""
-    flags = output.flags
-    return bool(flags & SampleFlag.MOVING) and (snapshot_method or bool(flags & SampleFlag.PER_SAMPLE))
+def reads_acceleration_as_tilt(output: AttitudeOutput) -> bool:
+    """Whether ``output`` may read the vehicle's acceleration as tilt, which the autopilot cross-check does not
+    judge: at a tick where the vehicle turned or accelerated (``MOVING``), unless the fused filter took the
+    acceleration out with the GPS receiver's (``GPS_AIDED``). A snapshot solve always reads the specific force as
+    gravity; the fused filter without GPS velocity leans in a sustained acceleration (2-3° held from a 17° bank
+    on the shared GPS-less SITL flight) and is slow to come back."""
+    return output.flags & _MOVING_UNAIDED == _MOVING
 
 
 @dataclass(slots=True)
@@ -288,7 +289,7 @@ def _axes(values: Any) -> str:
 #: Tick flags under which the magnetometer sets heading only: its |B| is off, or the compass is judged off.
 _MAG_OFF = int(SampleFlag.MAG_NORM | SampleFlag.MAG_INCONSISTENT)
 HEADING_ONLY_METHOD = "triad"  # the accelerometer's direction kept exactly, the magnetometer's heading only
-_RESET, _NOT_CONVERGED, _HEADING_ONLY, _DISTURBED, _INCONSISTENT, _PER_SAMPLE = (
+_RESET, _NOT_CONVERGED, _HEADING_ONLY, _DISTURBED, _INCONSISTENT, _PER_SAMPLE, _GPS_AIDED, _MOVING = (
     int(f)
     for f in (
         SampleFlag.RESET,
@@ -297,9 +298,12 @@ _RESET, _NOT_CONVERGED, _HEADING_ONLY, _DISTURBED, _INCONSISTENT, _PER_SAMPLE = 
         SampleFlag.MAG_DISTURBED,
         SampleFlag.MAG_INCONSISTENT,
         SampleFlag.PER_SAMPLE,
+        SampleFlag.GPS_AIDED,
+        SampleFlag.MOVING,
     )
 )
 _NO_HEADING = int(SampleFlag.NO_HEADING)
+_MOVING_UNAIDED = _MOVING | _GPS_AIDED  # the bits of reads_acceleration_as_tilt: MOVING set, GPS_AIDED not
 #: The reference handed to an estimator for a tick without a magnetometer reading before the field is known: a
 #: tick without one compares nothing with it (the fused filter takes the real field when it comes).
 NO_FIELD_NED_UT = np.array([1.0, 0.0, 0.0])
@@ -494,6 +498,8 @@ class FusedEstimator:
         front = int(sample.flags) & ~_RESET  # the filter acts on a reset itself; no output says it
         if not self._filter.heading_known:
             front |= _NO_HEADING
+        if self._filter.gps_aided:
+            front |= _GPS_AIDED
         return [
             AttitudeOutput(
                 e.time_s,

@@ -32,7 +32,6 @@ from numpy.typing import NDArray
 from mavattitude import collector
 from mavattitude.config import Config
 from mavattitude.dispatch import DispatchCounters, Dispatcher
-from mavattitude.estimation import METHODS
 from mavattitude.estimation.compass import CompassEvent, CompassMonitor
 from mavattitude.estimation.conventions import Array
 from mavattitude.estimation.crosscheck import CrossCheck, CrossCheckEvent, Difference, cross_check_log
@@ -40,7 +39,7 @@ from mavattitude.link.logs import LogSource
 from mavattitude.link.logstreams import LogStreams
 from mavattitude.link.source import AutopilotAttitude, AutopilotParameter, MessageSource, Sender
 from mavattitude.link.tlog import TlogSource
-from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, Pushed, snapshot_while_moving
+from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, Pushed, reads_acceleration_as_tilt
 from mavattitude.sensors.frontend import SampleFlag, median_rate_hz
 from mavattitude.sensors.magref import distance_km
 from mavattitude.sensors.units import COMPASS_INSTANCES, ImuSample
@@ -110,13 +109,13 @@ class Replayed:
 
     def cross_check(self) -> tuple[CrossCheck, list[Difference], list[CrossCheckEvent]]:
         """The service's cross-check over the whole replay (:func:`cross_check_log`): ours against the autopilot's
-        attitudes, each pair judged as live (not where ours has no heading's yaw, nor a snapshot's while moving)."""
+        attitudes, each pair judged as live (not where ours has no heading's yaw, nor where it may read the vehicle's
+        acceleration as tilt: :func:`reads_acceleration_as_tilt`)."""
         ours, autopilot = self.output_array(), self.autopilot_array()
-        config = self.pipeline.config
-        snapshot = METHODS[config.estimator.method].snapshot
-        moving = np.array([snapshot_while_moving(o, snapshot) for o in self.outputs], dtype=bool)
+        moving = np.array([reads_acceleration_as_tilt(o) for o in self.outputs], dtype=bool)
+        settings = self.pipeline.config.crosscheck
         return cross_check_log(
-            ours[:, 0], ours[:, 1:5], autopilot[:, 0], autopilot[:, 1:5], config.crosscheck, self.heading(), moving
+            ours[:, 0], ours[:, 1:5], autopilot[:, 0], autopilot[:, 1:5], settings, self.heading(), moving
         )
 
     def heading(self) -> NDArray[np.bool_]:

@@ -16,7 +16,8 @@ from mavattitude.errors import ConfigError
 from mavattitude.estimation import solve as real_solve
 from mavattitude.estimation.compass import measured_dip_deg
 from mavattitude.estimation.conventions import angle_between, quat_from_euler, rotate_ned_to_body
-from mavattitude.pipeline import AttitudeOutput, AttitudePipeline
+from mavattitude.estimation.velocity import GpsVelocity
+from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, reads_acceleration_as_tilt
 from mavattitude.reports import heading_lost
 from mavattitude.sensors.frontend import SampleFlag
 from mavattitude.sensors.magref import field_from_angles, wmm_field_ned_uT
@@ -535,3 +536,33 @@ def test_a_position_after_the_measured_field_turns_the_fused_heading_to_true_nor
     true = run(p, samples[600:])
     assert np.degrees(angle_between(np.array([o.q for o in true]), Q_TRUE)).max() < MAX_ERR_DEG
     assert p.estimator.counters()["restarts"] == 0
+
+
+def test_fused_outputs_say_whether_the_gps_took_the_acceleration_out():
+    """The fused filter's outputs carry GPS_AIDED while its tilt updates take the receiver's acceleration out (from
+    the second fix, the first having nothing to difference), and only then: still, 0 m/s, fixes at 5 Hz from 1 s."""
+    config = from_dict({**ANGLES, "estimator": {"method": "fused"}})
+    p = AttitudePipeline(config)
+    samples = static_samples(n=600)  # 3 s at 200 Hz from t = 10 s
+    aided = []
+    for i, sample in enumerate(samples):
+        if i >= 200 and i % 40 == 0:  # a fix every 0.2 s from 1 s in, handed in as it is taken
+            p.set_velocity(GpsVelocity(sample.time_s, (0.0, 0.0, 0.0), True, 3, 12))
+        aided += [(o.time_s, bool(o.flags & SampleFlag.GPS_AIDED)) for o in p.push(sample).outputs]
+    assert aided and not any(a for t, a in aided if t < 11.2)  # before the second fix (1.2 s in)
+    assert all(a for t, a in aided if t > 11.3)
+
+
+@pytest.mark.parametrize(
+    ("flags", "reads"),
+    [
+        (SampleFlag.NONE, False),
+        (SampleFlag.MOVING, True),  # a snapshot solve, or the fused filter without the GPS, in a manoeuvre
+        (SampleFlag.MOVING | SampleFlag.PER_SAMPLE, True),
+        (SampleFlag.MOVING | SampleFlag.GPS_AIDED, False),  # the fused filter took the acceleration out
+        (SampleFlag.GPS_AIDED, False),
+    ],
+)
+def test_an_attitude_reads_acceleration_as_tilt_while_moving_unless_the_gps_took_it_out(flags, reads):
+    output = AttitudeOutput(1.0, Q_TRUE, np.zeros(3), 0, True, flags)
+    assert reads_acceleration_as_tilt(output) is reads

@@ -24,12 +24,13 @@ difference hovering at the threshold is said once, not at every crossing).
 A snapshot solve (one accelerometer and magnetometer solve per tick, no gyro: a snapshot method's, or any
 method's on an input too slow to integrate) reads the specific force as gravity: while the vehicle accelerates
 its tilt is off, and through the field's dip its heading more (a copter's 20° dash reads level), and in a fast
-turn its heading trails. The difference is then ours being wrong, which the pilot cannot act on, so such a pair
-is published and counted but not judged (:attr:`CrossCheck.unjudged`) when ours around it is a snapshot solve
-while the vehicle moved (``moving``: turning faster than 10°/s, or the specific force off g by 3 %,
-:func:`mavattitude.pipeline.snapshot_while_moving`) or within ``settle_s`` after (an acceleration a turn began
-lasts past it), and it restarts the hold: the verdict's ``hold_s`` is of judged pairs in a row. What the
-vehicle's own sensors cannot show stays: a steady acceleration at a gentle tilt (docs/vehicle.md).
+turn its heading trails. The gyro-aided filter without the GPS receiver's acceleration leans too, less and for
+longer (it comes back over seconds). The difference is then ours being wrong, which the pilot cannot act on, so
+such a pair is published and counted but not judged (:attr:`CrossCheck.unjudged`) when ours around it may read
+acceleration as tilt while the vehicle moved (``moving``: turning faster than 10°/s, or the specific force off g
+by 3 %, :func:`mavattitude.pipeline.reads_acceleration_as_tilt`) or within ``settle_s`` after (an acceleration a
+turn began lasts past it), and it restarts the hold: the verdict's ``hold_s`` is of judged pairs in a row. What
+the vehicle's own sensors cannot show stays: a steady acceleration at a gentle tilt (docs/vehicle.md).
 """
 
 from __future__ import annotations
@@ -73,7 +74,11 @@ class CrossCheckSettings:
     threshold_deg: float = ranged(5.0, "warn when the total difference stays above", 0.0, 180.0, lo_open=True)
     hold_s: float = ranged(3.0, "... for this long (and clear after as long below), s", 0.0, 600.0)
     settle_s: float = ranged(
-        1.0, "with a snapshot method, judge only this long after the vehicle last turned or accelerated, s", 0.0, 60.0
+        1.0,
+        "with a snapshot method (or fused without GPS velocity), judge only this long after the vehicle last turned or"
+        " accelerated, s",
+        0.0,
+        60.0,
     )
     max_gap_s: ClassVar[float] = 0.5  # our outputs further apart (and slower than 2.5 × their rhythm): not bridged
 
@@ -144,7 +149,7 @@ class CrossCheck:
         self._resets = 0
         self.last: Difference | None = None
         self.pairs = 0
-        self.unjudged = 0  # pairs not judged: ours a snapshot solve while the vehicle moved (or settle_s after)
+        self.unjudged = 0  # pairs not judged: ours reading acceleration as tilt while moving (or settle_s after)
         self.unpaired: Counter[str] = Counter()  # autopilot attitudes not paired, by why (module docstring)
         self.disagree = False
         self.warnings = 0

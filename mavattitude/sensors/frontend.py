@@ -110,6 +110,7 @@ class SampleFlag(IntFlag):
     PER_SAMPLE = 512  # the input is too slow to filter: this tick is one input sample, unfiltered
     NO_HEADING = 1024  # set by the estimator: no magnetometer, roll and pitch only (yaw held at 0, unknown)
     MOVING = 2048  # turning or accelerating (:func:`moving`): a snapshot attitude may read acceleration as tilt
+    GPS_AIDED = 4096  # set by the fused filter: its tilt update took the GPS receiver's acceleration out
 
 
 @dataclass(frozen=True)

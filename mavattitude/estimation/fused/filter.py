@@ -200,6 +200,12 @@ class FusedFilter:
         return self._mag.disturbed
 
     @property
+    def gps_aided(self) -> bool:
+        """Whether the last tilt update took the vehicle's acceleration from its GPS velocity out of the specific
+        force (:mod:`.gps`): without it a sustained acceleration leans the tilt, as it does any snapshot's."""
+        return self._gps is not None and self._gps.active
+
+    @property
     def heading_gap_s(self) -> float:
         """How long the heading has come from the gyro alone (no heading update since), s: the compass
         rejected (disturbed), absent or degenerate for that long."""

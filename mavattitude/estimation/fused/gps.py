@@ -111,6 +111,11 @@ class GpsCompensation:
         self._kinematic.design(rate_hz)
         self._period_s = 1.0 / rate_hz
 
+    @property
+    def active(self) -> bool:
+        """Whether the last update's gravity had a GPS acceleration taken out of it."""
+        return self._active
+
     def reset(self) -> None:
         """A (re)start: the pre-filters start again, so their past is gone."""
         self._history.clear()
