@@ -299,8 +299,8 @@ class ReferenceConfig:
         metadata=_meta(
             _number(0.0, 600.0),
             "auto: without a GPS position this long after the IMU stream starts (vehicle time), the field is "
-            "measured from the compass (heading: magnetic north, or the autopilot's by its COMPASS_DEC) until one "
-            "arrives, s",
+            "measured from the compass (heading: magnetic north, or the autopilot's by its COMPASS_DEC or "
+            "EKF2_MAG_DECL) until one arrives, s",
         ),
     )
 

@@ -67,7 +67,7 @@ from mavattitude.sensors.frontend import (
     flag_set,
     process_batch,
 )
-from mavattitude.sensors.magref import DECLINATION_PARAMETER, ReferenceTracker
+from mavattitude.sensors.magref import DECLINATION_PARAMETERS, ReferenceTracker
 from mavattitude.sensors.mounting import TRIM_LIMIT_RAD, TRIM_PARAMETERS
 from mavattitude.sensors.units import GpsVelocity, ImuSample
 
@@ -638,11 +638,12 @@ class AttitudePipeline:
         self.frontend.set_expected_field_uT(intensity_uT)
         self.compass.set_reference(tuple(ref.tolist()), intensity_uT, measured)
 
-    def _set_declination(self, name: str, value_rad: float) -> bool:
-        if not abs(value_rad) <= math.pi:  # NaN too
-            log.warning("%s %g rad is no declination: not applied", name, value_rad)
+    def _set_declination(self, name: str, value: float) -> bool:
+        declination_deg = value * DECLINATION_PARAMETERS[name]
+        if not abs(declination_deg) <= 180.0:  # NaN too
+            log.warning("%s %g is no declination (%g°): not applied", name, value, declination_deg)
             return False
-        changed = self.magref.set_declination(math.degrees(value_rad), name)
+        changed = self.magref.set_declination(declination_deg, name)
         if changed:
             self._apply_reference()
         return changed
@@ -666,10 +667,10 @@ class AttitudePipeline:
     def set_autopilot_parameter(self, name: str, value: float) -> bool:
         """One of the autopilot's parameters (PARAM_VALUE, a log's PARM), received after the last sample. Its level
         trim (:data:`~mavattitude.sensors.mounting.TRIM_PARAMETERS`, with ``mounting.autopilot_trim``) turns the
-        readings into the vehicle's frame from the next sample on; its declination (:data:`DECLINATION_PARAMETER`)
+        readings into the vehicle's frame from the next sample on; its declination (:data:`DECLINATION_PARAMETERS`)
         turns a field measured from the compass to true north
         (:meth:`~mavattitude.sensors.magref.ReferenceTracker.set_declination`). True when either changed."""
-        if name == DECLINATION_PARAMETER:
+        if name in DECLINATION_PARAMETERS:
             return self._set_declination(name, value)
         if name not in TRIM_PARAMETERS or not self.config.mounting.autopilot_trim:
             return False

@@ -25,8 +25,8 @@ service is the dispatcher's listener. What it does on the link:
   (``AHRS_TRIM_X/Y``, with ``mounting.autopilot_trim``), which the pipeline turns the readings by, so the
   attitude is of the vehicle's frame, as the autopilot's (docs/frames.md); whether it uses each compass
   (``COMPASS_USE…``: the one input.message carries set aside is said once, with the one it uses); and with
-  ``reference.magnetic: auto`` its declination (``COMPASS_DEC``), which turns a field measured without a
-  position to its north;
+  ``reference.magnetic: auto`` its declination (``COMPASS_DEC``; PX4's ``EKF2_MAG_DECL`` with input.profile
+  px4), which turns a field measured without a position to its north;
 - cross-checks the autopilot (``crosscheck:``): asks for its ATTITUDE, pairs it with our output by vehicle
   time (:mod:`mavattitude.estimation.crosscheck`), publishes the difference as NAMED_VALUE_FLOAT
   (``xc_roll``, ``xc_pitch``, ``xc_yaw``, ``xc_total``, degrees) at ``publish_rate_hz``, and says once (log +
@@ -105,7 +105,7 @@ from mavattitude.reports import (
 )
 from mavattitude.sensors import units
 from mavattitude.sensors.frontend import SampleFlag
-from mavattitude.sensors.magref import DECLINATION_PARAMETER
+from mavattitude.sensors.magref import declination_parameter
 from mavattitude.sensors.mounting import TRIM_PARAMETERS
 from mavattitude.sensors.units import ImuSample
 from mavattitude.systemd_notify import SystemdNotifier, default_notifier
@@ -272,7 +272,8 @@ class AttitudeService:
         self._compass_uses: dict[str, float] = {}  # their answers
         self._compass_unused = False  # the autopilot said it does not use input.message's compass (said once)
         # its declination turns a field measured from the compass (no position) to true north
-        declination = (DECLINATION_PARAMETER,) if config.reference.magnetic.mode == "auto" else ()
+        auto = config.reference.magnetic.mode == "auto"
+        declination = (declination_parameter(config.input.profile),) if auto else ()
         self.session = LinkSession(
             link,
             self._stream_requests(config),

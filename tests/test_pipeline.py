@@ -496,10 +496,12 @@ def test_after_a_reboot_the_fused_filter_goes_on_at_once(reference, yaw_deg):
 
 
 @pytest.mark.parametrize("method", ["ign", "fused"])
-def test_the_autopilots_declination_turns_a_measured_field_to_true_north_at_once(method, caplog):
+@pytest.mark.parametrize(("parameter", "per_degree"), [("COMPASS_DEC", np.radians(1.0)), ("EKF2_MAG_DECL", 1.0)])
+def test_the_autopilots_declination_turns_a_measured_field_to_true_north_at_once(method, parameter, per_degree, caplog):
     """No position: the field measured from the compass points to magnetic north, 12.8° off the true north the
-    vehicle's attitude (and the autopilot's) is of. The autopilot's COMPASS_DEC says by how much: from the next
-    output on, ours is of true north too (the fused filter's heading turned with it, no restart)."""
+    vehicle's attitude (and the autopilot's) is of. The autopilot's declination says by how much (ArduPilot's
+    COMPASS_DEC in radians, PX4's EKF2_MAG_DECL in degrees): from the next output on, ours is of true north too
+    (the fused filter's heading turned with it, no restart)."""
     declination_deg = 12.8
     field = np.array(field_from_angles(declination_deg, 60.0, 50.0))
     p = AttitudePipeline(from_dict({"estimator": {"method": method}, "reference": {"position_wait_s": 1.0}}))
@@ -508,12 +510,13 @@ def test_the_autopilots_declination_turns_a_measured_field_to_true_north_at_once
     assert p.magref.measured
     turned = quat_from_euler(np.radians(10.0), np.radians(-20.0), np.radians(135.0 - declination_deg))
     assert np.degrees(angle_between(magnetic[-1].q, turned)) < MAX_ERR_DEG
-    assert not p.set_autopilot_parameter("COMPASS_DEC", np.nan) and not p.set_autopilot_parameter("COMPASS_DEC", 4.0)
+    beyond = 200.0 * per_degree  # past ±180°: no declination
+    assert not p.set_autopilot_parameter(parameter, np.nan) and not p.set_autopilot_parameter(parameter, beyond)
     assert [r.getMessage() for r in caplog.records if "no declination" in r.getMessage()] == [
-        "COMPASS_DEC nan rad is no declination: not applied",
-        "COMPASS_DEC 4 rad is no declination: not applied",
+        f"{parameter} nan is no declination (nan°): not applied",
+        f"{parameter} {beyond:g} is no declination (200°): not applied",
     ]
-    assert p.set_autopilot_parameter("COMPASS_DEC", np.radians(declination_deg))
+    assert p.set_autopilot_parameter(parameter, declination_deg * per_degree)
     true = run(p, samples[600:])
     assert np.degrees(angle_between(np.array([o.q for o in true]), Q_TRUE)).max() < MAX_ERR_DEG
     if method == "fused":

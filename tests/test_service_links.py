@@ -399,6 +399,22 @@ def test_the_declination_is_asked_for_only_where_the_field_may_be_measured(magne
     assert ("COMPASS_DEC" in [r.param_id for r in sent(link, "PARAM_REQUEST_READ")]) is asked
 
 
+def test_a_px4_is_asked_for_its_own_declination():
+    """PX4's EKF2 heads by EKF2_MAG_DECL without a GPS position (saved from its last fix's lookup): input.profile px4
+    asks for it, not ArduPilot's COMPASS_DEC."""
+    service, link = _service(
+        **{
+            "input.profile": "px4",
+            "input.message": "HIGHRES_IMU",
+            "mounting.autopilot_trim": False,
+            "reference.magnetic": "auto",
+        }
+    )
+    link.deliver(Peer().heartbeat())
+    _step_until(service, lambda: service.counters.interval_requests >= 1)
+    assert [r.param_id for r in sent(link, "PARAM_REQUEST_READ")] == ["EKF2_MAG_DECL"]
+
+
 def test_waiting_for_the_imu_stream_names_the_imu_message_the_vehicle_sends_instead():
     """A PX4 sends HIGHRES_IMU, never the default RAW_IMU: the wait says so, with what to set."""
     service, link = _service()

@@ -10,7 +10,7 @@ of the profile it sent, and said: a PX4's HIGHRES_IMU), and replay follows one a
 evaluated at the log's positions, on the log's date; a log without a position is replayed with the dip and |B|
 its compass shows while the vehicle is still (reference.position_wait_s after its start, as the live service
 does), heading from magnetic north, or from true north by the autopilot's declination where its parameters
-give it (ArduPilot's COMPASS_DEC).
+give it (ArduPilot's COMPASS_DEC, PX4's EKF2_MAG_DECL).
 
 One log and OUT ending in .csv (or .csv.gz): the attitude is written there. Several logs, or a
 directory of them: OUT is a directory, with one CSV per log (the columns of `mavattitude solve`), and

@@ -18,7 +18,8 @@ the inclination and intensity the compass itself shows while the vehicle is quie
 ``asin(d̂ · b̂)`` and of ``|B|`` over the quiet ticks seen so far (at least ``MIN_MEASURED_TICKS``; the compass
 monitor's quiet test and dip, :mod:`mavattitude.estimation.compass`), and declination 0: heading is magnetic
 north, unless the autopilot says the declination it heads by (:meth:`ReferenceTracker.set_declination`:
-ArduPilot's ``COMPASS_DEC``, set from its last GPS fix or by hand). Then heading is true north, as the
+ArduPilot's ``COMPASS_DEC``, set from its last GPS fix or by hand; PX4's ``EKF2_MAG_DECL``, saved from its last
+fix's lookup at disarm or set by hand). Then heading is true north, as the
 autopilot's is and as MAVLink's NED frame is, and the two attitudes compare on one north; a constant yaw
 difference of the local declination (13° in much of the United States or Australia) would otherwise read as
 a disagreement. A position that arrives later replaces it with the WMM's field, the autopilot's word on the
@@ -40,9 +41,15 @@ log = logging.getLogger(__name__)
 
 EARTH_RADIUS_KM = 6371.0088
 MIN_MEASURED_TICKS = 25  # the fewest quiet ticks a measured field is the mean of (as the compass monitor judges on)
-#: The autopilot's declination parameter (ArduPilot's, radians east of true north: from its last GPS fix with
-#: COMPASS_AUTODEC, else as set); PX4 has no such one parameter, and does not answer
-DECLINATION_PARAMETER = "COMPASS_DEC"
+#: The autopilots' declination parameters, east of true north, and degrees per unit of each: ArduPilot's in radians
+#: (from its last GPS fix with COMPASS_AUTODEC, else as set), PX4's EKF2 in degrees (saved from its last fix's
+#: lookup at disarm with EKF2_DECL_TYPE bit 1, else as set). Each heads by it while it has no GPS position.
+DECLINATION_PARAMETERS = {"COMPASS_DEC": math.degrees(1.0), "EKF2_MAG_DECL": 1.0}
+
+
+def declination_parameter(profile: str) -> str:
+    """The declination parameter of the autopilot that sends ``profile``'s IMU messages (input.profile)."""
+    return "EKF2_MAG_DECL" if profile == "px4" else "COMPASS_DEC"
 
 
 @dataclass(frozen=True)

@@ -23,8 +23,8 @@ It behaves like an autopilot on a companion-computer link:
   against the truth at the same vehicle time (:mod:`mavattitude.sim.scoring`);
 - answers PARAM_REQUEST_READ of its level trim (AHRS_TRIM_X/Y, ``trim_deg``: its board so turned in the
   frame, its IMU messages the board's, its ATTITUDE and the truth the frame's), of whether it uses each
-  compass (COMPASS_USE, COMPASS_USE2, COMPASS_USE3: ``compass_use``) and of its declination (COMPASS_DEC: its
-  script's field's, as an autopilot that had a GPS fix there holds it).
+  compass (COMPASS_USE, COMPASS_USE2, COMPASS_USE3: ``compass_use``) and of its declination (COMPASS_DEC, or
+  EKF2_MAG_DECL with the px4 profile: its script's field's, as an autopilot that had a GPS fix there holds it).
 
 The vehicle clock is the script clock scaled by ``speed`` (an accelerated soak runs faster than real
 time); ``time_boot_ms``/``time_usec`` count from the last (simulated) boot. Faults are injected through
@@ -52,7 +52,7 @@ from mavattitude.errors import InputError, LinkError
 from mavattitude.estimation.conventions import Array, euler_from_quat
 from mavattitude.link.logstreams import compass_use_parameter
 from mavattitude.link.mavlink2 import force_mavlink2, mavlink2, mavutil, message_id
-from mavattitude.sensors.magref import DECLINATION_PARAMETER
+from mavattitude.sensors.magref import DECLINATION_PARAMETERS, declination_parameter
 from mavattitude.sensors.mounting import TRIM_PARAMETERS, trim_matrix
 from mavattitude.sensors.units import (
     MESSAGES,
@@ -571,7 +571,8 @@ class FakeVehicle:
         parameters = dict(zip(TRIM_PARAMETERS, np.radians(self.config.trim_deg).tolist(), strict=True))
         parameters |= {compass_use_parameter(k): float(use) for k, use in enumerate(self.config.compass_use)}
         north_uT, east_uT, _ = self.script.mag_ned_uT
-        parameters[DECLINATION_PARAMETER] = math.atan2(east_uT, north_uT)
+        declination = declination_parameter(self.config.profile)  # in its autopilot's unit
+        parameters[declination] = math.degrees(math.atan2(east_uT, north_uT)) / DECLINATION_PARAMETERS[declination]
         if name in parameters:
             real32 = mavlink2.MAV_PARAM_TYPE_REAL32
             self.send(mavlink2.MAVLink_param_value_message(name.encode(), parameters[name], real32, len(parameters), 0))

@@ -106,13 +106,23 @@ def test_without_a_gps_fix_the_field_is_measured_then_a_fix_switches_to_the_mode
     assert_all_outputs_valid(v)
 
 
-def test_without_a_fix_the_autopilots_declination_makes_the_measured_heading_true(fly: Callable[..., Any]) -> None:
+@pytest.mark.parametrize(
+    ("profile", "message", "parameter"),
+    [("ardupilot", "RAW_IMU", "COMPASS_DEC"), ("px4", "HIGHRES_IMU", "EKF2_MAG_DECL")],
+)
+def test_without_a_fix_the_autopilots_declination_makes_the_measured_heading_true(
+    fly: Callable[..., Any], profile: str, message: str, parameter: str
+) -> None:
     """The field has a declination of 12.8° (CMAC's) and the vehicle no fix: a field measured from the compass
-    alone would head 12.8° off the truth's north, but the autopilot's COMPASS_DEC, asked on locking, says it."""
+    alone would head 12.8° off the truth's north, but the autopilot's declination, asked on locking (ArduPilot's
+    COMPASS_DEC in radians, PX4's EKF2_MAG_DECL in degrees), says it."""
     field = field_from_angles(12.8, -65.8, 58.0)
     script = Script([Hold(2.0), Rotate(118.0, (0.03, -0.05, 0.08))], field)
-    with fly(script, scenarios.paper_sensors(200.0), {"reference": {"magnetic": "auto"}}, gps_fix=False) as (v, svc):
-        line = svc.wait_for_line(r"no GPS position: heading is north as the autopilot's: declination \+12\.8°", 10.0)
+    service = {"reference": {"magnetic": "auto"}}
+    vehicle = {"gps_fix": False, "profile": profile, "message": message}
+    with fly(script, scenarios.paper_sensors(200.0), service, **vehicle) as (v, svc):
+        north = rf"north as the autopilot's: declination \+12\.8° \({parameter}\)"
+        line = svc.wait_for_line(rf"no GPS position: heading is {north}", 10.0)
         assert line is not None, svc.log_tail()
         wait_outputs(v, 75)
         assert svc.stop() == 0
