@@ -14,12 +14,20 @@ sitl_truth = load_tool("sitl_truth")
 IGN = load_config(None, {}, env={})
 
 
-@pytest.mark.parametrize(("log", "north"), [("nogps.BIN", "magnetic north"), ("lowrate.BIN", "true north")])
+@pytest.mark.parametrize(
+    ("log", "north"),
+    [
+        ("nogps.BIN", "magnetic north"),
+        ("lowrate.BIN", "true north (a GPS fix from the start)"),
+        ("lowrate.tlog", "magnetic north + COMPASS_DEC 0.0° (the WMM's declination 12.70° there) until the first GPS"),
+    ],
+)
 def test_the_truth_is_held_in_the_north_the_autopilot_heads_by(log, north):
     """Without a fix ArduPilot heads by magnetic north (COMPASS_DEC 0 there), 12.7° from the simulator's true
-    north; with one, by true north. In the right north the autopilot's median angle from the truth over the
-    flight is its own error, about 1° (before its in-flight yaw alignment 2.7° on lowrate.BIN); in the wrong one
-    it would be the declination's 12.7°."""
+    north; with one, by true north (a DataFlash log begins at arming, after the fix; the telemetry log at boot,
+    before it). In the right north the autopilot's median angle from the truth over the flight is its own error,
+    about 1° (before its in-flight yaw alignment 2.7° on lowrate); in the wrong one it would be the declination's
+    12.7°. The telemetry log's truth (SIMSTATE) is put on the vehicle's clock by ATTITUDE's receipt times."""
     verdict = sitl_truth.judge(shared_path("data", "ardupilot-sitl", log), IGN)
     assert verdict.north.startswith(north)
     assert np.nanmedian(verdict.autopilot_deg) < 1.5

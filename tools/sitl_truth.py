@@ -1,15 +1,18 @@
 """Whose attitude was off when the cross-check warned: ours and the autopilot's, held against the simulator's truth.
 
-    .venv/bin/python tools/sitl_truth.py LOG.BIN... [--config FILE] [--method M]
+    .venv/bin/python tools/sitl_truth.py LOG.BIN|LOG.tlog... [--config FILE] [--method M]
 
 An ArduPilot SITL DataFlash log records the simulated vehicle's true attitude (``SIM``: its quaternion, at 10 Hz,
-and its position). Each log is replayed as ``mavattitude replay`` replays it (the same config, the same
+and its position), and its telemetry log too (``SIMSTATE``, at the stream's rate, on the ground station's
+receipt time, put on the vehicle's clock by ATTITUDE's: good to tens of ms, so in a fast turn by a degree or
+more). Each log is replayed as ``mavattitude replay`` replays it (the same config, the same
 cross-check), and at every ``SIM`` record ours and the autopilot's ``ATT`` (each interpolated to its time) are
-held against the truth, in the north both estimators head by: true north once the log has a 3D GPS fix (the
-autopilot's ``COMPASS_AUTODEC``, our WMM field), else magnetic north turned by ``COMPASS_DEC``, the truth turned
-from true to that by the WMM's declination at the ``SIM`` position (the simulator's field is the WMM's, to
-about 0.4°). Printed per log: both angles from the truth over the flight and where the cross-check judged, and
-for each cross-check warning both over the hold that raised it: whose error it was.
+held against the truth, in the north both estimators head by: true north from the log's first 3D GPS fix (the
+autopilot's ``COMPASS_AUTODEC``, our WMM field), before it magnetic north turned by ``COMPASS_DEC``, the truth
+turned from true to that by the WMM's declination at the simulated position (the simulator's field is the
+WMM's, to about 0.4°). Printed per log: both angles from the truth over the flight and where the cross-check judged, and
+for each cross-check warning both over the hold that raised it: whose error it was. A telemetry log begins at the
+autopilot's boot: its figures hold its start-up too (its yaw before its EKF aligned, up to 120° off).
 """
 
 from __future__ import annotations
@@ -19,11 +22,11 @@ import datetime as dt
 import math
 import sys
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from pymavlink import DFReader
+from pymavlink import DFReader, mavutil
 
 from mavattitude.config import Config, load_config
 from mavattitude.estimation.conventions import angle_between, quat_from_euler, quat_multiply
@@ -38,36 +41,86 @@ TRUTH_FRAME_ERROR_DEG = 0.4  # the simulator's field against the WMM's declinati
 
 @dataclass(frozen=True)
 class Truth:
-    t_s: np.ndarray  # SIM records' times, the log's clock
+    t_s: np.ndarray  # the truth's times, the vehicle's clock
     q: np.ndarray  # body → NED, turned to the north both estimators head by
     north: str
 
 
-def read_truth(path: Path) -> Truth:
-    """The log's SIM attitudes turned to the north the autopilot and we head by (the module docstring)."""
-    log = DFReader.DFReader_binary(str(path))
-    rows, fix, declination_deg, position = [], False, 0.0, None
+@dataclass
+class _Read:
+    """What a log says of the truth: rows ``t_s, qw, qx, qy, qz`` (true north), and what sets the heading's north."""
+
+    rows: list[tuple[float, ...]] = field(default_factory=list)
+    fixes: list[tuple[float, bool]] = field(default_factory=list)  # each GPS record's time, and whether a 3D fix
+    declination_deg: float = 0.0
+    position: tuple[float, float, float] | None = None
+
+
+def _read_dataflash(path: Path) -> _Read:
+    """SIM records (their quaternion, at 10 Hz), GPS Status, PARM COMPASS_DEC."""
+    log, read = DFReader.DFReader_binary(str(path)), _Read()
     while (m := log.recv_match(type=["SIM", "GPS", "PARM"])) is not None:
         kind = m.get_type()
         if kind == "SIM":
-            rows.append((m.TimeUS * 1e-6, m.Q1, m.Q2, m.Q3, m.Q4))
-            position = position or (m.Lat, m.Lng, m.Alt)
+            read.rows.append((m.TimeUS * 1e-6, m.Q1, m.Q2, m.Q3, m.Q4))
+            read.position = read.position or (m.Lat, m.Lng, m.Alt)
         elif kind == "GPS":
-            fix = fix or m.Status >= GPS_3D_FIX
+            read.fixes.append((m.TimeUS * 1e-6, m.Status >= GPS_3D_FIX))
         elif m.Name == "COMPASS_DEC":
-            declination_deg = math.degrees(m.Value)
-    if not rows:
-        raise SystemExit(f"{path}: no SIM records: not an ArduPilot SITL log")
-    table = np.array(rows)
-    if fix:
-        return Truth(table[:, 0], table[:, 1:5], "true north (the log has a GPS fix)")
-    north_uT, east_uT, _ = wmm_field_ned_uT(*position, clamp_to_model(dt.date.today()))
+            read.declination_deg = math.degrees(m.Value)
+    return read
+
+
+def _read_tlog(path: Path) -> _Read:
+    """SIMSTATE messages (Euler angles; no time of their own: the ground station's receipt time, put on the vehicle's
+    clock by the median offset of ATTITUDE's, sent in the same stream: tens of ms), GPS_RAW_INT's fix,
+    PARAM_VALUE COMPASS_DEC."""
+    log, read = mavutil.mavlink_connection(str(path)), _Read()
+    received, offsets, fixes = [], [], []  # on the ground station's clock
+    while (m := log.recv_match(type=["SIMSTATE", "ATTITUDE", "GPS_RAW_INT", "PARAM_VALUE"])) is not None:
+        kind = m.get_type()
+        if kind == "SIMSTATE":
+            received.append((m._timestamp, *quat_from_euler(m.roll, m.pitch, m.yaw)))
+            read.position = read.position or (m.lat * 1e-7, m.lng * 1e-7, 0.0)
+        elif kind == "ATTITUDE":
+            offsets.append(m._timestamp - m.time_boot_ms * 1e-3)
+        elif kind == "GPS_RAW_INT":
+            fixes.append((m._timestamp, m.fix_type >= GPS_3D_FIX))
+        elif m.param_id == "COMPASS_DEC":
+            read.declination_deg = math.degrees(m.param_value)
+    offset_s = float(np.median(offsets)) if offsets else 0.0
+    read.rows = [(t - offset_s, *q) for t, *q in received]
+    read.fixes = [(t - offset_s, fix) for t, fix in fixes]
+    return read
+
+
+def _first_fix_s(fixes: list[tuple[float, bool]]) -> float:
+    """When both estimators start heading by true north: the first GPS record with a 3D fix (-inf when the log's
+    first has one: the log began after it, as a DataFlash log begins at arming; inf without one)."""
+    if fixes and fixes[0][1]:
+        return -math.inf
+    return next((t for t, fix in fixes if fix), math.inf)
+
+
+def read_truth(path: Path) -> Truth:
+    """The log's true attitudes turned to the north the autopilot and we head by (the module docstring)."""
+    read = _read_tlog(path) if path.suffix.lower() == ".tlog" else _read_dataflash(path)
+    if not read.rows:
+        raise SystemExit(f"{path}: no SIM records or SIMSTATE messages: not an ArduPilot SITL log")
+    table = np.array(read.rows)
+    t_s, q = table[:, 0], table[:, 1:5]
+    fix_s = _first_fix_s(read.fixes)
+    before = t_s < fix_s
+    north_uT, east_uT, _ = wmm_field_ned_uT(*read.position, clamp_to_model(dt.date.today()))
     wmm_deg = math.degrees(math.atan2(east_uT, north_uT))
-    turn = quat_from_euler(0.0, 0.0, -math.radians(wmm_deg - declination_deg))  # true north → the heading's
-    north = (
-        f"magnetic north + COMPASS_DEC {declination_deg:.1f}° (the WMM's declination {wmm_deg:.2f}° at SIM's position)"
-    )
-    return Truth(table[:, 0], np.array([quat_multiply(turn, q) for q in table[:, 1:5]]), north)
+    magnetic = f"magnetic north + COMPASS_DEC {read.declination_deg:.1f}° (the WMM's declination {wmm_deg:.2f}° there)"
+    north = "true north (a GPS fix from the start)" if not before.any() else magnetic
+    if before.any() and not before.all():
+        north = f"{magnetic} until the first GPS fix at {fix_s:.1f} s, true north after"
+    turn = quat_from_euler(0.0, 0.0, -math.radians(wmm_deg - read.declination_deg))  # true north → the heading's
+    if before.any():
+        q[before] = [quat_multiply(turn, row) for row in q[before]]
+    return Truth(t_s, q, north)
 
 
 def at_times(t_s: np.ndarray, q: np.ndarray, times_s: np.ndarray) -> np.ndarray:
@@ -166,7 +219,7 @@ def render(v: Verdict) -> str:
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("logs", nargs="+", type=Path, metavar="LOG.BIN", help="ArduPilot SITL DataFlash logs")
+    parser.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="ArduPilot SITL logs: .BIN or .tlog")
     parser.add_argument("--config", type=Path, help="a mavattitude config (default: the defaults, as replay's)")
     parser.add_argument("--method", help="estimator.method (default: the config's)")
     return parser.parse_args(argv)
