@@ -6,13 +6,14 @@ An ArduPilot SITL DataFlash log records the simulated vehicle's true attitude (`
 and its position), and its telemetry log too (``SIMSTATE``, at the stream's rate, on the ground station's
 receipt time, put on the vehicle's clock by ATTITUDE's: good to tens of ms, so in a fast turn by a degree or
 more). Each log is replayed as ``mavattitude replay`` replays it (the same config, the same
-cross-check), and at every ``SIM`` record ours and the autopilot's ``ATT`` (each interpolated to its time) are
+cross-check), and at every truth record ours and the autopilot's ``ATT`` (each interpolated to its time) are
 held against the truth, in the north both estimators head by: true north from the log's first 3D GPS fix (the
 autopilot's ``COMPASS_AUTODEC``, our WMM field), before it magnetic north turned by ``COMPASS_DEC``, the truth
 turned from true to that by the WMM's declination at the simulated position (the simulator's field is the
-WMM's, to about 0.4°). Printed per log: both angles from the truth over the flight and where the cross-check judged, and
-for each cross-check warning both over the hold that raised it: whose error it was. A telemetry log begins at the
-autopilot's boot: its figures hold its start-up too (its yaw before its EKF aligned, up to 120° off).
+WMM's, to about 0.4°). Printed per log: both angles from the truth over the flight and where the cross-check
+judged, and for each cross-check warning both over the hold that raised it: whose error it was. A telemetry log
+begins at the autopilot's boot: its figures hold its start-up too (its yaw before its EKF aligned, up to 120°
+off).
 """
 
 from __future__ import annotations
