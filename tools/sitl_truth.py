@@ -76,7 +76,8 @@ def _read_tlog(path: Path) -> _Read:
     """SIMSTATE messages (Euler angles; no time of their own: the ground station's receipt time, put on the vehicle's
     clock by the median offset of ATTITUDE's, sent in the same stream: tens of ms), GPS_RAW_INT's fix,
     PARAM_VALUE COMPASS_DEC."""
-    log, read = mavutil.mavlink_connection(str(path)), _Read()
+    # SIMSTATE is ArduPilot's: its dialect named, whatever another caller left as pymavlink's process-wide one
+    log, read = mavutil.mavlink_connection(str(path), dialect="ardupilotmega"), _Read()
     received, offsets, fixes = [], [], []  # on the ground station's clock
     while (m := log.recv_match(type=["SIMSTATE", "ATTITUDE", "GPS_RAW_INT", "PARAM_VALUE"])) is not None:
         kind = m.get_type()
