@@ -56,6 +56,7 @@ from mavattitude.errors import ConfigError, InputError, MavAttitudeError
 from mavattitude.estimation import METHODS, NoiseModel, solve
 from mavattitude.estimation.compass import CompassEvent, CompassMonitor, heading_uncertain
 from mavattitude.estimation.conventions import Array, Vec3, is_unit_quaternion_parts, tilt_quat_parts
+from mavattitude.estimation.crosscheck import GyroDrift
 from mavattitude.estimation.restnoise import RestNoise
 from mavattitude.sensors.frontend import (
     BatchOutput,
@@ -119,13 +120,22 @@ class AttitudeOutput:
             return np.full((3, 3), np.nan)
 
 
-def reads_acceleration_as_tilt(output: AttitudeOutput) -> bool:
-    """Whether ``output`` may read the vehicle's acceleration as tilt, which the autopilot cross-check does not
-    judge: at a tick where the vehicle turned or accelerated (``MOVING``), unless the fused filter took the
-    acceleration out with the GPS receiver's (``GPS_AIDED``). A snapshot solve always reads the specific force as
-    gravity; the fused filter without GPS velocity leans in a sustained acceleration (2-3° held from a 17° bank
-    on the shared GPS-less SITL flight) and is slow to come back."""
-    return output.flags & _MOVING_UNAIDED == _MOVING
+class CrossCheckGate:
+    """Which of our outputs, in time order, may read the vehicle's acceleration as tilt, which the autopilot
+    cross-check does not judge: at a tick where the vehicle turned or accelerated (``MOVING``), or where ours turns
+    unlike the gyro (:class:`~mavattitude.estimation.crosscheck.GyroDrift`: a steady acceleration at a gentle tilt,
+    which ``MOVING`` does not see), unless the fused filter took the acceleration out with the GPS receiver's
+    (``GPS_AIDED``). A snapshot solve always reads the specific force as gravity; the fused filter without GPS
+    velocity leans in a sustained acceleration (2-3° held from a 17° bank on the shared GPS-less SITL flight) and
+    is slow to come back."""
+
+    def __init__(self) -> None:
+        self._drift = GyroDrift()
+
+    def moving(self, output: AttitudeOutput) -> bool:
+        drifting = self._drift.update(output.time_s, output.q, output.rates_radps)  # every output, in order
+        flags = int(output.flags)
+        return bool(drifting or flags & _MOVING) and not flags & _GPS_AIDED
 
 
 @dataclass(slots=True)
@@ -303,7 +313,6 @@ _RESET, _NOT_CONVERGED, _HEADING_ONLY, _DISTURBED, _INCONSISTENT, _PER_SAMPLE, _
     )
 )
 _NO_HEADING = int(SampleFlag.NO_HEADING)
-_MOVING_UNAIDED = _MOVING | _GPS_AIDED  # the bits of reads_acceleration_as_tilt: MOVING set, GPS_AIDED not
 #: The reference handed to an estimator for a tick without a magnetometer reading before the field is known: a
 #: tick without one compares nothing with it (the fused filter takes the real field when it comes).
 NO_FIELD_NED_UT = np.array([1.0, 0.0, 0.0])

@@ -39,7 +39,7 @@ from mavattitude.link.logs import LogSource
 from mavattitude.link.logstreams import LogStreams
 from mavattitude.link.source import AutopilotAttitude, AutopilotParameter, MessageSource, Sender
 from mavattitude.link.tlog import TlogSource
-from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, Pushed, reads_acceleration_as_tilt
+from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, CrossCheckGate, Pushed
 from mavattitude.sensors.frontend import SampleFlag, median_rate_hz
 from mavattitude.sensors.magref import distance_km
 from mavattitude.sensors.units import COMPASS_INSTANCES, ImuSample
@@ -109,10 +109,11 @@ class Replayed:
 
     def cross_check(self) -> tuple[CrossCheck, list[Difference], list[CrossCheckEvent]]:
         """The service's cross-check over the whole replay (:func:`cross_check_log`): ours against the autopilot's
-        attitudes, each pair judged as live (not where ours has no heading's yaw, nor where it may read the vehicle's
-        acceleration as tilt: :func:`reads_acceleration_as_tilt`)."""
+        attitudes, each pair judged as live (not where ours has no heading's yaw, nor where :class:`CrossCheckGate`
+        says it may be fooled by the vehicle's acceleration)."""
         ours, autopilot = self.output_array(), self.autopilot_array()
-        moving = np.array([reads_acceleration_as_tilt(o) for o in self.outputs], dtype=bool)
+        gate = CrossCheckGate()
+        moving = np.array([gate.moving(o) for o in self.outputs], dtype=bool)
         settings = self.pipeline.config.crosscheck
         return cross_check_log(
             ours[:, 0], ours[:, 1:5], autopilot[:, 0], autopilot[:, 1:5], settings, self.heading(), moving

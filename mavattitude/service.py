@@ -32,7 +32,8 @@ service is the dispatcher's listener. What it does on the link:
   (``xc_roll``, ``xc_pitch``, ``xc_yaw``, ``xc_total``, degrees) at ``publish_rate_hz``, and says once (log +
   STATUSTEXT) when the total stays above ``threshold_deg`` for ``hold_s``, and when it clears; an attitude that
   may read the vehicle's acceleration as tilt (a snapshot solve, or the fused filter's without GPS velocity, while
-  the vehicle moves) is published, not judged (:func:`~mavattitude.pipeline.reads_acceleration_as_tilt`);
+  the vehicle moves), or that turns unlike the gyro, is published, not judged
+  (:class:`~mavattitude.pipeline.CrossCheckGate`);
   attitudes that can never be paired with ours (another clock than the input's) are said once;
 - measures the input rate it receives, and says once (log + STATUSTEXT) when it stays below the requested
   rate (a slow serial link, a busy autopilot), with the measured rate and what to do, and when it recovers;
@@ -85,7 +86,7 @@ from mavattitude.link.requests import LOW_FRACTION, RateMonitor, StreamRequest
 from mavattitude.link.session import LinkSession
 from mavattitude.link.source import AutopilotAttitude, AutopilotParameter, MavlinkDecoder, Sender
 from mavattitude.periodic import Every
-from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, Pushed, reads_acceleration_as_tilt
+from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, CrossCheckGate, Pushed
 from mavattitude.reports import (
     CLOCKS_APART_STATUSTEXT,
     DEGENERATE_STATUSTEXT,
@@ -256,6 +257,7 @@ class AttitudeService:
         self._attitude_sent = False
         self._rate = RateMonitor(config.link.request_rate_hz, RATE_WINDOW_S) if config.link.request_messages else None
         self._xcheck = CrossCheck(config.crosscheck) if config.crosscheck.enabled else None
+        self._gate = CrossCheckGate()
         self.other_compasses = OtherCompasses(config)
         self.other_imu_messages: set[str] = set()  # IMU messages the vehicle sent other than input.message
         self._published_s: float | None = None  # vehicle time of the last difference published
@@ -597,7 +599,7 @@ class AttitudeService:
             self._emit(out, t_rx)
         if self._xcheck is not None and outputs:
             for out in outputs:
-                moving = reads_acceleration_as_tilt(out)
+                moving = self._gate.moving(out)
                 self._xcheck.add_ours(out.time_s, out.q, not out.flags & SampleFlag.NO_HEADING, moving)
             self._cross_check(self._xcheck)
 

@@ -164,7 +164,8 @@ class Verdict:
     log: str
     north: str
     records: int
-    ours_deg: np.ndarray  # per SIM record
+    t_s: np.ndarray  # the truth's times
+    ours_deg: np.ndarray  # per truth record
     autopilot_deg: np.ndarray
     judged: np.ndarray  # the cross-check judged the pair nearest the record
     warnings: list[Warned]
@@ -191,7 +192,7 @@ def judge(path: Path, config: Config) -> Verdict:
         warnings.append(
             Warned(t - hold_s, t, end, float(np.nanmean(ours_deg[spell])), float(np.nanmean(autopilot_deg[spell])))
         )
-    return Verdict(path.name, truth.north, len(truth.t_s), ours_deg, autopilot_deg, judged, warnings)
+    return Verdict(path.name, truth.north, len(truth.t_s), truth.t_s, ours_deg, autopilot_deg, judged, warnings)
 
 
 def _rms_p99(x: np.ndarray) -> str:

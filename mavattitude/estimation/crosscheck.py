@@ -27,10 +27,11 @@ its tilt is off, and through the field's dip its heading more (a copter's 20° d
 turn its heading trails. The gyro-aided filter without the GPS receiver's acceleration leans too, less and for
 longer (it comes back over seconds). The difference is then ours being wrong, which the pilot cannot act on, so
 such a pair is published and counted but not judged (:attr:`CrossCheck.unjudged`) when ours around it may read
-acceleration as tilt while the vehicle moved (``moving``: turning faster than 10°/s, or the specific force off g
-by 3 %, :func:`mavattitude.pipeline.reads_acceleration_as_tilt`) or within ``settle_s`` after (an acceleration a
-turn began lasts past it), and it restarts the hold: the verdict's ``hold_s`` is of judged pairs in a row. What
-the vehicle's own sensors cannot show stays: a steady acceleration at a gentle tilt (docs/vehicle.md).
+acceleration as tilt while the vehicle moved (``moving``: turning faster than 10°/s, the specific force off g by
+3 %, or ours turning unlike the gyro, :class:`GyroDrift`; :class:`mavattitude.pipeline.CrossCheckGate`) or within
+``settle_s`` after (an acceleration a turn began lasts past it), and it restarts the hold: the verdict's
+``hold_s`` is of judged pairs in a row. What the vehicle's own sensors cannot show stays: a steady acceleration
+at a gentle tilt that ours had already settled into before it was judged (docs/vehicle.md).
 """
 
 from __future__ import annotations
@@ -52,6 +53,8 @@ from .conventions import (
     euler_from_quat_parts,
     gap_limit_s,
     quat_from_euler_parts,
+    quat_from_rotvec_parts,
+    quat_multiply_parts,
     wrap_deg,
 )
 
@@ -62,6 +65,86 @@ MAX_WAITING = 100  # autopilot attitudes waiting for our output (10 s at 10 Hz)
 #: front end's clock takes an IMU time (``FrontEndSettings.reorder_window_s``); less is a datagram reordered
 REBOOT_BACK_S = 1.0
 MIN_NORM = 0.5  # an autopilot quaternion shorter than this is not a rotation gone slightly off unit length
+#: Ours turning unlike the gyro: the rate of ours against the gyro's rotation, fitted over windows this long (the
+#: mean of each half-window's residual; a snapshot's noise of about 0.6° an output on a real board, sample.ulg,
+#: averages to 0.3°/s at 50 Hz), judged above this rate; outputs no further apart than the step (a slower output is
+#: one unfiltered snapshot a sample: its rates are not integrable).
+DRIFT_WINDOW_S = 1.0
+DRIFT_LIMIT_DPS = 2.0
+DRIFT_MAX_STEP_S = 0.1
+#: The fitted rate's slow mean, taken out: a gyro's bias (a raw one's reaches degrees a second), which the vehicle
+#: does not turn by, reads as ours turning steadily unlike the gyro. Started from the first window within the cap,
+#: then learnt over this long from windows within the cap of it only (a manoeuvre's snapshot errors, tens of
+#: degrees a second, would carry it off).
+DRIFT_BIAS_S = 5.0
+DRIFT_BIAS_CAP_DPS = 6.0
+
+
+class GyroDrift:
+    """Whether our attitude turns unlike the gyro: over each ``DRIFT_WINDOW_S``, ours against the window's first
+    attitude carried by the body rates (a small rotation, body frame, per output), its second half's mean less its
+    first half's over half a window, faster than ``DRIFT_LIMIT_DPS``. A snapshot solve under a steady acceleration
+    at a gentle tilt (a copter's dash at 15°: |a| within 3 % of g, no turn, so not ``MOVING``) reads the tilt as
+    level and comes round to it only as the speed settles, seconds later: its attitude moves while the gyro says
+    the vehicle does not. A fault that keeps ours steadily off (a mounting, the autopilot's own drift) turns with
+    the gyro and stays judged; a compass turned on its mount turns unlike it, and is the compass monitor's to say.
+    The fitted rate is taken against its own slow mean (``DRIFT_BIAS_S``, from the first window within
+    ``DRIFT_BIAS_CAP_DPS``), so a gyro's bias is not ours turning."""
+
+    def __init__(self) -> None:
+        self._last_s = -math.inf
+        self._anchor: tuple[float, Quat] = (-math.inf, (1.0, 0.0, 0.0, 0.0))  # the window's first time, ours then
+        self._carried: Quat = (1.0, 0.0, 0.0, 0.0)  # the body rates' rotation since
+        self._halves = [[0.0, 0.0, 0.0, 0], [0.0, 0.0, 0.0, 0]]  # each half-window's residual sum and count
+        self._bias: tuple[float, ...] | None = None  # the fitted rate's slow mean, rad/s, body frame
+        self.drifting = False
+
+    def update(self, time_s: float, q: Iterable[float], rates_radps: Iterable[float]) -> bool:
+        """Take one of our outputs (``rates_radps``: body rates over the interval that ends at it); whether ours
+        turned unlike the gyro over the last whole window."""
+        ours = _quat(q)
+        dt, self._last_s = time_s - self._last_s, time_s
+        if not 0.0 < dt <= DRIFT_MAX_STEP_S:  # the first, a gap, a slow input, a clock gone back: start again
+            self._start(time_s, ours)
+            self.drifting = False
+            return False
+        wx, wy, wz = (float(w) * dt for w in rates_radps)
+        self._carried = quat_multiply_parts(self._carried, quat_from_rotvec_parts(wx, wy, wz))
+        since_s = time_s - self._anchor[0]
+        w0, x0, y0, z0 = quat_multiply_parts(self._anchor[1], self._carried)
+        # ours against the gyro's: (anchor ⊗ carried)⁻¹ ⊗ ours, small, as twice its vector part
+        w, x, y, z = quat_multiply_parts((w0, -x0, -y0, -z0), ours)
+        sign = 2.0 if w >= 0.0 else -2.0
+        half = self._halves[since_s >= 0.5 * DRIFT_WINDOW_S]
+        half[0] += sign * x
+        half[1] += sign * y
+        half[2] += sign * z
+        half[3] += 1
+        if since_s >= DRIFT_WINDOW_S:
+            (a0, a1, a2, na), (b0, b1, b2, nb) = self._halves
+            if na and nb:
+                self.drifting = self._judge(((b0 / nb - a0 / na), (b1 / nb - a1 / na), (b2 / nb - a2 / na)), since_s)
+            self._start(time_s, ours)
+        return self.drifting
+
+    def _judge(self, moved: tuple[float, float, float], since_s: float) -> bool:
+        """Whether ``moved`` (the second half-window's mean residual less the first's, rad) is turning unlike the
+        gyro beyond its slow mean; the mean then follows it."""
+        rate = tuple(m / (0.5 * since_s) for m in moved)
+        bias = self._bias
+        off = math.degrees(math.dist(rate, (0.0, 0.0, 0.0) if bias is None else bias))
+        if off > DRIFT_BIAS_CAP_DPS:
+            return True
+        if bias is None:  # the first window within the cap: its rate is the bias to start from
+            self._bias = rate
+            return False
+        k = min(1.0, since_s / DRIFT_BIAS_S)
+        self._bias = tuple(b + k * (r - b) for r, b in zip(rate, bias, strict=True))
+        return off > DRIFT_LIMIT_DPS
+
+    def _start(self, time_s: float, ours: Quat) -> None:
+        self._anchor, self._carried = (time_s, ours), (1.0, 0.0, 0.0, 0.0)
+        self._halves = [[0.0, 0.0, 0.0, 0], [0.0, 0.0, 0.0, 0]]
 
 
 @dataclass(frozen=True)
