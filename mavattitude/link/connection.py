@@ -53,6 +53,7 @@ SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
 _TIMESPEC = struct.Struct("@ll")
 _TIMESPEC_SPACE = socket.CMSG_SPACE(_TIMESPEC.size)
 CLOCK_STEP_S = 0.001  # the wall clock moved this much against the monotonic one between reads: it was set
+CLOCK_READ_S = 50e-6  # the two clocks read further apart than this (preempted between): read again
 UDP_PEER_TIMEOUT_S = 5.0  # a udpin peer silent this long is no longer sent to (unless it is the only one)
 CONNECT_TIMEOUT_S = 0.5  # a TCP connect attempt; short, so a stop request is never held up for long
 SIGNING_CLOCK_UPDATE_S = 1.0
@@ -278,6 +279,19 @@ class DatagramConnection:
             return mavlink2.MAVLink_bad_data(mbuf, reason.message)
 
 
+def wall_minus_monotonic() -> tuple[float, float]:
+    """The wall clock's offset from the monotonic one, and the monotonic time it was read at: the wall clock read
+    between two monotonic reads no more than ``CLOCK_READ_S`` apart (a read preempted between the two would be off
+    by the preemption; three tries, then the last)."""
+    for _ in range(3):
+        before = time.monotonic()
+        wall = time.time()
+        after = time.monotonic()
+        if after - before <= CLOCK_READ_S:
+            break
+    return wall - 0.5 * (before + after), after
+
+
 def arrival_on_monotonic(
     ancillary: list[tuple[int, int, bytes]], wall_minus_monotonic_s: float, before_s: float, now_s: float
 ) -> float | None:
@@ -331,13 +345,12 @@ class _Udp(DatagramConnection, mavutil.mavudp):
             self.port.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
         except OSError:
             return False
-        self._wall_minus_monotonic = time.time() - time.monotonic()
+        self._wall_minus_monotonic = wall_minus_monotonic()[0]
         return True
 
     def _arrival(self, ancillary: list[tuple[int, int, bytes]]) -> float | None:
-        now = time.monotonic()
-        offset, previous = time.time() - now, self._wall_minus_monotonic
-        self._wall_minus_monotonic = offset
+        offset, now = wall_minus_monotonic()
+        previous, self._wall_minus_monotonic = self._wall_minus_monotonic, offset
         return arrival_on_monotonic(ancillary, offset, previous, now)
 
     def heard(self) -> None:
