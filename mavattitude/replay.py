@@ -316,7 +316,7 @@ def _collect_compasses(s: LogStreams, others: list[JudgedCompass], result: Repla
         used = JudgedCompass(s.compasses.used, result.compass, result.pipeline.compass)
         result.compasses = sorted([*(j for j in others if j.instance != used.instance), used], key=_instance)
         unused = {j.instance: s.unused_by_autopilot(j.instance) for j in result.compasses}
-        result.unused_compasses = {k: why for k, why in unused.items() if why is not None}
+        result.unused_compasses = {k: f"{why[0]} {why[1]:g}" for k, why in unused.items() if why is not None}
 
 
 def _instance(judged: JudgedCompass) -> int:

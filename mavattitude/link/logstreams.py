@@ -88,7 +88,7 @@ class Compasses:
     #: why that one ("--mag 1", "the autopilot's: COMPASS_USE 1, COMPASS_USE2 0"); None: the log does not say
     why: str | None = None
     #: those the autopilot has disabled, where its parameters number them otherwise than ArduPilot's COMPASS_USE…
-    #: do (PX4's CAL_MAGn_EN, matched by device id): instance → "CAL_MAG0_EN 0"
+    #: do (PX4's CAL_MAGn_EN, matched by device id, 0): instance → the parameter, "CAL_MAG0_EN"
     disabled: Mapping[int, str] = field(default_factory=dict)
 
 
@@ -180,19 +180,18 @@ class LogStreams:
         replayed (its ``COMPASS_USE…`` is 0), else ``None``: the live service's question, asked of the log."""
         if self.mag_instance is None:
             return None
-        name = compass_use_parameter(self.mag_instance)
-        value = self.parameters.get(name)
-        return (self.mag_instance, name, value) if value == 0.0 else None
+        unused = self.unused_by_autopilot(self.mag_instance)
+        return None if unused is None else (self.mag_instance, *unused)
 
-    def unused_by_autopilot(self, instance: int) -> str | None:
-        """The parameter and value by which the autopilot says it does not use compass ``instance``
-        (``COMPASS_USE2 0``, PX4's ``CAL_MAG0_EN 0``), else ``None``."""
+    def unused_by_autopilot(self, instance: int) -> tuple[str, float] | None:
+        """The parameter and its value by which the autopilot says it does not use compass ``instance``
+        (``COMPASS_USE2`` 0, PX4's ``CAL_MAG0_EN`` 0), else ``None``."""
         if self.compasses is not None and instance in self.compasses.disabled:
-            return self.compasses.disabled[instance]
+            return self.compasses.disabled[instance], 0.0
         if self.mag_instance is None:  # not numbered as ArduPilot's parameters number them
             return None
         name = compass_use_parameter(instance)
-        return f"{name} 0" if self.parameters.get(name) == 0.0 else None
+        return (name, 0.0) if self.parameters.get(name) == 0.0 else None
 
     def carried_mag(self) -> NDArray[np.int64]:
         """Which magnetometer row each IMU sample carries, -1 where none."""

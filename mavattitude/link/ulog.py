@@ -167,7 +167,7 @@ def _compasses(ulog: Any) -> Compasses | None:
             readings[data.multi_id] = (uu.times_s(data.data), _calibrated(data.data, device, params))
             slot = _calibration_slot(device, params)
             if slot is not None and params.get(f"CAL_MAG{slot}_EN") == 0:
-                disabled[data.multi_id] = f"CAL_MAG{slot}_EN 0"
+                disabled[data.multi_id] = f"CAL_MAG{slot}_EN"
     if len(readings) < 2:
         return None
     selection = _topic(ulog, "sensor_selection")
