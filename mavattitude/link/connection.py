@@ -687,7 +687,7 @@ class MavlinkLink:
         """Every message waiting (at most ``MAX_MESSAGES_PER_RECV``), stamped with its datagram's arrival where
         the OS stamps it, else with ``slept_since`` (:attr:`backlog`), else when read."""
         received: list[tuple[float, Sender, Any]] = []
-        stamped = getattr(conn, "stamps_arrivals", False)
+        stamped = self.stamps_arrivals
         try:
             while len(received) < MAX_MESSAGES_PER_RECV:
                 # before reading and parsing: our whole handling counts as latency
