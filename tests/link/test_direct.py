@@ -1,15 +1,19 @@
 """Frames the link handles without pymavlink's message objects: the input message decoded straight from its
-frame (the same items, senders and counters as pymavlink's path, over real UDP on 127.0.0.1, and every other
-datagram handled as before), and the attitude it sends packed byte for byte as pymavlink packs it.
+frame (the same items, senders and counters as pymavlink's path, over real UDP on 127.0.0.1, a real TCP socket
+and a real tty, and every other frame handled as before), and the attitude it sends packed byte for byte as
+pymavlink packs it.
 
-Each reception case sends the same datagrams twice, once read with the input message's :class:`DirectFrame` and
+Each reception case sends the same bytes twice, once read with the input message's :class:`DirectFrame` and
 once without (pymavlink decodes every frame), and compares what came out.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -17,12 +21,13 @@ from pymavlink.dialects.v10 import ardupilotmega as mavlink1
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavattitude.link import MavlinkLink
+from mavattitude.link.connection import MAX_MESSAGES_PER_RECV
 from mavattitude.link.mavlink2 import mavlink2 as link_dialect
 from mavattitude.link.memory import MemoryLink
 from mavattitude.link.source import MavlinkDecoder, Undecodable
 from mavattitude.sensors import units
 from tests.link.peer import UdpPeer
-from tests.link.test_connection import WAIT_S
+from tests.link.test_connection import WAIT_S, _listener
 from tests.link.test_signing import KEY, OTHER_KEY
 
 SEED = 20250611
@@ -194,3 +199,105 @@ def test_attitude_frames_are_pymavlinks_bytes():
         link.send_heartbeat()
         reference.seq += 1
     assert link.counters.sent == 3 * len(cases) - 1 and link.counters.send_failed == 0
+
+
+@contextmanager
+def _stream_link(kind: str) -> Iterator[tuple[MavlinkLink, Callable[[bytes], None]]]:
+    """A link on a byte stream, and what writes to its far end: a TCP client with a listener in the test, or a
+    serial device on a pseudo-terminal's slave end (pyserial), the test on its master."""
+    if kind == "tcp":
+        server = _listener()
+        link = MavlinkLink(f"tcp:127.0.0.1:{server.getsockname()[1]}", source_system=1)
+        conn, _ = server.accept()
+        try:
+            yield link, conn.sendall
+        finally:
+            link.close()
+            conn.close()
+            server.close()
+    else:
+        master, slave = os.openpty()
+        link = MavlinkLink(f"{os.ttyname(slave)},921600", source_system=1)
+        try:
+            yield link, lambda data: os.write(master, data)  # type: ignore[misc]
+        finally:
+            link.close()
+            os.close(master)
+            os.close(slave)
+
+
+def _stream_bytes(rng: np.random.Generator) -> tuple[list[bytes], int, int, int]:
+    """Frames as a stream carries them, and noise between: (the pieces, the RAW_IMU frames the direct path may
+    take, the other frames, which pymavlink decodes, the noise's bytes)."""
+    vehicle = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    stranger = mavlink2.MAVLink(None, srcSystem=9, srcComponent=1)
+    v1 = mavlink1.MAVLink(None, srcSystem=1, srcComponent=1)
+    pieces, direct, other, noise = [], 0, 0, 0
+    for sample in _random_samples(rng, 60):
+        fields = units.encode(sample, units.PROFILES["ardupilot"], "RAW_IMU")
+        kind = rng.choice(["imu", "imu", "imu", "stranger", "heartbeat", "v1", "bad_crc", "noise"])
+        if kind in ("imu", "stranger", "bad_crc"):
+            frame = bytes(mavlink2.MAVLink_raw_imu_message(**fields).pack(stranger if kind == "stranger" else vehicle))
+            pieces.append(frame[:-1] + bytes([frame[-1] ^ 0xFF]) if kind == "bad_crc" else frame)
+            direct += kind != "bad_crc"
+        elif kind == "heartbeat":
+            pieces.append(bytes(mavlink2.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3).pack(vehicle)))
+        elif kind == "v1":
+            v1_fields = {k: v for k, v in fields.items() if k in mavlink1.MAVLink_raw_imu_message.fieldnames}
+            pieces.append(bytes(mavlink1.MAVLink_raw_imu_message(**v1_fields).pack(v1)))
+        else:  # line noise: no byte that starts a frame (pymavlink reports a run as BAD_DATA, never decodes it)
+            pieces.append(bytes(rng.choice([b for b in range(256) if b not in (0xFD, 0xFE)], rng.integers(1, 30))))
+            noise += len(pieces[-1])
+        other += kind in ("heartbeat", "v1", "bad_crc")
+    return pieces, direct, other, noise
+
+
+@pytest.mark.parametrize("kind", ["tcp", "serial"])
+def test_a_stream_in_any_pieces_gives_pymavlinks_items_with_the_input_decoded_directly(kind, monkeypatch):
+    """The stream's bytes cut at random (frames split across reads, several in one), read after each piece. A run
+    of noise is one BAD_DATA to pymavlink's parser when it reads it whole, one per read it spans otherwise."""
+    rng = np.random.default_rng(SEED)
+    pieces, n_direct, n_other, noise_bytes = _stream_bytes(rng)
+    data = b"".join(pieces)
+    cuts = np.sort(rng.choice(np.arange(1, len(data)), 120, replace=False))
+    chunks = [data[a:b] for a, b in zip([0, *cuts], [*cuts, len(data)], strict=True)]
+    reference = mavlink2.MAVLink(None)
+    reference.robust_parsing = True
+    expected_msgs = reference.parse_buffer(data)
+    decoder = MavlinkDecoder("RAW_IMU", units.PROFILES["ardupilot"])
+    expected = [
+        ((m.get_srcSystem(), m.get_srcComponent()), _comparable(decoder(m)))
+        for m in expected_msgs
+        if m.get_type() != "BAD_DATA"
+    ]
+    n_bad = sum(m.get_type() == "BAD_DATA" for m in expected_msgs)
+    decoded = []
+    real_decode = link_dialect.MAVLink.decode
+    monkeypatch.setattr(link_dialect.MAVLink, "decode", lambda mav, buf: decoded.append(1) or real_decode(mav, buf))
+    for direct in (True, False):
+        decoded.clear()
+        with _stream_link(kind) as (link, write):
+            got = []
+            for chunk in chunks:
+                write(chunk)
+                got += link.recv_items(0.0, decoder, decoder.direct if direct else None)
+            deadline = time.monotonic() + WAIT_S  # the last pieces may still be on their way
+            while link.counters.received < len(expected) and time.monotonic() < deadline:
+                got += link.recv_items(0.05, decoder, decoder.direct if direct else None)
+            assert [(s, _comparable(i)) for _, s, i in got] == expected
+            assert link.counters.received == len(expected)
+            assert n_bad <= link.counters.bad_data <= n_bad + noise_bytes
+        # every frame but the direct path's went through pymavlink's decoder
+        assert len(decoded) == n_other + (0 if direct else n_direct)
+
+
+def test_frames_left_over_from_one_read_come_without_waiting_for_more_input():
+    """More frames arrive in one read than one receive hands over: the rest are handed over at once by the next,
+    not when the device next has something to read (nothing more comes here)."""
+    packer = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    burst = b"".join(bytes(mavlink2.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3).pack(packer)) for _ in range(80))
+    with _stream_link("tcp") as (link, write):
+        write(burst)
+        first = link.recv(WAIT_S)
+        rest = link.recv(WAIT_S)
+        assert (len(first), len(rest)) == (MAX_MESSAGES_PER_RECV, 80 - MAX_MESSAGES_PER_RECV)
