@@ -19,11 +19,14 @@ import datetime
 import logging
 import os
 import platform
+import select
+import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
@@ -581,6 +584,8 @@ EXPECTED_ROWS["live"] = [
     "service ign, 50 Hz out, CPU ÷ the bare loop's (alternated on the same stream)",
     "service fused, 50 Hz out, CPU ÷ the bare loop's (alternated on the same stream)",
     "the bare loop woken once per 20 ms (the fewest wake-ups a 50 Hz output allows), CPU ÷ the bare loop's",
+    "bare pymavlink receive loop on a serial device (a pty joined to the same stream), CPU share of one core",
+    "service ign on that serial device, CPU ÷ the bare loop's on it (alternated)",
 ]
 
 _LOOP_HEAD = """
@@ -611,8 +616,8 @@ def _steady_cpu_share(pid: int, seconds: float, settle_s: float) -> float:
     return (_cpu_s(pid) - cpu0) / (time.monotonic() - wall0)
 
 
-def _loop_share(vehicle: Any, loop: str, seconds: float, settle_s: float) -> float:
-    proc = subprocess.Popen([sys.executable, "-c", loop, f"udpout:127.0.0.1:{vehicle.port}"])
+def _loop_share(connect: str, loop: str, seconds: float, settle_s: float) -> float:
+    proc = subprocess.Popen([sys.executable, "-c", loop, connect])
     try:
         return _steady_cpu_share(proc.pid, seconds, settle_s)
     finally:
@@ -620,10 +625,11 @@ def _loop_share(vehicle: Any, loop: str, seconds: float, settle_s: float) -> flo
         proc.wait()
 
 
-def _service_share(vehicle: Any, method: str, seconds: float, settle_s: float) -> float:
+def _service_share(vehicle: Any, method: str, seconds: float, settle_s: float, connect: str | None = None) -> float:
+    """The service's CPU share on ``vehicle``'s stream, over its UDP port or the link ``connect`` names."""
     config = daemon.config_for(
         vehicle,
-        link={"request_messages": False, "request_rate_hz": 200.0},
+        link={"request_messages": False, "request_rate_hz": 200.0} | ({"connect": connect} if connect else {}),
         output={"stats_interval_s": 60.0},
         estimator={"method": method},
         crosscheck={"enabled": False},
@@ -644,21 +650,62 @@ def bench_live(settings: Settings) -> list[Row]:
     seconds, rounds, settle_s = (1.0, 1, 0.5) if settings.quick else (10.0, 2, LIVE_SETTLE_S)
     script = scenarios.slow_rotation(3600.0)
     vehicle_cfg = vehicle_mod.VehicleConfig("udpin:127.0.0.1:0", stream_on_start=True, seed=SEED, attitude_rate_hz=0.0)
-    shares: dict[str, float] = {"bare": 0.0, "ign": 0.0, "fused": 0.0, "tick": 0.0}
+    shares: dict[str, float] = {"bare": 0.0, "ign": 0.0, "fused": 0.0, "tick": 0.0, "serial bare": 0.0, "serial": 0.0}
     with vehicle_mod.FakeVehicle(script, scenarios.consumer_sensors(200.0), vehicle_cfg) as vehicle:
         vehicle.set_rate(vehicle_cfg.message, 200.0)
+        udp = f"udpout:127.0.0.1:{vehicle.port}"
         for _ in range(rounds):
-            shares["bare"] += _loop_share(vehicle, BARE_LOOP, seconds, settle_s) / rounds
-            shares["tick"] += _loop_share(vehicle, TICK_LOOP, seconds, settle_s) / rounds
+            shares["bare"] += _loop_share(udp, BARE_LOOP, seconds, settle_s) / rounds
+            shares["tick"] += _loop_share(udp, TICK_LOOP, seconds, settle_s) / rounds
             for method in ("ign", "fused"):
                 shares[method] += _service_share(vehicle, method, seconds, settle_s) / rounds
+    # a vehicle of its own: the one above still streams to the last UDP peer it heard
+    with vehicle_mod.FakeVehicle(script, scenarios.consumer_sensors(200.0), vehicle_cfg) as vehicle:
+        vehicle.set_rate(vehicle_cfg.message, 200.0)
+        with serial_relay(vehicle.port) as device:
+            for _ in range(rounds):
+                shares["serial bare"] += _loop_share(device, BARE_LOOP, seconds, settle_s) / rounds
+                shares["serial"] += _service_share(vehicle, "ign", seconds, settle_s, connect=device) / rounds
     sec, names = "live", EXPECTED_ROWS["live"]
     return [
         _row(sec, names[0], 100.0 * shares["bare"], "%"),
         _row(sec, names[1], shares["ign"] / shares["bare"], "×", 0.5),
         _row(sec, names[2], shares["fused"] / shares["bare"], "×", 0.8),
         _row(sec, names[3], shares["tick"] / shares["bare"], "×"),
+        _row(sec, names[4], 100.0 * shares["serial bare"], "%"),
+        _row(sec, names[5], shares["serial"] / shares["serial bare"], "×"),
     ]
+
+
+@contextmanager
+def serial_relay(port: int) -> Iterator[str]:
+    """A pseudo-terminal joined both ways to a UDP port on 127.0.0.1 (a thread of this process carries the bytes):
+    the serial device a companion computer's program opens, ``/dev/pts/N``, read through pyserial as a UART is."""
+    master, slave = os.openpty()
+    os.set_blocking(master, False)
+    stop = threading.Event()
+
+    def carry() -> None:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            sock.connect(("127.0.0.1", port))
+            while not stop.is_set():
+                ready, _, _ = select.select([master, sock], [], [], 0.1)
+                if sock in ready:
+                    data = sock.recv(65535)
+                    with suppress(BlockingIOError):  # nobody reads the device: dropped, as a UART's
+                        os.write(master, data)
+                if master in ready:
+                    sock.send(os.read(master, 65535))
+
+    thread = threading.Thread(target=carry, name="serial relay", daemon=True)
+    thread.start()
+    try:
+        yield os.ttyname(slave)
+    finally:
+        stop.set()
+        thread.join()
+        os.close(master)
+        os.close(slave)
 
 
 EXPECTED_ROWS["soak"] = [
