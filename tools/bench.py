@@ -19,14 +19,11 @@ import datetime
 import logging
 import os
 import platform
-import select
-import socket
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager, suppress
+from contextlib import contextmanager
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
@@ -46,6 +43,7 @@ from mavattitude.sensors import calibration, frontend, units
 from mavattitude.sensors.units import STANDARD_GRAVITY_MPS2
 from mavattitude.sim import daemon, scenarios, soak
 from mavattitude.sim import vehicle as vehicle_mod
+from mavattitude.sim.relay import serial_relay
 
 ROOT = Path(__file__).resolve().parents[1]
 RECORD = ROOT / "docs" / "benchmarks.md"
@@ -675,37 +673,6 @@ def bench_live(settings: Settings) -> list[Row]:
         _row(sec, names[4], 100.0 * shares["serial bare"], "%"),
         _row(sec, names[5], shares["serial"] / shares["serial bare"], "×"),
     ]
-
-
-@contextmanager
-def serial_relay(port: int) -> Iterator[str]:
-    """A pseudo-terminal joined both ways to a UDP port on 127.0.0.1 (a thread of this process carries the bytes):
-    the serial device a companion computer's program opens, ``/dev/pts/N``, read through pyserial as a UART is."""
-    master, slave = os.openpty()
-    os.set_blocking(master, False)
-    stop = threading.Event()
-
-    def carry() -> None:
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-            sock.connect(("127.0.0.1", port))
-            while not stop.is_set():
-                ready, _, _ = select.select([master, sock], [], [], 0.1)
-                if sock in ready:
-                    data = sock.recv(65535)
-                    with suppress(BlockingIOError):  # nobody reads the device: dropped, as a UART's
-                        os.write(master, data)
-                if master in ready:
-                    sock.send(os.read(master, 65535))
-
-    thread = threading.Thread(target=carry, name="serial relay", daemon=True)
-    thread.start()
-    try:
-        yield os.ttyname(slave)
-    finally:
-        stop.set()
-        thread.join()
-        os.close(master)
-        os.close(slave)
 
 
 EXPECTED_ROWS["soak"] = [
