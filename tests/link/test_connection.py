@@ -3,6 +3,7 @@ TCP reconnection, and connection-string checking."""
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import os
@@ -320,6 +321,45 @@ def test_serial_device_through_a_pseudo_terminal():
     finally:
         os.close(master)
         os.close(slave)
+        packer.close()
+
+
+def test_serial_adapter_unplugged_and_plugged_back_in(tmp_path):
+    """A USB serial adapter pulled out (its tty hangs up: the pty's master closed) and plugged back in under the
+    same stable name (udev's /dev/serial/by-id link, here a symlink to a new pty): counted, closed, reopened."""
+    device = tmp_path / "usb-autopilot"
+    packer = UdpPeer(system=1)  # used only to pack frames
+    master, slave = os.openpty()
+    device.symlink_to(os.ttyname(slave))
+    link = MavlinkLink(f"{device},921600", source_system=1, reconnect_min_s=0.05)
+    try:
+        os.write(master, packer.pack(packer.heartbeat()))
+        recv_until(link, "HEARTBEAT")
+        os.close(master)  # unplugged
+        os.close(slave)
+        deadline = time.monotonic() + WAIT_S
+        while link.counters.disconnects == 0 and time.monotonic() < deadline:
+            link.recv(0.05)
+        assert link.counters.disconnects == 1 and not link.is_open
+        link.recv(0.2)  # retried (and refused: the device is gone) while it is out
+        assert not link.is_open and link.counters.reconnects == 0
+        master, slave = os.openpty()  # plugged back in
+        device.unlink()
+        device.symlink_to(os.ttyname(slave))
+        deadline = time.monotonic() + WAIT_S
+        while not link.is_open and time.monotonic() < deadline:
+            link.recv(0.05)
+        assert link.counters.reconnects == 1
+        os.write(master, packer.pack(packer.heartbeat()))
+        recv_until(link, "HEARTBEAT")
+        link.send_heartbeat()
+        ready, _, _ = select.select([master], [], [], WAIT_S)
+        assert ready and os.read(master, 280)[0] == MAVLINK2_MAGIC
+    finally:
+        link.close()
+        for fd in (master, slave):
+            with contextlib.suppress(OSError):  # closed already when the test failed while unplugged
+                os.close(fd)
         packer.close()
 
 
