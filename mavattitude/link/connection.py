@@ -185,6 +185,17 @@ class FrameConnection:
     stamps_arrivals = False  # the OS stamps each datagram's arrival: :attr:`arrival_s`
     arrival_s: float | None = None  # the last datagram's arrival (``time.monotonic()``) when known
 
+    def drop_unfinished(self) -> None:
+        """Forget the start of a frame whose rest will not come (a truncated datagram, a stream's sender gone):
+        counted, so that it does not take the next bytes as its rest."""
+        mav = self.mav
+        if len(mav.buf) > mav.buf_index:
+            mav.buf = bytearray()
+            mav.buf_index = 0
+            mav.expected_length = mavlink2.HEADER_LEN_V1 + 2
+            if self.on_truncated is not None:
+                self.on_truncated()
+
 
 class StreamConnection(FrameConnection):
     """Reading a byte stream (serial, TCP): every byte waiting in one read, then its frames one at a time, a whole
@@ -259,12 +270,7 @@ class DatagramConnection(FrameConnection):
             data = self.recv()
             if not data:
                 return None
-            if self.mav.buf_len() > 0:
-                self.mav.buf = bytearray()
-                self.mav.buf_index = 0
-                self.mav.expected_length = mavlink2.HEADER_LEN_V1 + 2
-                if self.on_truncated is not None:
-                    self.on_truncated()
+            self.drop_unfinished()
             direct = self.direct
             got = direct.read(data) if direct is not None else None
             if got is not None:
@@ -516,7 +522,8 @@ class _TcpServer(StreamConnection, mavutil.mavtcpin):
             if exc.errno in (errno.EAGAIN, errno.EWOULDBLOCK):
                 return b""
             data = b""
-        if not data:  # EOF or error: wait for the next client
+        if not data:  # EOF or error: wait for the next client (a frame the last one left unfinished goes)
+            self.drop_unfinished()
             self.port.close()
             self.port = None
             self.fd = self.listen.fileno()

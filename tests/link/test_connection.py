@@ -245,6 +245,27 @@ def test_tcpin_serves_one_client_after_another():
     packer.close()
 
 
+def test_tcpin_a_clients_unfinished_frame_does_not_swallow_the_next_clients_first():
+    """A client that goes mid-frame: its unfinished frame is counted and forgotten, not completed by the bytes
+    of the next client, whose first message comes through."""
+    packer = UdpPeer(system=1)
+    heartbeat = packer.pack(packer.heartbeat())
+    with MavlinkLink("tcpin:127.0.0.1:0", source_system=1) as link:
+        client = socket.create_connection(link.local_address, timeout=WAIT_S)
+        client.sendall(heartbeat[:15])
+        client.close()
+        deadline = time.monotonic() + WAIT_S
+        while link.counters.bad_data == 0 and time.monotonic() < deadline:
+            link.recv(0.05)  # reads the 15 bytes, then sees the EOF
+        assert link.counters.bad_data == 1
+        client = socket.create_connection(link.local_address, timeout=WAIT_S)
+        client.sendall(packer.pack(packer.heartbeat()))
+        recv_until(link, "HEARTBEAT")
+        assert link.counters.bad_data == 1
+        client.close()
+    packer.close()
+
+
 @pytest.mark.parametrize(
     ("connect", "kind", "address", "baud"),
     [
