@@ -202,8 +202,8 @@ class StreamConnection(FrameConnection):
     unsigned frame of the direct message decoded by it, any other framed and decoded by pymavlink's parser.
 
     pymavlink's own loop reads a stream a frame's header and then its rest at a time (two reads per message,
-    and with pyserial a ``select`` before each) and builds every message's object: on a serial link the service
-    took half again the CPU of the same stream over UDP.
+    and with pyserial a ``select`` before each) and builds every message's object: on a tty here, three times
+    the CPU per message of this (110 against 35 µs).
     """
 
     def select(self, timeout: float) -> bool:
