@@ -584,6 +584,8 @@ EXPECTED_ROWS["live"] = [
     "the bare loop woken once per 20 ms (the fewest wake-ups a 50 Hz output allows), CPU ÷ the bare loop's",
     "bare pymavlink receive loop on a serial device (a pty joined to the same stream), CPU share of one core",
     "service ign on that serial device, CPU ÷ the bare loop's on it (alternated)",
+    "the bare loop's wake-ups per second (one per message)",
+    "the service's (ign) wake-ups per second (a 50 Hz output needs 50 at the fewest)",
 ]
 
 _LOOP_HEAD = """
@@ -607,24 +609,37 @@ TICK_LOOP = _LOOP_HEAD + "    time.sleep(0.02)\n    while link.recv_match(blocki
 LIVE_SETTLE_S = 2.0  # after the first outputs: imports and first allocations are not measured (0.5 s quick)
 
 
-def _steady_cpu_share(pid: int, seconds: float, settle_s: float) -> float:
+def _wake_ups(pid: int) -> int:
+    """How often a process's main thread has slept and been woken so far (/proc/PID/status)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("voluntary_ctxt_switches:"):
+            return int(line.split()[1])
+    raise RuntimeError(f"/proc/{pid}/status has no voluntary_ctxt_switches")
+
+
+def _steady_usage(pid: int, seconds: float, settle_s: float) -> np.ndarray:
+    """A process's (CPU share of one core, wake-ups per second) over ``seconds``, after ``settle_s``."""
     time.sleep(settle_s)
-    cpu0, wall0 = _cpu_s(pid), time.monotonic()
+    cpu0, wakes0, wall0 = _cpu_s(pid), _wake_ups(pid), time.monotonic()
     time.sleep(seconds)
-    return (_cpu_s(pid) - cpu0) / (time.monotonic() - wall0)
+    wall_s = time.monotonic() - wall0
+    return np.array([_cpu_s(pid) - cpu0, _wake_ups(pid) - wakes0]) / wall_s
 
 
-def _loop_share(connect: str, loop: str, seconds: float, settle_s: float) -> float:
+def _loop_usage(connect: str, loop: str, seconds: float, settle_s: float) -> np.ndarray:
     proc = subprocess.Popen([sys.executable, "-c", loop, connect])
     try:
-        return _steady_cpu_share(proc.pid, seconds, settle_s)
+        return _steady_usage(proc.pid, seconds, settle_s)
     finally:
         proc.kill()
         proc.wait()
 
 
-def _service_share(vehicle: Any, method: str, seconds: float, settle_s: float, connect: str | None = None) -> float:
-    """The service's CPU share on ``vehicle``'s stream, over its UDP port or the link ``connect`` names."""
+def _service_usage(
+    vehicle: Any, method: str, seconds: float, settle_s: float, connect: str | None = None
+) -> np.ndarray:
+    """The service's :func:`_steady_usage` on ``vehicle``'s stream, over its UDP port or the link ``connect``
+    names."""
     config = daemon.config_for(
         vehicle,
         link={"request_messages": False, "request_rate_hz": 200.0} | ({"connect": connect} if connect else {}),
@@ -635,10 +650,10 @@ def _service_share(vehicle: Any, method: str, seconds: float, settle_s: float, c
     with daemon.ServiceProcess(config) as service:
         if not vehicle.wait_for_outputs(len(vehicle.attitude_log) + WARMUP_OUTPUTS, START_TIMEOUT_S):
             raise RuntimeError(f"the service ({method}) sent no attitude:\n" + service.log_tail())
-        share = _steady_cpu_share(service.pid, seconds, settle_s)
+        usage = _steady_usage(service.pid, seconds, settle_s)
         if service.stop() != 0:
             raise RuntimeError("the service did not exit cleanly:\n" + service.log_tail())
-    return share
+    return usage
 
 
 @section("live")
@@ -648,30 +663,34 @@ def bench_live(settings: Settings) -> list[Row]:
     seconds, rounds, settle_s = (1.0, 1, 0.5) if settings.quick else (10.0, 2, LIVE_SETTLE_S)
     script = scenarios.slow_rotation(3600.0)
     vehicle_cfg = vehicle_mod.VehicleConfig("udpin:127.0.0.1:0", stream_on_start=True, seed=SEED, attitude_rate_hz=0.0)
-    shares: dict[str, float] = {"bare": 0.0, "ign": 0.0, "fused": 0.0, "tick": 0.0, "serial bare": 0.0, "serial": 0.0}
+    # (CPU share, wake-ups per second) of each program, the mean of its rounds
+    usage = {k: np.zeros(2) for k in ("bare", "ign", "fused", "tick", "serial bare", "serial")}
     with vehicle_mod.FakeVehicle(script, scenarios.consumer_sensors(200.0), vehicle_cfg) as vehicle:
         vehicle.set_rate(vehicle_cfg.message, 200.0)
         udp = f"udpout:127.0.0.1:{vehicle.port}"
         for _ in range(rounds):
-            shares["bare"] += _loop_share(udp, BARE_LOOP, seconds, settle_s) / rounds
-            shares["tick"] += _loop_share(udp, TICK_LOOP, seconds, settle_s) / rounds
+            usage["bare"] += _loop_usage(udp, BARE_LOOP, seconds, settle_s) / rounds
+            usage["tick"] += _loop_usage(udp, TICK_LOOP, seconds, settle_s) / rounds
             for method in ("ign", "fused"):
-                shares[method] += _service_share(vehicle, method, seconds, settle_s) / rounds
+                usage[method] += _service_usage(vehicle, method, seconds, settle_s) / rounds
     # a vehicle of its own: the one above still streams to the last UDP peer it heard
     with vehicle_mod.FakeVehicle(script, scenarios.consumer_sensors(200.0), vehicle_cfg) as vehicle:
         vehicle.set_rate(vehicle_cfg.message, 200.0)
         with serial_relay(vehicle.port) as device:
             for _ in range(rounds):
-                shares["serial bare"] += _loop_share(device, BARE_LOOP, seconds, settle_s) / rounds
-                shares["serial"] += _service_share(vehicle, "ign", seconds, settle_s, connect=device) / rounds
+                usage["serial bare"] += _loop_usage(device, BARE_LOOP, seconds, settle_s) / rounds
+                usage["serial"] += _service_usage(vehicle, "ign", seconds, settle_s, connect=device) / rounds
+    share = {k: u[0] for k, u in usage.items()}
     sec, names = "live", EXPECTED_ROWS["live"]
     return [
-        _row(sec, names[0], 100.0 * shares["bare"], "%"),
-        _row(sec, names[1], shares["ign"] / shares["bare"], "×", 0.5),
-        _row(sec, names[2], shares["fused"] / shares["bare"], "×", 0.8),
-        _row(sec, names[3], shares["tick"] / shares["bare"], "×"),
-        _row(sec, names[4], 100.0 * shares["serial bare"], "%"),
-        _row(sec, names[5], shares["serial"] / shares["serial bare"], "×"),
+        _row(sec, names[0], 100.0 * share["bare"], "%"),
+        _row(sec, names[1], share["ign"] / share["bare"], "×", 0.5),
+        _row(sec, names[2], share["fused"] / share["bare"], "×", 0.8),
+        _row(sec, names[3], share["tick"] / share["bare"], "×"),
+        _row(sec, names[4], 100.0 * share["serial bare"], "%"),
+        _row(sec, names[5], share["serial"] / share["serial bare"], "×"),
+        _row(sec, names[6], usage["bare"][1], "/s"),
+        _row(sec, names[7], usage["ign"][1], "/s"),
     ]
 
 
