@@ -219,7 +219,7 @@ def _stream_link(kind: str) -> Iterator[tuple[MavlinkLink, Callable[[bytes], Non
         master, slave = os.openpty()
         link = MavlinkLink(f"{os.ttyname(slave)},921600", source_system=1)
         try:
-            yield link, lambda data: os.write(master, data)  # type: ignore[misc]
+            yield link, lambda data: os.write(master, data)
         finally:
             link.close()
             os.close(master)
