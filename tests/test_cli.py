@@ -5,17 +5,13 @@ from __future__ import annotations
 
 import logging
 import signal
-import subprocess
-import sys
-import threading
 from pathlib import Path
 
 import pytest
 
 from mavattitude.cli import EXIT_INTERRUPTED, EXIT_USER_ERROR, main
 from mavattitude.commands import about, configure_logging
-
-CLI = [sys.executable, "-m", "mavattitude"]
+from tests.processes import cli_process
 
 
 @pytest.fixture
@@ -76,24 +72,12 @@ def test_an_interrupted_offline_command_exits_130(monkeypatch, tmp_path: Path) -
 
 
 def test_a_simulation_says_it_waits_and_interrupted_exits_130_with_its_summary() -> None:
-    proc = subprocess.Popen(
-        [*CLI, "simulate", "--connect", "udpin:127.0.0.1:0", "--duration", "600"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    deadline = threading.Timer(60.0, proc.kill)  # bounds the reads below; the lines come within ~4 s
-    deadline.start()
-    try:
+    # the time-out bounds the reads below; the lines come within ~4 s
+    with cli_process("simulate", "--connect", "udpin:127.0.0.1:0", "--duration", "600", timeout_s=60.0) as proc:
         assert proc.stderr is not None
         first, second = proc.stderr.readline(), proc.stderr.readline()
         proc.send_signal(signal.SIGINT)
         out, _ = proc.communicate(timeout=30.0)
-    finally:
-        deadline.cancel()
-        if proc.poll() is None:  # never left running, whatever failed above
-            proc.kill()
-            proc.wait()
     assert "fake vehicle on udpin:127.0.0.1:" in first  # its real port, not :0
     # Nobody asks for the IMU: after 3 s it says so, rather than look like a hang.
     assert "waiting for a service to ask for the IMU stream on udpin:127.0.0.1:" in second

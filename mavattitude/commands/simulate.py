@@ -3,7 +3,8 @@
 The vehicle flies a truth script, streams IMU messages of a unit profile once asked (or at once with
 ``--stream-on-start``), logs each STATUSTEXT it receives (what a ground station would show the pilot), and at
 the end prints how the ATTITUDE_QUATERNION it received compares with the truth. Point a running
-`mavattitude run` (or a router) at it.
+`mavattitude run` (or a router) at it; with ``--serial`` it is on a pseudo-terminal instead, a serial device
+whose path it logs (:mod:`mavattitude.sim.relay`), to try a service's serial wiring without the hardware.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import argparse
 import logging
 import time
 from collections.abc import Callable
+from contextlib import nullcontext
 
 from mavattitude.commands import EXIT_INTERRUPTED
 from mavattitude.config import DEFAULTS
@@ -19,6 +21,7 @@ from mavattitude.errors import MavAttitudeError
 from mavattitude.sensors.units import MESSAGES, PROFILES
 from mavattitude.service import WaitReports
 from mavattitude.sim import scenarios
+from mavattitude.sim.relay import serial_relay
 from mavattitude.sim.scoring import Score
 from mavattitude.sim.sensors import DEFAULT_RATE_HZ
 from mavattitude.sim.vehicle import FakeVehicle, VehicleConfig
@@ -93,12 +96,19 @@ def vehicle_from_args(args: argparse.Namespace, connect: str, stream_on_start: b
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument(
         "--connect",
         default="udpout:127.0.0.1:14551",
         help="pymavlink connection string of the vehicle (default udpout:127.0.0.1:14551: it sends to the "
         "service's port, as a router on the companion computer does, so `mavattitude run --config "
         "configs/ardupilot.yaml` hears it)",
+    )
+    where.add_argument(
+        "--serial",
+        action="store_true",
+        help="be on a serial device instead: a pseudo-terminal, whose path (/dev/pts/N) it logs; a service with "
+        "that as its link.connect tries a serial wiring without the hardware",
     )
     parser.add_argument(
         "--stream-on-start",
@@ -109,11 +119,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    vehicle = vehicle_from_args(args, args.connect, args.stream_on_start)
-    with vehicle:
+    connect = "udpin:127.0.0.1:0" if args.serial else args.connect  # the relay's far end when on a pty
+    vehicle = vehicle_from_args(args, connect, args.stream_on_start)
+    with vehicle, serial_relay(vehicle.port) if args.serial else nullcontext() as device:
         interrupted = False
         try:
-            _fly(vehicle, args)
+            where = device or (connect.removesuffix(":0") + f":{vehicle.port}" if connect.endswith(":0") else connect)
+            _fly(vehicle, args, where)
         except KeyboardInterrupt:  # the summary is still printed
             log.info("interrupted")
             interrupted = True
@@ -133,9 +145,8 @@ def say_statustexts(vehicle: FakeVehicle, said: int, say: Callable[[str], None])
     return said + len(texts)
 
 
-def _fly(vehicle: FakeVehicle, args: argparse.Namespace) -> None:
-    """Until the script's end; while nobody asks for the IMU stream, say so now and then."""
-    where = args.connect.removesuffix(":0") + f":{vehicle.port}" if args.connect.endswith(":0") else args.connect
+def _fly(vehicle: FakeVehicle, args: argparse.Namespace, where: str) -> None:
+    """Until the script's end; while nobody asks for the IMU stream on ``where``, say so now and then."""
     log.info("fake vehicle on %s: %s for %.0f s once asked for IMU", where, args.script, args.duration)
     reports, said = WaitReports(False, time.monotonic()), 0
     while vehicle.script_time() < args.duration:

@@ -3,12 +3,18 @@ the fake vehicle's bytes, as a companion computer wired straight to the autopilo
 
 from __future__ import annotations
 
+import re
+import signal
+
 import pytest
+import yaml
 
 from mavattitude.sim import scenarios
 from mavattitude.sim.daemon import ServiceProcess, config_for
 from mavattitude.sim.relay import serial_relay
 from mavattitude.sim.vehicle import FakeVehicle, VehicleConfig
+from tests.processes import cli_process
+from tests.tools import ROOT
 
 from .conftest import FAST_SERVICE, START_TIMEOUT_S, assert_healthy, counter, merged, wait_counter
 
@@ -30,3 +36,23 @@ def test_serial_device_link() -> None:
             wait_counter(svc, "received", 200)
             assert counter(svc, "bad_data") == 0  # every frame whole across the tty's reads
             assert svc.stop() == 0
+
+
+def test_simulate_offers_the_vehicle_on_a_serial_device_for_the_service() -> None:
+    """`mavattitude simulate --serial` logs its pseudo-terminal; the daemon on the example config, pointed at it,
+    attitudes the vehicle, which scores them when interrupted."""
+    with cli_process("simulate", "--serial", "--duration", "600", timeout_s=120.0) as proc:
+        assert proc.stderr is not None
+        first = proc.stderr.readline()
+        device = re.search(r"fake vehicle on (/dev/\S+):", first)
+        assert device, first
+        config = yaml.safe_load((ROOT / "configs" / "ardupilot.yaml").read_text())
+        config["link"]["connect"] = f"{device[1]},921600"
+        config["output"]["stats_interval_s"] = 0.2
+        with ServiceProcess(config) as svc:
+            wait_counter(svc, "received", 200)
+            assert svc.stop() == 0
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30.0)
+    received = re.search(r"ATTITUDE_QUATERNION received: (\d+)", out)
+    assert received and int(received[1]) > 0, out
