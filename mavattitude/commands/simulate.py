@@ -122,9 +122,9 @@ def run(args: argparse.Namespace) -> int:
     connect = "udpin:127.0.0.1:0" if args.serial else args.connect  # the relay's far end when on a pty
     vehicle = vehicle_from_args(args, connect, args.stream_on_start)
     with vehicle, serial_relay(vehicle.port) if args.serial else nullcontext() as device:
+        where = device or (connect.removesuffix(":0") + f":{vehicle.port}" if connect.endswith(":0") else connect)
         interrupted = False
         try:
-            where = device or (connect.removesuffix(":0") + f":{vehicle.port}" if connect.endswith(":0") else connect)
             _fly(vehicle, args, where)
         except KeyboardInterrupt:  # the summary is still printed
             log.info("interrupted")
