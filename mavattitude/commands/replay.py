@@ -564,8 +564,6 @@ def _compare(replayed: Any, job: Job, result: LogResult) -> None:
     two outputs around it. The summary's RMS and p99 of ours minus theirs (yaw where ours has a heading), the
     table, the plot with the compass's and the cross-check's verdicts, and the cross-check's own figures and
     warnings when it is enabled."""
-    ours, autopilot = replayed.output_array(), replayed.autopilot_array()
-    heading = replayed.heading()
     check, pairs, events = replayed.cross_check()
     if job.config.crosscheck.enabled:
         _report_cross_check(check, events, job, result)
@@ -583,7 +581,6 @@ def _compare(replayed: Any, job: Job, result: LogResult) -> None:
         return
     t = np.array([d.time_s for d in pairs])
     diff = np.array([(d.roll_deg, d.pitch_deg, d.yaw_deg, d.total_deg) for d in pairs])
-    q_ref = autopilot[np.searchsorted(autopilot[:, 0], t), 1:5]
     stats = [_rms_p99(diff[:, i]) for i in range(3)]
     result.rms_deg = tuple(rms for rms, _ in stats)  # type: ignore[assignment]
     result.p99_deg = tuple(p99 for _, p99 in stats)  # type: ignore[assignment]
@@ -599,8 +596,10 @@ def _compare(replayed: Any, job: Job, result: LogResult) -> None:
         unjudged=[(d.time_s, not d.judged) for d in pairs],
         threshold_deg=job.config.crosscheck.threshold_deg if job.config.crosscheck.enabled else None,
     )
+    ours, autopilot = replayed.output_array(), replayed.autopilot_array()  # the plot's own
+    q_ref = autopilot[np.searchsorted(autopilot[:, 0], t), 1:5]
     ours_deg = np.degrees(euler_from_quat(ours[:, 1:5]))
-    ours_deg[~heading, 2] = np.nan  # no heading: no yaw drawn
+    ours_deg[~replayed.heading(), 2] = np.nan  # no heading: no yaw drawn
     try:
         title = f"{job.log.name}: mavattitude ({job.config.estimator.method}) vs the autopilot's attitude"
         _save(comparison_figure(title, ours[:, 0], ours_deg, t, q_ref, diff, verdicts), job.plot)
