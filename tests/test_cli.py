@@ -11,7 +11,7 @@ import pytest
 
 from mavattitude.cli import EXIT_INTERRUPTED, EXIT_USER_ERROR, main
 from mavattitude.commands import about, configure_logging
-from tests.processes import cli_process
+from tests.commands.process import cli_process
 
 
 @pytest.fixture

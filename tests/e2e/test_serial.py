@@ -13,7 +13,7 @@ from mavattitude.sim import scenarios
 from mavattitude.sim.daemon import ServiceProcess, config_for
 from mavattitude.sim.relay import serial_relay
 from mavattitude.sim.vehicle import FakeVehicle, VehicleConfig
-from tests.processes import cli_process
+from tests.commands.process import cli_process
 from tests.tools import ROOT
 
 from .conftest import FAST_SERVICE, START_TIMEOUT_S, assert_healthy, counter, merged, wait_counter
