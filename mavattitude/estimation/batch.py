@@ -23,9 +23,11 @@ from .solve import (
     MIN_ANGLE_DEG,
     SINGULAR_MESSAGE,
     TOLERANCE_RAD,
+    SolveResult,
     check_method,
     check_settings,
     geometry_message,
+    observations,
     weights_message,
 )
 
@@ -101,7 +103,7 @@ def _solve_checked(arrays: tuple, noise: NoiseModel, method: str, max_iterations
     singular = np.zeros(n, dtype=bool)
     for start in range(0, n, CHUNK):
         sl = slice(start, min(start + CHUNK, n))
-        q, iterations, converged, loss, singular[sl] = _solve_chunk(
+        q, iterations, converged, loss, singular[sl], _ = _solve_chunk(
             [_columns(a, sl) for a in arrays], noise, method, max_iterations, tolerance
         )
         out.q[sl], out.iterations[sl], out.converged[sl], out.loss[sl] = q, iterations, converged, loss
@@ -152,11 +154,12 @@ def _refusals(acc, mag, acc_ref, mag_ref, noise: NoiseModel, sin_min: float, min
     units, norms = {}, {}
     for name, a in (("acc", acc), ("mag", mag), ("acc_ref", acc_ref), ("mag_ref", mag_ref)):
         n = np.linalg.norm(a, axis=1)
-        yield InputError, ~((n > 0.0) & (n < np.inf)), lambda _, name=name: f"{name} must be finite and non-zero"
+        yield (
+            InputError,
+            ~((n > 0.0) & (n < np.inf)),
+            lambda i, name=name, a=a: f"{name} must be finite and non-zero, got {tuple(a[i].tolist())}",
+        )
         units[name], norms[name] = a / n[:, None], n
-    a_acc = kernel.paper_weight(tuple(units["acc"].T), norms["acc"], noise.accel_var)
-    a_mag = kernel.paper_weight(tuple(units["mag"].T), norms["mag"], noise.mag_var)
-    yield InputError, ~kernel.weights_usable(a_mag, a_acc), lambda i: weights_message(float(a_mag[i]), float(a_acc[i]))
     for what, (a, b) in (("acc and mag", ("acc", "mag")), ("acc_ref and mag_ref", ("acc_ref", "mag_ref"))):
         s = np.linalg.norm(np.cross(units[a], units[b]), axis=1)
         yield (
@@ -164,6 +167,9 @@ def _refusals(acc, mag, acc_ref, mag_ref, noise: NoiseModel, sin_min: float, min
             ~(s >= sin_min),
             lambda i, s=s, what=what: geometry_message(what, float(s[i]), min_angle_deg),
         )
+    a_acc = kernel.paper_weight(tuple(units["acc"].T), norms["acc"], noise.accel_var)
+    a_mag = kernel.paper_weight(tuple(units["mag"].T), norms["mag"], noise.mag_var)
+    yield InputError, ~kernel.weights_usable(a_mag, a_acc), lambda i: weights_message(float(a_mag[i]), float(a_acc[i]))
 
 
 def _raise_first(refusals: Iterator[Refusal], n: int) -> NDArray[np.bool_]:
@@ -186,17 +192,15 @@ def _fail(error: type[InputError], bad: NDArray[np.bool_], message: str) -> None
 
 
 def _solve_chunk(chunk: list, noise: NoiseModel, method: str, max_iterations: int, tolerance: float) -> tuple:
-    """Solve one chunk of checked samples; returns ``(q (n, 4), iterations, converged, loss, singular)``,
+    """Solve one chunk of checked samples; returns ``(q (n, 4), iterations, converged, loss, singular, inputs)``,
     ``singular`` where a step had no positive definite normal matrix (NaN from the kernel; the row keeps
-    its last finite iterate and takes no further step)."""
+    its last finite iterate and takes no further step), ``inputs`` the directions and norms solved
+    (:attr:`.SolveResult._units`, ``_norms``), columns or floats."""
     (w_acc, n_acc), (w_mag, n_mag), (v_acc, _), (v_mag, _) = (kernel.unit(v) for v in chunk)
     s_body = kernel.norm(kernel.cross(w_acc, w_mag))
     s_ref = kernel.norm(kernel.cross(v_acc, v_mag))
 
-    a_mag, a_acc = kernel.paper_weight(w_mag, n_mag, noise.mag_var), kernel.paper_weight(w_acc, n_acc, noise.accel_var)
-    obs = kernel.observations(
-        method, (w_mag, n_mag, v_mag, noise.mag_var, a_mag), (w_acc, n_acc, v_acc, noise.accel_var, a_acc)
-    )
+    obs = observations(method, noise, (w_mag, v_mag, w_acc, v_acc), (n_acc, n_mag))
     r = np.stack(np.broadcast_arrays(*kernel.triad(w_acc, w_mag, v_acc, v_mag, s_body, s_ref)), -1)
     q = tuple(quat_from_rotation_matrix(r.reshape(-1, 3, 3)).T)
     rule = kernel.RULES[method]
@@ -222,4 +226,62 @@ def _solve_chunk(chunk: list, noise: NoiseModel, method: str, max_iterations: in
         previous = angle
     qa = np.stack(q, -1)
     loss = kernel.wahba_loss(q, obs, ml)
-    return np.where(qa[:, :1] < 0.0, -qa, qa), iterations, done & ~singular, loss, singular
+    inputs = ((w_mag, v_mag, w_acc, v_acc), (n_acc, n_mag))
+    return np.where(qa[:, :1] < 0.0, -qa, qa), iterations, done & ~singular, loss, singular, inputs
+
+
+def solve_each(
+    acc: ArrayLike,
+    mag: ArrayLike,
+    mag_ref: ArrayLike,
+    noise: NoiseModel,
+    method: str = DEFAULT_METHOD,
+    acc_ref: ArrayLike = ACC_REF_NED,
+    *,
+    max_iterations: int = MAX_ITERATIONS,
+    tolerance: float = TOLERANCE_RAD,
+    min_angle_deg: float = MIN_ANGLE_DEG,
+) -> list[SolveResult | InputError]:
+    """:func:`.solve.solve` of each sample ``acc, mag (N, 3)``, solved together: for each its
+    :class:`~.solve.SolveResult`, or the error ``solve`` raises for it (the first of ``solve``'s checks it fails,
+    or a normal matrix singular while iterating), returned rather than raised. Answers equal ``solve``'s to
+    rounding; for a stream of ticks solved one after another, an order of magnitude less time."""
+    check_method(method)
+    sin_min = check_settings(max_iterations, tolerance, min_angle_deg)
+    acc_a = _samples("acc", acc, None)
+    n = acc_a.shape[0]
+    arrays = (acc_a, _samples("mag", mag, n), _samples("acc_ref", acc_ref, n), _samples("mag_ref", mag_ref, n))
+    out: list[SolveResult | InputError | None] = [None] * n
+    with np.errstate(all="ignore"):  # the checks themselves catch what overflows or is NaN
+        for error, bad, message in _refusals(
+            *(np.broadcast_to(a, (n, 3)) for a in arrays), noise, sin_min, min_angle_deg
+        ):
+            for i in np.flatnonzero(bad).tolist():
+                out[i] = out[i] or error(message(i))
+    rows = [i for i, r in enumerate(out) if r is None]
+    checked = tuple(a[rows] if a.shape[0] == n else a for a in arrays)
+    for start in range(0, len(rows), CHUNK):
+        sl = slice(start, min(start + CHUNK, len(rows)))
+        q, iterations, converged, _, singular, (units, norms) = _solve_chunk(
+            [_columns(a, sl) for a in checked], noise, method, max_iterations, tolerance
+        )
+        m = q.shape[0]
+        units_rows = zip(*(_vectors(v, m) for v in units), strict=True)
+        norms_rows = zip(*(_values(v, m) for v in norms), strict=True)
+        flags = zip(iterations.tolist(), converged.tolist(), singular.tolist(), strict=True)
+        for i, q_i, (k, ok, bad), units_i, norms_i in zip(rows[sl], q, flags, units_rows, norms_rows, strict=True):
+            out[i] = (
+                DegenerateGeometryError(SINGULAR_MESSAGE)
+                if bad
+                else SolveResult(q_i, k, ok, method, noise, units_i, norms_i)
+            )
+    return out  # type: ignore[return-value]
+
+
+def _vectors(v: tuple, m: int) -> list[tuple[float, float, float]]:
+    """A direction per row: ``v`` as columns, or one for all (floats)."""
+    return list(zip(*(c.tolist() for c in v), strict=True)) if isinstance(v[0], np.ndarray) else [v] * m
+
+
+def _values(v: NDArray[np.float64] | float, m: int) -> list[float]:
+    return v.tolist() if isinstance(v, np.ndarray) else [v] * m

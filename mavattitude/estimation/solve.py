@@ -51,8 +51,9 @@ class SolveResult:
     converged: bool
     method: str
     noise: NoiseModel = field(repr=False)
-    _obs: tuple = field(repr=False)  # the solver's ((ŵ₁, v₁, weight₁), (ŵ₂, v₂, weight₂))
+    _units: tuple = field(repr=False)  # (ŵ_mag, v̂_mag, ŵ_acc, v̂_acc): the measured and reference directions
     _norms: tuple[float, float] = field(repr=False)  # (|acc|, |mag|)
+    _obs: tuple | None = field(default=None, repr=False)  # the solver's ((ŵ₁, v₁, weight₁), (ŵ₂, v₂, weight₂))
     _loss: float | None = field(default=None, repr=False)
     _covariance: NDArray[np.float64] | None = field(default=None, repr=False)
 
@@ -60,6 +61,8 @@ class SolveResult:
     def loss(self) -> float:
         """Wahba loss (Eq. 11) at ``q`` with the method's weights (the paper's for "triad")."""
         if self._loss is None:
+            if self._obs is None:
+                self._obs = observations(self.method, self.noise, self._units, self._norms)
             self._loss = float(kernel.wahba_loss(tuple(self.q), self._obs, kernel.RULES[self.method].matrix_weights))
         return self._loss
 
@@ -67,7 +70,7 @@ class SolveResult:
     def covariance(self) -> NDArray[np.float64]:
         """Predicted error-angle covariance (rad², body): sandwich (ign, cgn), CRB (ml), linearised TRIAD."""
         if self._covariance is None:
-            (w_mag, _, _), (w_acc, _, _) = self._obs
+            w_mag, _, w_acc, _ = self._units
             n_acc, n_mag = self._norms
             sym = kernel.covariance(
                 self.method, (w_mag, n_mag, self.noise.mag_var), (w_acc, n_acc, self.noise.accel_var)
@@ -90,7 +93,7 @@ def covariances(results: list[SolveResult]) -> NDArray[np.float64]:
     for i, r in enumerate(results):
         groups.setdefault((r.method, r.noise), []).append(i)
     for (method, noise), rows in groups.items():
-        w_mag, w_acc = (np.array([results[i]._obs[k][0] for i in rows], dtype=float).T for k in (0, 1))
+        w_mag, w_acc = (np.array([results[i]._units[k] for i in rows], dtype=float).T for k in (0, 2))
         n_acc, n_mag = np.array([results[i]._norms for i in rows], dtype=float).T
         with np.errstate(all="ignore"):  # a singular matrix gives NaN (kernel.sym_inverse), as one by one
             xx, xy, xz, yy, yz, zz = kernel.covariance(
@@ -100,6 +103,19 @@ def covariances(results: list[SolveResult]) -> NDArray[np.float64]:
         cov[~np.isfinite(cov).all(axis=(1, 2))] = np.nan
         out[rows] = cov
     return out
+
+
+def observations(method: str, noise: NoiseModel, units: tuple, norms: tuple, weights: tuple | None = None) -> tuple:
+    """The solver's observations (:func:`.kernel.observations`) from ``(ŵ_mag, v̂_mag, ŵ_acc, v̂_acc)`` and
+    ``(|acc|, |mag|)``, with the paper's weights ``(a_mag, a_acc)`` (Eq. 9, 21) when not given; floats or arrays."""
+    (w_mag, v_mag, w_acc, v_acc), (n_acc, n_mag) = units, norms
+    a_mag, a_acc = weights or (
+        kernel.paper_weight(w_mag, n_mag, noise.mag_var),
+        kernel.paper_weight(w_acc, n_acc, noise.accel_var),
+    )
+    return kernel.observations(
+        method, (w_mag, n_mag, v_mag, noise.mag_var, a_mag), (w_acc, n_acc, v_acc, noise.accel_var, a_acc)
+    )
 
 
 def check_method(method: str) -> None:
@@ -202,9 +218,8 @@ def solve(
     a_mag, a_acc = kernel.paper_weight(w_mag, n_mag, noise.mag_var), kernel.paper_weight(w_acc, n_acc, noise.accel_var)
     if not kernel.weights_usable(a_mag, a_acc):
         raise InputError(weights_message(a_mag, a_acc))
-    obs = kernel.observations(
-        method, (w_mag, n_mag, v_mag, noise.mag_var, a_mag), (w_acc, n_acc, v_acc, noise.accel_var, a_acc)
-    )
+    units, norms = (w_mag, v_mag, w_acc, v_acc), (n_acc, n_mag)
+    obs = observations(method, noise, units, norms, (a_mag, a_acc))
     triad = quat_from_rotation_parts(kernel.triad(w_acc, w_mag, v_acc, v_mag, s_body, s_ref))
     rule = kernel.RULES[method]
     step, ml = rule.step, rule.matrix_weights
@@ -218,7 +233,7 @@ def solve(
             q, extra, done = _iterate(step, triad, obs, max_iterations - iterations, tolerance)
             iterations += extra
     w, x, y, z = q if q[0] >= 0.0 else (-q[0], -q[1], -q[2], -q[3])
-    return SolveResult(np.array((w, x, y, z)), iterations, bool(done), method, noise, obs, (n_acc, n_mag))
+    return SolveResult(np.array((w, x, y, z)), iterations, bool(done), method, noise, units, norms, obs)
 
 
 def _iterate(step, q: tuple, obs: tuple, budget: int, tolerance: float) -> tuple[tuple, int, bool]:
