@@ -53,11 +53,12 @@ from numpy.typing import NDArray
 from mavattitude import collector
 from mavattitude.config import Config
 from mavattitude.errors import ConfigError, InputError, MavAttitudeError
-from mavattitude.estimation import METHODS, NoiseModel, solve
+from mavattitude.estimation import METHODS, NoiseModel, solve, solve_each
 from mavattitude.estimation.compass import CompassEvent, CompassMonitor, heading_uncertain
 from mavattitude.estimation.conventions import Array, Vec3, is_unit_quaternion_parts, tilt_quat_parts
 from mavattitude.estimation.crosscheck import GyroDrift
 from mavattitude.estimation.restnoise import RestNoise
+from mavattitude.estimation.solve import SolveResult
 from mavattitude.sensors.frontend import (
     BatchOutput,
     FrontEnd,
@@ -179,6 +180,10 @@ class Estimator(Protocol):
 
     #: Whether the front end should low-pass and resample for this estimator (``filter.enabled`` permitting).
     wants_filtered: bool
+    #: Whether ticks may be held and estimated many at once (``estimate_each(samples, refs)``: each one's outputs
+    #: or error, as :meth:`estimate` one by one); an estimator whose ticks interleave with what else it is handed
+    #: (the GPS velocities) has not.
+    solves_together: bool
 
     def estimate(self, sample: ProcessedSample, mag_ref_ned_uT: Array) -> list[AttitudeOutput]:
         """Outputs for one front-end sample; a ``RESET`` flag (start, gap, reboot) is the estimator's to act on."""
@@ -216,6 +221,7 @@ class SnapshotEstimator:
     paper's simulation, where it saved none)."""
 
     wants_filtered = True
+    solves_together = True
 
     def __init__(self, config: Config, method: str | None = None) -> None:
         e = config.estimator
@@ -273,24 +279,53 @@ class SnapshotEstimator:
         return self._scaled[key]
 
     def estimate(self, sample: ProcessedSample, mag_ref_ned_uT: Array) -> list[AttitudeOutput]:
-        flags = int(sample.flags)  # plain int bits: IntFlag arithmetic costs a microsecond per operation
-        if self.rest_noise is not None:
-            self._measure_noise(self.rest_noise, sample)
-        noise = self._noise_for(sample.acc_std_scale, sample.mag_std_scale)
+        flags, noise = self._tick(sample)
         if sample.mag_uT is None:
             return [tilt_output(sample, noise, flags)]
-        heading_only = flags & _MAG_OFF
-        method = HEADING_ONLY_METHOD if heading_only else self.method
-        r = solve(sample.acc_mps2, sample.mag_uT, mag_ref_ned_uT, noise, method, **self.options)
+        r = solve(sample.acc_mps2, sample.mag_uT, mag_ref_ned_uT, noise, self._method(flags), **self.options)
+        return [self._output(sample, r, flags)]
+
+    def estimate_each(
+        self, samples: list[ProcessedSample], refs_ned_uT: list[Array]
+    ) -> list[list[AttitudeOutput] | MavAttitudeError]:
+        """:meth:`estimate` of each sample in turn, each one's outputs or the error it raises, the solves made
+        together (:func:`~mavattitude.estimation.batch.solve_each`) for each noise model, method and reference."""
+        out: list[list[AttitudeOutput] | MavAttitudeError] = [[] for _ in samples]
+        groups: dict[tuple[NoiseModel, str, int], list[tuple[int, int]]] = {}
+        for i, (sample, ref) in enumerate(zip(samples, refs_ned_uT, strict=True)):
+            flags, noise = self._tick(sample)
+            if sample.mag_uT is None:
+                out[i] = [tilt_output(sample, noise, flags)]
+            else:  # (the references are alive in refs_ned_uT: their ids are distinct)
+                groups.setdefault((noise, self._method(flags), id(ref)), []).append((i, flags))
+        for (noise, method, _), rows in groups.items():
+            acc, mag = (np.array([getattr(samples[i], name) for i, _ in rows]) for name in ("acc_mps2", "mag_uT"))
+            solved = solve_each(acc, mag, refs_ned_uT[rows[0][0]], noise, method, **self.options)
+            for (i, flags), r in zip(rows, solved, strict=True):
+                out[i] = r if isinstance(r, MavAttitudeError) else [self._output(samples[i], r, flags)]
+        return out
+
+    def _tick(self, sample: ProcessedSample) -> tuple[int, NoiseModel]:
+        """The tick's flags (plain int bits: IntFlag arithmetic costs a microsecond per operation) and the noise
+        model it is solved with, the tick having fed the rest-noise measurement."""
+        if self.rest_noise is not None:
+            self._measure_noise(self.rest_noise, sample)
+        return int(sample.flags), self._noise_for(sample.acc_std_scale, sample.mag_std_scale)
+
+    def _method(self, flags: int) -> str:
+        return HEADING_ONLY_METHOD if flags & _MAG_OFF else self.method
+
+    @staticmethod
+    def _output(sample: ProcessedSample, r: SolveResult, flags: int) -> AttitudeOutput:
         if not r.converged:
             flags |= _NOT_CONVERGED
         rates = np.array(sample.gyr_radps, dtype=float)
-        if heading_only:
+        if flags & _MAG_OFF:
             flags |= _HEADING_ONLY
             covariance = _heading_uncertain(r, sample.acc_mps2)
         else:
             covariance = _SolutionCovariance(r)
-        return [AttitudeOutput(sample.time_s, r.q, rates, r.iterations, r.converged, flag_set(flags), covariance)]
+        return AttitudeOutput(sample.time_s, r.q, rates, r.iterations, r.converged, flag_set(flags), covariance)
 
 
 def _axes(values: Any) -> str:
@@ -385,6 +420,7 @@ class FusedEstimator:
     """
 
     wants_filtered = False
+    solves_together = False
 
     def __init__(self, config: Config) -> None:
         from mavattitude.estimation.fused import COUNTERS, FusedFilter  # loaded only for this method
@@ -585,6 +621,7 @@ class AttitudePipeline:
         self.compass_seen = False  # a tick had a magnetometer reading
         self.mag_ref_ned_uT: Array | None = None
         self.last_error: MavAttitudeError | None = None
+        self._held: list[tuple[ProcessedSample, Array]] | None = None  # ticks push_batch holds to solve together
         reference = config.reference
         self.magref = ReferenceTracker(reference.magnetic, position_wait_s=reference.position_wait_s)
         self._apply_reference()
@@ -749,16 +786,23 @@ class AttitudePipeline:
             return pushed
         gps_t, velocities = gps[0].tolist(), gps[1]
         next_gps = 0
-        with collector.paused():
-            for done, tick in enumerate(batch.samples()):
-                while next_gps < len(gps_t) and gps_t[next_gps] <= tick.time_s:
-                    self.estimator.velocity(velocities[next_gps])
-                    next_gps += 1
-                self.counters.ticks += 1
-                self.mag_ref_ned_uT = reference if done >= first else None
-                self._estimate(tick, pushed, judge=False)
-                if progress is not None and done % PROGRESS_TICKS == 0:
-                    progress(done, len(batch))
+        self._held = [] if self.estimator.solves_together else None
+        try:
+            with collector.paused():
+                for done, tick in enumerate(batch.samples()):
+                    while next_gps < len(gps_t) and gps_t[next_gps] <= tick.time_s:
+                        self.estimator.velocity(velocities[next_gps])
+                        next_gps += 1
+                    self.counters.ticks += 1
+                    self.mag_ref_ned_uT = reference if done >= first else None
+                    self._estimate(tick, pushed, judge=False)
+                    if done % PROGRESS_TICKS == 0:
+                        self._solve_held(pushed)
+                        if progress is not None:
+                            progress(done, len(batch))
+                self._solve_held(pushed)
+        finally:
+            self._held = None
         if progress is not None:
             progress(len(batch), len(batch))
         self.mag_ref_ned_uT = reference
@@ -820,13 +864,32 @@ class AttitudePipeline:
         self._solve(tick, NO_FIELD_NED_UT if self.mag_ref_ned_uT is None else self.mag_ref_ned_uT, pushed)
 
     def _solve(self, tick: ProcessedSample, mag_ref_ned_uT: Array, pushed: Pushed) -> None:
-        """The estimator's outputs for the tick into ``pushed``, those that pass the output check."""
+        """The estimator's outputs for the tick into ``pushed``, those that pass the output check; held for
+        :meth:`_solve_held` while :meth:`push_batch` holds ticks."""
+        if self._held is not None:
+            self._held.append((tick, mag_ref_ned_uT))
+            return
         try:
-            outputs = self.estimator.estimate(tick, mag_ref_ned_uT)
+            outputs: list[AttitudeOutput] | MavAttitudeError = self.estimator.estimate(tick, mag_ref_ned_uT)
         except MavAttitudeError as exc:
-            self._reject(type(exc).__name__, pushed)
-            self.last_error = exc
-            log.debug("t=%.3f s: not solved: %s", tick.time_s, exc)
+            outputs = exc
+        self._take(tick, outputs, pushed)
+
+    def _solve_held(self, pushed: Pushed) -> None:
+        """The ticks held, estimated together (the estimator's ``estimate_each``), into ``pushed`` in order."""
+        if not self._held:
+            return
+        ticks, refs = zip(*self._held, strict=True)
+        self._held.clear()
+        for tick, outputs in zip(ticks, self.estimator.estimate_each(list(ticks), list(refs)), strict=True):
+            self._take(tick, outputs, pushed)
+
+    def _take(self, tick: ProcessedSample, outputs: list[AttitudeOutput] | MavAttitudeError, pushed: Pushed) -> None:
+        """A tick's outputs into ``pushed``, those that pass the output check, or the error it was refused with."""
+        if isinstance(outputs, MavAttitudeError):
+            self._reject(type(outputs).__name__, pushed)
+            self.last_error = outputs
+            log.debug("t=%.3f s: not solved: %s", tick.time_s, outputs)
             return
         pushed.outputs += [o for o in outputs if self._valid(o, pushed)]
 

@@ -460,6 +460,26 @@ def test_one_by_one_and_at_once_agree_on_damaged_streams(seed, method, measured,
     assert [e.time_s for e in at_once.compass] == pytest.approx([e.time_s for p in by_one for e in p.compass])
 
 
+@pytest.mark.parametrize("method", ["ign", "triad"])
+def test_at_once_progress_counts_ticks_already_estimated(monkeypatch, method):
+    """push_batch solves the snapshot methods' ticks together, a run at a time: each progress report comes with
+    every tick up to it estimated (one output each here), not with ticks still waiting to be solved."""
+    monkeypatch.setattr(pipeline_module, "PROGRESS_TICKS", 40)
+    samples = static_samples(n=1000)  # 5 s at 200 Hz: 250 ticks
+    rows = {k: np.array([getattr(s, k) for s in samples]) for k in ("time_s", "acc_mps2", "gyr_radps", "mag_uT")}
+    p = AttitudePipeline(from_dict({**ANGLES, "estimator": {"method": method}}))
+    reports = []
+
+    def progress(done: int, total: int) -> None:
+        reports.append((done, total, p.counters.emitted))
+
+    mag_new = np.ones(len(samples), dtype=bool)
+    out = p.push_batch(rows["time_s"], rows["acc_mps2"], rows["gyr_radps"], rows["mag_uT"], mag_new, progress=progress)
+    ticks = p.counters.ticks
+    assert [r[0] for r in reports] == [*range(0, ticks, 40), ticks] and len(out.outputs) == ticks >= 249
+    assert all(emitted == min(done + 1, ticks) for done, _, emitted in reports)
+
+
 @pytest.mark.parametrize(
     ("reference", "yaw_deg"),
     [(ANGLES["reference"], 135.0), ({"position_wait_s": 1.0}, 133.0)],  # measured: magnetic, the 2° declination off
