@@ -753,8 +753,10 @@ class AttitudePipeline:
         """:meth:`push` for a whole run of samples at once: what ``push`` gives fed them one by one, as one value.
 
         The front end runs vectorised (:func:`~mavattitude.sensors.frontend.process_batch`, ~20× faster per
-        sample, ticks equal to rounding), then every tick takes the same estimator step as in :meth:`push`.
-        For offline replay, where the per-sample front end is the cost. The magnetic reference is the one
+        sample, ticks equal to rounding), then every tick is routed as in :meth:`push`; a snapshot method's ticks
+        are held and solved together (the estimator's ``estimate_each``: each tick's outputs as ``estimate`` gives
+        them, to rounding), a run of :data:`PROGRESS_TICKS` at a time. For offline replay, where the per-sample
+        front end and solver are the cost. The magnetic reference is the one
         set now, for every tick from the first after ``reference_after_s`` on (the ticks before it wait, as before a
         position; a reboot's clock going back later does not undo it), or,
         with none set, the field the ticks measure (:meth:`_measure_reference`, the same rule as one by one);
