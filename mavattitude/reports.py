@@ -28,7 +28,7 @@ from mavattitude.estimation.crosscheck import CrossCheck
 from mavattitude.link.connection import STATUSTEXT_LEN
 from mavattitude.link.session import RequestCounters
 from mavattitude.pipeline import SLOW_INPUT_METHOD
-from mavattitude.sensors.frontend import SLOW_PACE
+from mavattitude.sensors.frontend import SLOW_PACE, FrontEndSettings
 
 
 @dataclass
@@ -235,6 +235,12 @@ REFUSAL_HINTS = {
     "duplicate": "its IMU time does not advance",
     "out_of_order": "its IMU time goes back",
     "decode": "not readable in the input.profile's units",
+    "nonfinite": "its accelerometer or gyroscope reads no number",
+    "saturated_acc": "its accelerometer at an integer limit or its full scale",
+    "saturated_gyr": "its gyroscope at an integer limit or its full scale",
+    # ArduPilot sends SCALED_IMU2/3 with zeros for an IMU it does not have (the compass in it may be real)
+    "dead_acc": f"its accelerometer reads under {FrontEndSettings.dead_fraction:.0%} of g: a bus glitch, free fall, "
+    "or an IMU the autopilot lacks",
 }
 
 

@@ -41,6 +41,6 @@ def test_every_statustext_fits_for_every_input_message(message):
 
 
 def test_refusals_are_said_commonest_first_with_what_the_clock_s_reasons_mean():
-    said = refusals_text(Counter({"nonfinite": 3, "duplicate": 40, "decode": 0}))
-    assert said == f"refused: duplicate 40 ({REFUSAL_HINTS['duplicate']}), nonfinite 3"
+    said = refusals_text(Counter({"DegenerateGeometryError": 3, "duplicate": 40, "decode": 0}))
+    assert said == f"refused: duplicate 40 ({REFUSAL_HINTS['duplicate']}), DegenerateGeometryError 3"
     assert refusals_text(Counter()) == "nothing refused"

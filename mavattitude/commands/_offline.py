@@ -221,7 +221,8 @@ def summarise(pipeline: AttitudePipeline, n_in: int, source: str, compass: list[
             "--inclination DEG or --mag-ref-ned N E D"
         )
     if counters.emitted == 0:
-        reasons = dict(counters.rejected) or dict(counters.frontend.rejected) or "no output tick"
+        refused = counters.frontend.rejected
+        reasons = dict(counters.rejected) or (refusals_text(refused) if +refused else "no output tick")
         raise MavAttitudeError(f"{source}: no attitude could be computed ({reasons})")
     refused, received = counters.frontend.rejected, counters.frontend.received
     if sum(refused.values()) > received * MOSTLY_REFUSED:  # attitudes, but from a few samples: said, as live

@@ -12,7 +12,7 @@ import pytest
 from mavattitude.cli import main
 from mavattitude.errors import DataFileError
 from mavattitude.estimation.conventions import angle_between, quat_from_euler
-from mavattitude.sim.logwriter import LAYOUTS, static_log, write_dataflash
+from mavattitude.sim.logwriter import LAYOUTS, static_log, write_dataflash, write_tlog
 from tests.commands.process import run_cli
 from tests.commands.test_replay import read_rows
 from tests.link.dataflash_text import write_text_log
@@ -308,3 +308,19 @@ def test_a_telemetry_log_at_once_gives_its_outputs_one_by_one(tmp_path, method):
     assert np.max(angle_between(a[:, 1:], b[:, 1:])) < 1e-9  # the front ends agree to rounding
     assert at_once.counters.ignored == one_by_one.counters.ignored > 0  # vehicle 2 and the ground station
     assert len(at_once.autopilot) == len(one_by_one.autopilot) > 30
+
+
+def test_a_telemetry_log_of_an_imu_the_autopilot_lacks_is_refused_saying_why(tmp_path):
+    """ArduPilot sends SCALED_IMU3 with a zero accelerometer and gyroscope when it has no third IMU (the compass in
+    it may be real): replaying that message fails, and the error says what the refusals mean."""
+    log = static_log(3.0)
+    log.acc_mps2, log.gyr_radps = np.zeros_like(log.acc_mps2), np.zeros_like(log.gyr_radps)
+    path = write_tlog(tmp_path / "third.tlog", log, message="SCALED_IMU3")
+    done = run_cli(["replay", str(path), "-o", str(tmp_path / "out"), "--message", "SCALED_IMU3", *REF])
+    assert done.returncode == 2  # a log not replayed
+    n = len(log.imu_t_s)
+    assert re.search(
+        rf"no attitude could be computed \(refused: dead_acc {n} \(its accelerometer reads under 5% of g: .*"
+        r"an IMU the autopilot lacks\)\)",
+        done.stderr,
+    ), done.stderr
