@@ -395,8 +395,7 @@ class AttitudeService:
             assert self.vehicle is not None
             source = f"{self._input_name} from system {self.vehicle[0]}, component {self.vehicle[1]}"
             # a PX4 sends HIGHRES_IMU, not the default RAW_IMU: what it does send is the likely fix
-            sends = ", ".join(sorted(self.other_imu_messages))
-            instead = f"; it sends {sends}: set input.message (and input.profile) to read one" if sends else ""
+            instead = self._other_imu_text()
             if link.request_messages:
                 return f"waiting for the IMU stream: {source}, asked for at {link.request_rate_hz:g} Hz{instead}"
             return (
@@ -411,10 +410,23 @@ class AttitudeService:
             )
         refused = refusals(self.counters, self.pipeline.counters)
         if waiting is Waiting.FIRST_ATTITUDE:
-            return f"waiting for the first attitude ({refusals_text(refused)})"
+            return f"waiting for the first attitude ({refusals_text(refused)}){self._dead_imu_hint(refused)}"
         if waiting is Waiting.ATTITUDES:
-            return f"{self._input_name} arrives but no attitude goes out ({refusals_text(refused - self._refused)})"
+            since = refused - self._refused
+            hint = self._dead_imu_hint(since)
+            return f"{self._input_name} arrives but no attitude goes out ({refusals_text(since)}){hint}"
         return "running"
+
+    def _other_imu_text(self) -> str:
+        """The IMU messages the vehicle sends besides ``input.message``, as the fix to try (empty: none)."""
+        sends = ", ".join(sorted(self.other_imu_messages))
+        return f"; it sends {sends}: set input.message (and input.profile) to read one" if sends else ""
+
+    def _dead_imu_hint(self, refused: Counter[str]) -> str:
+        """:meth:`_other_imu_text` when the input is refused mostly as a dead accelerometer: ArduPilot fills
+        SCALED_IMU2/3 with zeros for an IMU it lacks (the compass in it may be real)."""
+        top = refused.most_common(1)
+        return self._other_imu_text() if top and top[0][0] == "dead_acc" else ""
 
     def _report_waiting(self, now: float) -> None:
         """Say what it waits for (:class:`WaitReports`), and tell systemd on every change."""

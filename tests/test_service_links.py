@@ -21,6 +21,7 @@ from mavattitude.estimation.conventions import (
 )
 from mavattitude.link.memory import MemoryLink
 from mavattitude.pipeline import AttitudePipeline
+from mavattitude.reports import REFUSAL_HINTS
 from mavattitude.sensors import units
 from mavattitude.service import AttitudeService
 from mavattitude.sim import scenarios
@@ -440,3 +441,20 @@ def test_the_other_compasses_messages_are_asked_for_when_configured(rate_hz, ask
     requests = [c for c in sent(link, "COMMAND_LONG") if c.param1 in ids]
     assert [ids[int(c.param1)] for c in requests] == asked
     assert all(c.param2 == pytest.approx(1e6 / rate_hz) for c in requests)
+
+
+def test_an_imu_message_of_zeros_is_said_with_the_imu_messages_the_vehicle_sends_besides():
+    """ArduPilot without a third IMU sends SCALED_IMU3 with a zero accelerometer and gyroscope (its compass may be
+    real): every sample is refused as a dead accelerometer, and the wait names what the vehicle sends besides."""
+    service, link = _service(**{"input.message": "SCALED_IMU3"})
+    vehicle, profile = Peer(), units.PROFILES["ardupilot"]
+    dead = units.ImuSample(100.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (20.0, 0.0, 45.0))
+    live = units.ImuSample(100.0, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), (20.0, 0.0, 45.0))
+    third = mavlink2.MAVLink_scaled_imu3_message(**units.encode(dead, profile, "SCALED_IMU3"))
+    first = mavlink2.MAVLink_raw_imu_message(**units.encode(live, profile, "RAW_IMU"))
+    link.deliver(vehicle.heartbeat(), vehicle.pack(third), vehicle.pack(first))
+    _step_until(service, lambda: not link.inbox)
+    assert service.waiting_text() == (
+        f"waiting for the first attitude (refused: dead_acc 1 ({REFUSAL_HINTS['dead_acc']})); it sends RAW_IMU: "
+        "set input.message (and input.profile) to read one"
+    )

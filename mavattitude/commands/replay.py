@@ -323,6 +323,7 @@ def _replay_log(job: Job) -> LogResult:
     from mavattitude.replay import replay
 
     result = LogResult(str(job.log))
+    source = replayed = None
     try:
         progress = Progress(job.log.name) if job.table and sys.stderr.isatty() else None
         source = open_log(job.log, job.config, job.imu, job.mag)
@@ -331,7 +332,7 @@ def _replay_log(job: Job) -> LogResult:
             source, replayed = _with_the_message_it_sent(job, source, replayed, progress)
         _check_found(str(job.log), _telemetry_message(source) or job.config.input.message, replayed)
     except MavAttitudeError as exc:
-        return dataclasses.replace(result, status="failed", note=str(exc))
+        return dataclasses.replace(result, status="failed", note=str(exc) + _dead_imu_hint(job, source, replayed))
     message = _telemetry_message(source)
     _fill(result, replayed, message or "IMU")
     log.info("%s", result.columns["rate_handling"])
@@ -382,6 +383,21 @@ def _with_the_message_it_sent(job: Job, source: Any, replayed: Any, progress: An
         raise DataFileError(f"{job.log}: no {wanted} from the autopilot; it sent {found}: --message {found}")
     log.info("the autopilot sent no %s: replaying %s, the first IMU message it sent (--message chooses)", wanted, found)
     return other, replay(other, job.config, progress)
+
+
+def _dead_imu_hint(job: Job, source: Any, replayed: Any) -> str:
+    """A telemetry log whose IMU message was refused mostly as a dead accelerometer (ArduPilot fills SCALED_IMU2/3
+    with zeros for an IMU it lacks): the first other IMU message of ``input.profile`` its autopilot sent, to
+    replay instead, as the service names them live; empty otherwise."""
+    from mavattitude.link.logs import open_log
+
+    message = _telemetry_message(source) if source is not None else None
+    top = replayed.pipeline.frontend.counters.rejected.most_common(1) if replayed is not None else []
+    if message is None or not top or top[0][0] != "dead_acc":
+        return ""
+    others = [m for m in get_profile(job.config.input.profile).messages if m != message]
+    found = _telemetry_message(open_log(job.log, job.config, job.imu, job.mag, first_of=others))
+    return f"; it sent {found} too: --message {found}" if found != message else ""
 
 
 def _heading(outputs: list[Any]) -> str:

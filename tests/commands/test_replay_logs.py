@@ -321,6 +321,15 @@ def test_a_telemetry_log_of_an_imu_the_autopilot_lacks_is_refused_saying_why(tmp
     n = len(log.imu_t_s)
     assert re.search(
         rf"no attitude could be computed \(refused: dead_acc {n} \(its accelerometer reads under 5% of g: .*"
-        r"an IMU the autopilot lacks\)\)",
+        r"an IMU the autopilot lacks\)\)\n",  # and no other IMU message to name: it sent none
         done.stderr,
     ), done.stderr
+
+
+def test_the_sitl_logs_zero_scaled_imu3_is_refused_naming_the_imu_message_to_replay_instead(tmp_path):
+    """The shared ArduCopter SITL log at ground-station rates carries SCALED_IMU3 from a vehicle with two IMUs: its
+    accelerometer and gyroscope zero, its compass real. Replayed as asked, it fails naming RAW_IMU, which it sent."""
+    log = shared_path("data", "ardupilot-sitl", "lowrate.tlog")
+    done = run_cli(["replay", str(log), "-o", str(tmp_path / "out"), "--message", "SCALED_IMU3", "--no-plot"])
+    assert done.returncode == 2  # a log not replayed
+    assert re.search(r"refused: dead_acc \d+ \(.*\)\); it sent RAW_IMU too: --message RAW_IMU$", done.stderr.strip())
