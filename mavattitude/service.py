@@ -376,8 +376,8 @@ class AttitudeService:
             return Waiting.AUTOPILOT
         if self._last_input is None or self._input_lost:
             return Waiting.IMU_STREAM
-        if self.pipeline.waiting_for_reference:
-            return Waiting.POSITION
+        if self.pipeline.waiting_for_reference and self.pipeline.frontend.counters.accepted:
+            return Waiting.POSITION  # (with every sample refused, the refusals are what to say, not the position)
         if not self._attitude_sent:
             return Waiting.FIRST_ATTITUDE
         if self._stalled:

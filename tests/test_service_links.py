@@ -443,10 +443,12 @@ def test_the_other_compasses_messages_are_asked_for_when_configured(rate_hz, ask
     assert all(c.param2 == pytest.approx(1e6 / rate_hz) for c in requests)
 
 
-def test_an_imu_message_of_zeros_is_said_with_the_imu_messages_the_vehicle_sends_besides():
+@pytest.mark.parametrize("reference", ["auto", {"declination_deg": 0.0, "inclination_deg": 60.0}])
+def test_an_imu_message_of_zeros_is_said_with_the_imu_messages_the_vehicle_sends_besides(reference):
     """ArduPilot without a third IMU sends SCALED_IMU3 with a zero accelerometer and gyroscope (its compass may be
-    real): every sample is refused as a dead accelerometer, and the wait names what the vehicle sends besides."""
-    service, link = _service(**{"input.message": "SCALED_IMU3"})
+    real): every sample is refused as a dead accelerometer, and the wait names what the vehicle sends besides;
+    with reference.magnetic auto and no position too (the wait for a position is not what stops it)."""
+    service, link = _service(**{"input.message": "SCALED_IMU3", "reference.magnetic": reference})
     vehicle, profile = Peer(), units.PROFILES["ardupilot"]
     dead = units.ImuSample(100.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (20.0, 0.0, 45.0))
     live = units.ImuSample(100.0, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), (20.0, 0.0, 45.0))
