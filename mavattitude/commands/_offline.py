@@ -213,7 +213,8 @@ def summarise(pipeline: AttitudePipeline, n_in: int, source: str, compass: list[
     logger.info("%d samples in; %s", n_in, pipeline_summary(counters))
     if pipeline.config.compass.enabled:
         summarise_compass(pipeline, compass, logger)
-    if counters.emitted == 0 and pipeline.waiting_for_reference:  # without a compass no field is needed
+    # (without a compass no field is needed; with every sample refused, the refusals are what stopped it)
+    if counters.emitted == 0 and pipeline.waiting_for_reference and counters.frontend.accepted:
         raise DataFileError(
             f"{source}: reference.magnetic is auto, the input holds no position with a fix, and no field was "
             f"measured from its compass ({pipeline.magref.position_wait_s:g} s of reference.position_wait_s from its "

@@ -326,10 +326,16 @@ def test_a_telemetry_log_of_an_imu_the_autopilot_lacks_is_refused_saying_why(tmp
     ), done.stderr
 
 
-def test_the_sitl_logs_zero_scaled_imu3_is_refused_naming_the_imu_message_to_replay_instead(tmp_path):
-    """The shared ArduCopter SITL log at ground-station rates carries SCALED_IMU3 from a vehicle with two IMUs: its
-    accelerometer and gyroscope zero, its compass real. Replayed as asked, it fails naming RAW_IMU, which it sent."""
-    log = shared_path("data", "ardupilot-sitl", "lowrate.tlog")
-    done = run_cli(["replay", str(log), "-o", str(tmp_path / "out"), "--message", "SCALED_IMU3", "--no-plot"])
+@pytest.mark.parametrize(
+    ("folder", "name", "message"),
+    [("ardupilot-sitl", "lowrate.tlog", "SCALED_IMU3"), ("real", "ardusub41_2023-04-18.tlog", "SCALED_IMU2")],
+)
+def test_a_zero_imu_message_of_a_shared_log_is_refused_naming_the_one_to_replay(tmp_path, folder, name, message):
+    """The SITL log at ground-station rates (two IMUs) carries SCALED_IMU3, the real ArduSub dive (one IMU)
+    SCALED_IMU2: each with a zero accelerometer and gyroscope and a real compass. Replayed as asked, each fails
+    naming RAW_IMU, which it sent; the dive has no GPS and no field could be measured either, but what stopped it
+    is the refusals, and they are said."""
+    log = shared_path("data", folder, name)
+    done = run_cli(["replay", str(log), "-o", str(tmp_path / "out"), "--message", message, "--no-plot"])
     assert done.returncode == 2  # a log not replayed
     assert re.search(r"refused: dead_acc \d+ \(.*\)\); it sent RAW_IMU too: --message RAW_IMU$", done.stderr.strip())
