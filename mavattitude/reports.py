@@ -238,7 +238,6 @@ REFUSAL_HINTS = {
     "nonfinite": "its accelerometer or gyroscope reads no number",
     "saturated_acc": "its accelerometer at an integer limit or its full scale",
     "saturated_gyr": "its gyroscope at an integer limit or its full scale",
-    # ArduPilot sends SCALED_IMU2/3 with zeros for an IMU it does not have (the compass in it may be real)
     "dead_acc": f"its accelerometer reads under {FrontEndSettings.dead_fraction:.0%} of g: a bus glitch, free fall, "
     "or an IMU the autopilot lacks",
 }
@@ -282,6 +281,14 @@ def refusals(dispatch: DispatchCounters, pipeline: Any) -> Counter[str]:
     """Every input sample and tick refused so far, by reason: undecodable (the dispatcher), refused by the front
     end (its clock, the screening), not emitted by the pipeline (degenerate geometry, no magnetometer, …)."""
     return Counter(dispatch.rejected) + pipeline.frontend.rejected + pipeline.rejected
+
+
+def refused_as_dead_imu(refused: Counter[str]) -> bool:
+    """Whether the input is refused mostly as a dead accelerometer: ArduPilot sends SCALED_IMU2/3 for an IMU it
+    lacks with a zero accelerometer and gyroscope (the compass in it may be real), so another IMU message of the
+    vehicle's is the likely fix."""
+    top = refused.most_common(1)
+    return bool(top) and top[0][0] == "dead_acc"
 
 
 def refusals_text(refused: Counter[str]) -> str:

@@ -101,6 +101,7 @@ from mavattitude.reports import (
     rate_handling,
     refusals,
     refusals_text,
+    refused_as_dead_imu,
     refused_statustext,
     start_statustext,
 )
@@ -423,10 +424,8 @@ class AttitudeService:
         return f"; it sends {sends}: set input.message (and input.profile) to read one" if sends else ""
 
     def _dead_imu_hint(self, refused: Counter[str]) -> str:
-        """:meth:`_other_imu_text` when the input is refused mostly as a dead accelerometer: ArduPilot fills
-        SCALED_IMU2/3 with zeros for an IMU it lacks (the compass in it may be real)."""
-        top = refused.most_common(1)
-        return self._other_imu_text() if top and top[0][0] == "dead_acc" else ""
+        """:meth:`_other_imu_text` when the input is refused as an IMU the vehicle lacks (``refused_as_dead_imu``)."""
+        return self._other_imu_text() if refused_as_dead_imu(refused) else ""
 
     def _report_waiting(self, now: float) -> None:
         """Say what it waits for (:class:`WaitReports`), and tell systemd on every change."""

@@ -386,14 +386,14 @@ def _with_the_message_it_sent(job: Job, source: Any, replayed: Any, progress: An
 
 
 def _dead_imu_hint(job: Job, source: Any, replayed: Any) -> str:
-    """A telemetry log whose IMU message was refused mostly as a dead accelerometer (ArduPilot fills SCALED_IMU2/3
-    with zeros for an IMU it lacks): the first other IMU message of ``input.profile`` its autopilot sent, to
-    replay instead, as the service names them live; empty otherwise."""
+    """A telemetry log whose IMU message was refused as an IMU the vehicle lacks (``reports.refused_as_dead_imu``):
+    the first other IMU message of ``input.profile`` its autopilot sent, to replay instead, as the service names
+    them live; empty otherwise."""
     from mavattitude.link.logs import open_log
+    from mavattitude.reports import refused_as_dead_imu
 
     message = _telemetry_message(source) if source is not None else None
-    top = replayed.pipeline.frontend.counters.rejected.most_common(1) if replayed is not None else []
-    if message is None or not top or top[0][0] != "dead_acc":
+    if message is None or replayed is None or not refused_as_dead_imu(replayed.pipeline.frontend.counters.rejected):
         return ""
     others = [m for m in get_profile(job.config.input.profile).messages if m != message]
     found = _telemetry_message(open_log(job.log, job.config, job.imu, job.mag, first_of=others))
