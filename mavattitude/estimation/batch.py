@@ -68,18 +68,12 @@ def solve_batch(
     ``full_output=False`` raises :class:`ConvergenceError`; ``full_output=True`` returns a
     :class:`BatchResult` with per-sample flags instead.
     """
-    check_method(method)
-    sin_min = check_settings(max_iterations, tolerance, min_angle_deg)
-    acc_a = _samples("acc", acc, None)
-    n = acc_a.shape[0]
-    mag_a = _samples("mag", mag, n)
-    refs = {name: _samples(name, v, n) for name, v in (("acc_ref", acc_ref), ("mag_ref", mag_ref))}
-    arrays = (acc_a, mag_a, refs["acc_ref"], refs["mag_ref"])
+    arrays, refusals = _checked(acc, mag, mag_ref, acc_ref, noise, method, max_iterations, tolerance, min_angle_deg)
+    n = arrays[0].shape[0]
     with np.errstate(all="ignore"):  # the checks themselves catch what overflows or is NaN
-        refusals = _refusals(*(np.broadcast_to(a, (n, 3)) for a in arrays), noise, sin_min, min_angle_deg)
         usable = _usable(refusals) if skip_unusable else _raise_first(refusals, n)
     if not usable.all():
-        arrays = tuple(a[usable] if a.shape[0] == n else a for a in arrays)
+        arrays = _rows(arrays, n, usable)
     out = _solve_checked(arrays, noise, method, max_iterations, tolerance)
     if not usable.all():
         out = _scatter(out, usable)
@@ -124,6 +118,33 @@ def _scatter(solved: BatchResult, usable: NDArray[np.bool_]) -> BatchResult:
         solved.loss,
     )
     return out
+
+
+def _checked(
+    acc: ArrayLike,
+    mag: ArrayLike,
+    mag_ref: ArrayLike,
+    acc_ref: ArrayLike,
+    noise: NoiseModel,
+    method: str,
+    max_iterations: int,
+    tolerance: float,
+    min_angle_deg: float,
+) -> tuple[tuple[NDArray[np.float64], ...], Iterator[Refusal]]:
+    """The arguments checked: ``(acc, mag, acc_ref, mag_ref)`` as ``(N, 3)`` arrays (a reference given once as
+    ``(1, 3)``), and ``solve``'s per-sample checks on them (:func:`_refusals`, run as they are read: read them
+    under ``np.errstate(all="ignore")``)."""
+    check_method(method)
+    sin_min = check_settings(max_iterations, tolerance, min_angle_deg)
+    acc_a = _samples("acc", acc, None)
+    n = acc_a.shape[0]
+    arrays = (acc_a, _samples("mag", mag, n), _samples("acc_ref", acc_ref, n), _samples("mag_ref", mag_ref, n))
+    return arrays, _refusals(*(np.broadcast_to(a, (n, 3)) for a in arrays), noise, sin_min, min_angle_deg)
+
+
+def _rows(arrays: tuple[NDArray[np.float64], ...], n: int, index: ArrayLike) -> tuple[NDArray[np.float64], ...]:
+    """The rows ``index`` of each of the N-row ``arrays``; a reference given once stays as it is."""
+    return tuple(a[index] if a.shape[0] == n else a for a in arrays)
 
 
 def _samples(name: str, v: ArrayLike, n: int | None) -> NDArray[np.float64]:
@@ -246,20 +267,15 @@ def solve_each(
     :class:`~.solve.SolveResult`, or the error ``solve`` raises for it (the first of ``solve``'s checks it fails,
     or a normal matrix singular while iterating), returned rather than raised. Answers equal ``solve``'s to
     rounding; for a stream of ticks solved one after another, an order of magnitude less time."""
-    check_method(method)
-    sin_min = check_settings(max_iterations, tolerance, min_angle_deg)
-    acc_a = _samples("acc", acc, None)
-    n = acc_a.shape[0]
-    arrays = (acc_a, _samples("mag", mag, n), _samples("acc_ref", acc_ref, n), _samples("mag_ref", mag_ref, n))
+    arrays, refusals = _checked(acc, mag, mag_ref, acc_ref, noise, method, max_iterations, tolerance, min_angle_deg)
+    n = arrays[0].shape[0]
     out: list[SolveResult | InputError | None] = [None] * n
     with np.errstate(all="ignore"):  # the checks themselves catch what overflows or is NaN
-        for error, bad, message in _refusals(
-            *(np.broadcast_to(a, (n, 3)) for a in arrays), noise, sin_min, min_angle_deg
-        ):
+        for error, bad, message in refusals:
             for i in np.flatnonzero(bad).tolist():
                 out[i] = out[i] or error(message(i))
     rows = [i for i, r in enumerate(out) if r is None]
-    checked = tuple(a[rows] if a.shape[0] == n else a for a in arrays)
+    checked = _rows(arrays, n, rows)
     for start in range(0, len(rows), CHUNK):
         sl = slice(start, min(start + CHUNK, len(rows)))
         q, iterations, converged, _, singular, (units, norms) = _solve_chunk(
