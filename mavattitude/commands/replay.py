@@ -368,14 +368,12 @@ def _with_the_message_it_sent(job: Job, source: Any, replayed: Any, progress: An
     only): replayed with the first other IMU message of ``input.profile`` it sent, and said; refused naming it
     when ``--message`` asked for the one it lacks. As it was if it sent none of them, or for the autopilot's own
     log."""
-    from mavattitude.link.logs import open_log
     from mavattitude.replay import replay
 
     wanted = job.config.input.message
     if _telemetry_message(source) is None:
         return source, replayed
-    others = [m for m in get_profile(job.config.input.profile).messages if m != wanted]
-    other = open_log(job.log, job.config, job.imu, job.mag, first_of=others)
+    other = _other_imu_source(job, wanted)
     found = _telemetry_message(other)
     if found == wanted:
         return source, replayed
@@ -389,15 +387,22 @@ def _dead_imu_hint(job: Job, source: Any, replayed: Any) -> str:
     """A telemetry log whose IMU message was refused as an IMU the vehicle lacks (``reports.refused_as_dead_imu``):
     the first other IMU message of ``input.profile`` its autopilot sent, to replay instead, as the service names
     them live; empty otherwise."""
-    from mavattitude.link.logs import open_log
     from mavattitude.reports import refused_as_dead_imu
 
     message = _telemetry_message(source) if source is not None else None
     if message is None or replayed is None or not refused_as_dead_imu(replayed.pipeline.frontend.counters.rejected):
         return ""
-    others = [m for m in get_profile(job.config.input.profile).messages if m != message]
-    found = _telemetry_message(open_log(job.log, job.config, job.imu, job.mag, first_of=others))
+    found = _telemetry_message(_other_imu_source(job, message))
     return f"; it sent {found} too: --message {found}" if found != message else ""
+
+
+def _other_imu_source(job: Job, message: str) -> Any:
+    """The telemetry log opened on the first IMU message of ``input.profile`` other than ``message`` that its
+    autopilot sent (on ``message`` itself when it sent none of them)."""
+    from mavattitude.link.logs import open_log
+
+    others = [m for m in get_profile(job.config.input.profile).messages if m != message]
+    return open_log(job.log, job.config, job.imu, job.mag, first_of=others)
 
 
 def _heading(outputs: list[Any]) -> str:
