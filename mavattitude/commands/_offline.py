@@ -221,11 +221,10 @@ def summarise(pipeline: AttitudePipeline, n_in: int, source: str, compass: list[
             f"start, then {MIN_MEASURED_TICKS} magnetometer ticks with the vehicle still): give --declination DEG "
             "--inclination DEG or --mag-ref-ned N E D"
         )
+    refused, received = counters.frontend.rejected, counters.frontend.received
     if counters.emitted == 0:
-        refused = counters.frontend.rejected
         reasons = dict(counters.rejected) or (refusals_text(refused) if +refused else "no output tick")
         raise MavAttitudeError(f"{source}: no attitude could be computed ({reasons})")
-    refused, received = counters.frontend.rejected, counters.frontend.received
     if sum(refused.values()) > received * MOSTLY_REFUSED:  # attitudes, but from a few samples: said, as live
         logger.warning(
             "most input samples were refused (%d of %d): %s", sum(refused.values()), received, refusals_text(refused)
