@@ -2,7 +2,8 @@
 
 ``AttitudePipeline(config).push(sample)`` takes one decoded :class:`~mavattitude.sensors.units.ImuSample`
 and returns everything it produced as one :class:`Pushed`: the attitude outputs it completes (zero or more:
-the 50 Hz ticks), the ticks it refused by reason, and the compass verdict's changes::
+the 50 Hz ticks), the ticks it refused by reason, the compass verdict's changes, and once, at the input's start,
+what the units check found (:mod:`mavattitude.sensors.unitcheck`: a magnitude that says the units are wrong)::
 
     ImuSample ─► FrontEnd (clock, screen, calibrate + mount, low-pass, resample) ─► estimator ─► AttitudeOutput
 
@@ -71,6 +72,7 @@ from mavattitude.sensors.frontend import (
 )
 from mavattitude.sensors.magref import DECLINATION_PARAMETERS, ReferenceTracker
 from mavattitude.sensors.mounting import TRIM_LIMIT_RAD, TRIM_PARAMETERS
+from mavattitude.sensors.unitcheck import UnitsCheck, UnitsFinding
 from mavattitude.sensors.units import GpsVelocity, ImuSample
 
 log = logging.getLogger(__name__)
@@ -146,13 +148,14 @@ class Pushed:
     outputs: list[AttitudeOutput] = field(default_factory=list)
     rejected: dict[str, int] = field(default_factory=dict)  # ticks not emitted, by reason (as the counters')
     compass: list[CompassEvent] = field(default_factory=list)  # the compass verdict's changes, in order
+    units: list[UnitsFinding] = field(default_factory=list)  # sensors whose units look wrong (said once)
 
     def reject(self, reason: str) -> None:
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
 
     def __bool__(self) -> bool:
         """Whether anything was produced (most samples complete no tick)."""
-        return bool(self.outputs or self.rejected or self.compass)
+        return bool(self.outputs or self.rejected or self.compass or self.units)
 
 
 @dataclass
@@ -625,6 +628,7 @@ class AttitudePipeline:
         reference = config.reference
         self.magref = ReferenceTracker(reference.magnetic, position_wait_s=reference.position_wait_s)
         self._apply_reference()
+        self.units = UnitsCheck()  # the input's magnitudes at its start, judged once (findings in ``Pushed.units``)
 
     @property
     def waiting_for_reference(self) -> bool:
@@ -699,6 +703,8 @@ class AttitudePipeline:
         """What one input sample completes (see :class:`Pushed`); ``attitudes=False``: the compass monitor's
         verdicts alone, no estimator (how the vehicle's other magnetometers are judged)."""
         pushed = Pushed()
+        if attitudes and self.units.open:
+            pushed.units += self.units.add_sample(sample.time_s, sample.acc_mps2, sample.mag_uT)
         for tick in self.frontend.push(sample):
             self.counters.ticks += 1
             if attitudes:
@@ -767,6 +773,9 @@ class AttitudePipeline:
         ``progress(done, total)``: ticks estimated, every :data:`PROGRESS_TICKS` and at the end.
         """
         fe = self.frontend
+        pushed = Pushed()
+        if attitudes and self.units.open:
+            pushed.units += self.units.add(time_s, acc_mps2, mag_uT)
         inputs = (fe.settings, time_s, acc_mps2, gyr_radps, mag_uT)
         options = {"mag_new": mag_new, "mag_repeats": mag_repeats, "wrap_period_s": time_wrap_s}
         batch = process_batch(*inputs, **options, expected_field_uT=fe.expected_field_uT)
@@ -780,7 +789,6 @@ class AttitudePipeline:
             if self.mag_ref_ned_uT is not None:
                 batch = process_batch(*inputs, **options, expected_field_uT=fe.expected_field_uT, say_reboots=False)
         fe.counters.add(batch.counters)
-        pushed = Pushed()
         reference = self.mag_ref_ned_uT
         if reference is not None and self.compass.settings.enabled:
             pushed.compass = self._judge_compass_rows(batch, np.arange(len(batch)) >= first)

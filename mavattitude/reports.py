@@ -29,6 +29,7 @@ from mavattitude.link.connection import STATUSTEXT_LEN
 from mavattitude.link.session import RequestCounters
 from mavattitude.pipeline import SLOW_INPUT_METHOD
 from mavattitude.sensors.frontend import SLOW_PACE, FrontEndSettings
+from mavattitude.sensors.units import get_profile
 
 
 @dataclass
@@ -218,6 +219,17 @@ def rate_handling(config: Config, message: str, rate_hz: float, per_sample: int,
     if not config.filter.enabled:
         return f"{head}: one attitude per sample (filter.enabled is false)"
     return f"{head}: {config.filter.cutoff_hz:g} Hz low-pass, {config.filter.output_rate_hz:g} Hz output"
+
+
+def profile_units(config: Config, message: str, sensor: str, named: str = "input.profile") -> str:
+    """What to check for a units finding (:mod:`~mavattitude.sensors.unitcheck`) on a MAVLink input: the scale
+    ``named`` (the config key, or a command's flag) reads ``message``'s ``sensor`` with."""
+    scale = get_profile(config.input.profile, config.input.custom).scale(message)
+    per_unit, unit = (scale.acc_mps2, "m/s²") if sensor == "accelerometer" else (scale.mag_uT, "µT")
+    return (
+        f"{named} {config.input.profile}'s scale, {per_unit:.4g} {unit} per unit of {message}'s {sensor}: the "
+        "autopilot's? (profile custom with input.custom gives any other)"
+    )
 
 
 def pipeline_summary(counters: Any) -> str:

@@ -45,6 +45,9 @@ service is the dispatcher's listener. What it does on the link:
   with the refusals since the last attitude (log + STATUSTEXT, :attr:`Waiting.ATTITUDES`), and when
   attitudes go out again;
 - STATUSTEXT on start (once locked on) and, rate-limited, on degenerate geometry;
+- the input's accelerometer or magnetometer in the wrong units (:mod:`mavattitude.sensors.unitcheck`: its first
+  seconds' magnitude far from g, or from any Earth field): said once (log warning with the profile's scale to
+  check, and a STATUSTEXT), and in the wait for a position, which it keeps from ending;
 - the compass judged inconsistent (:mod:`mavattitude.estimation.compass`): said once (log warning with the
   measured and expected dip, and a STATUSTEXT) until it clears; its figures go into the counters line;
 - while it waits (for the autopilot's HEARTBEAT, the IMU stream, a GPS position, the first attitude:
@@ -98,6 +101,7 @@ from mavattitude.reports import (
     counters_line,
     heading_lost,
     input_lost_statustext,
+    profile_units,
     rate_handling,
     refusals,
     refusals_text,
@@ -109,6 +113,7 @@ from mavattitude.sensors import units
 from mavattitude.sensors.frontend import SampleFlag
 from mavattitude.sensors.magref import declination_parameter
 from mavattitude.sensors.mounting import TRIM_PARAMETERS
+from mavattitude.sensors.unitcheck import UnitsFinding
 from mavattitude.sensors.units import ImuSample
 from mavattitude.systemd_notify import SystemdNotifier, default_notifier
 
@@ -404,10 +409,12 @@ class AttitudeService:
                 f"it?){instead}"
             )
         if waiting is Waiting.POSITION:
+            # an accelerometer in the wrong units never reads as still: no field is measured until they are fixed
+            wrong = "".join(f" ({f.text})" for f in self.pipeline.units.findings if f.sensor == "accelerometer")
             return (
                 "waiting for a GPS position (reference: auto): GLOBAL_POSITION_INT, or GPS_RAW_INT with a 3D fix; "
                 f"without one, after {self.config.reference.position_wait_s:g} s of the IMU stream, the field is "
-                "measured from the compass while the vehicle is still"
+                f"measured from the compass while the vehicle is still{wrong}"
             )
         refused = refusals(self.counters, self.pipeline.counters)
         if waiting is Waiting.FIRST_ATTITUDE:
@@ -603,6 +610,8 @@ class AttitudeService:
             self._statustext("degenerate", DEGENERATE_STATUSTEXT, "warning")
         for event in pushed.compass:
             self._on_compass(event)
+        for finding in pushed.units:
+            self._say_units(finding)
         outputs = pushed.outputs
         if outputs and (outputs[-1].flags & SampleFlag.NO_HEADING) != self._no_heading:
             self._say_tilt_only(bool(outputs[-1].flags & SampleFlag.NO_HEADING))
@@ -613,6 +622,11 @@ class AttitudeService:
                 moving = self._gate.moving(out)
                 self._xcheck.add_ours(out.time_s, out.q, not out.flags & SampleFlag.NO_HEADING, moving)
             self._cross_check(self._xcheck)
+
+    def _say_units(self, finding: UnitsFinding) -> None:
+        """A sensor whose magnitude says its units are wrong (judged once, at the start): with the scale to check."""
+        log.warning("%s: check %s", finding.text, profile_units(self.config, self._input_name, finding.sensor))
+        self._statustext(f"units:{finding.sensor}", finding.short, "warning", log_it=False)
 
     def _say_tilt_only(self, unknown: bool) -> None:
         """Our attitudes lost or found their heading (no magnetometer reading at all): said once each way."""

@@ -389,6 +389,22 @@ def test_a_reboot_after_the_measured_field_keeps_it_one_by_one_and_at_once(caplo
     assert sum("vehicle clock went back" in r.getMessage() for r in caplog.records) == 1
 
 
+def test_an_input_in_the_wrong_units_is_said_once_one_by_one_and_at_once():
+    """An accelerometer read 3.33× too large (an ADIS16405 profile on ArduPilot's mg): the pipeline's push and
+    push_batch return the finding once, at the same sample; a judge of another compass (``attitudes=False``)
+    shares the IMU and says nothing of it. The attitude itself is solved from directions: unchanged."""
+    samples = [dataclasses.replace(s, acc_mps2=tuple(3.33 * a for a in s.acc_mps2)) for s in static_samples(n=1400)]
+    one = AttitudePipeline(from_dict(ANGLES))
+    found = [f for pushed in pushes(one, samples) for f in pushed.units]
+    rows = {k: np.array([getattr(s, k) for s in samples]) for k in ("time_s", "acc_mps2", "gyr_radps", "mag_uT")}
+    batch = AttitudePipeline(from_dict(ANGLES)).push_batch(*rows.values(), np.ones(len(samples), dtype=bool))
+    assert [f.sensor for f in found] == ["accelerometer"] and batch.units == found
+    assert found[0].time_s == pytest.approx(15.0)  # the first sample 5 s on (10 s at 200 Hz)
+    judge = AttitudePipeline(from_dict(ANGLES))
+    assert not any(judge.push(s, attitudes=False).units for s in samples) and judge.units.open
+    assert np.degrees(angle_between(batch.outputs[-1].q, Q_TRUE)) < MAX_ERR_DEG
+
+
 DAMAGE = ("reboot", "gap", "nan", "duplicate", "back", "no_mag", "saturated", "dead", "slow", "no_time")
 
 

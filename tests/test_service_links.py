@@ -460,3 +460,25 @@ def test_an_imu_message_of_zeros_is_said_with_the_imu_messages_the_vehicle_sends
         f"waiting for the first attitude (refused: dead_acc 1 ({REFUSAL_HINTS['dead_acc']})); it sends RAW_IMU: "
         "set input.message (and input.profile) to read one"
     )
+
+
+def test_an_accelerometer_in_the_wrong_units_is_said_with_the_profile_to_check(caplog):
+    """input.profile adis16405 on an ArduPilot's RAW_IMU (its 3.33 mg per count for the autopilot's 1 mg): the
+    accelerometer reads 3.33 g, so the vehicle never reads as still and, without a position, no field is measured.
+    Said once when judged (log and STATUSTEXT, with the profile's scale to check), and in the wait."""
+    caplog.set_level(logging.WARNING, logger="mavattitude.service")
+    service, link = _service(**{"input.profile": "adis16405", "reference.magnetic": "auto"})
+    vehicle = Peer()
+    link.deliver(vehicle.heartbeat(), *vehicle.stream(1100))  # 5.5 s at 200 Hz
+    _step_until(service, lambda: not link.inbox)
+    warned = [r.getMessage() for r in caplog.records if "wrong units" in r.getMessage()]
+    assert warned == [
+        "accelerometer: its median |f| over the first 5 s is 3.33 g, where a vehicle's is about 1 g: wrong units: "
+        "check input.profile adis16405's scale, 0.03266 m/s² per unit of RAW_IMU's accelerometer: the autopilot's? "
+        "(profile custom with input.custom gives any other)"
+    ]
+    assert [s.text for s in sent(link, "STATUSTEXT")][-1] == "accel reads 3.33 g: check units, profile"
+    assert service.waiting_text().endswith(
+        "the field is measured from the compass while the vehicle is still (accelerometer: its median |f| over "
+        "the first 5 s is 3.33 g, where a vehicle's is about 1 g: wrong units)"
+    )

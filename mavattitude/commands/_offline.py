@@ -6,7 +6,7 @@ import argparse
 import logging
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
@@ -202,24 +202,39 @@ class Progress:
         self._width, self._key = 0, None
 
 
-def summarise(pipeline: AttitudePipeline, n_in: int, source: str, compass: list[CompassEvent]) -> None:
-    """Log the counters, the compass verdict's changes (``compass``) and its figures (the caller names ``source``
-    in the log: :func:`mavattitude.commands.about`); nothing solved at all is a failure, not an empty success."""
+def summarise(
+    pipeline: AttitudePipeline,
+    n_in: int,
+    source: str,
+    compass: list[CompassEvent],
+    units_from: Callable[[str], str],
+) -> None:
+    """Log the counters, a units finding with ``units_from(sensor)``, where its units were given, the compass
+    verdict's changes (``compass``) and its figures (the caller names ``source`` in the log:
+    :func:`mavattitude.commands.about`); nothing solved at all is a failure, not an empty success."""
     from mavattitude.reports import pipeline_summary, refusals_text
     from mavattitude.sensors.magref import MIN_MEASURED_TICKS
 
     counters = pipeline.counters
     logger = logging.getLogger("mavattitude")
     logger.info("%d samples in; %s", n_in, pipeline_summary(counters))
+    for finding in pipeline.units.findings:
+        logger.warning("t=%.1f s: %s: check %s", finding.time_s, finding.text, units_from(finding.sensor))
     if pipeline.config.compass.enabled:
         summarise_compass(pipeline, compass, logger)
     # (without a compass no field is needed; with every sample refused, the refusals are what stopped it)
     if counters.emitted == 0 and pipeline.waiting_for_reference and counters.frontend.accepted:
+        # an accelerometer in the wrong units never reads as still, so no field is measured: the cause, said first
+        wrong = [
+            f"{f.text}, so the vehicle never read as still: fix them (the warning above), or "
+            for f in pipeline.units.findings
+            if f.sensor == "accelerometer"
+        ]
         raise DataFileError(
             f"{source}: reference.magnetic is auto, the input holds no position with a fix, and no field was "
             f"measured from its compass ({pipeline.magref.position_wait_s:g} s of reference.position_wait_s from its "
-            f"start, then {MIN_MEASURED_TICKS} magnetometer ticks with the vehicle still): give --declination DEG "
-            "--inclination DEG or --mag-ref-ned N E D"
+            f"start, then {MIN_MEASURED_TICKS} magnetometer ticks with the vehicle still): "
+            f"{''.join(wrong)}give --declination DEG --inclination DEG or --mag-ref-ned N E D"
         )
     refused, received = counters.frontend.rejected, counters.frontend.received
     if counters.emitted == 0:

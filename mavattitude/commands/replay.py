@@ -61,7 +61,7 @@ import logging
 import math
 import multiprocessing
 import sys
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -83,7 +83,7 @@ from mavattitude.estimation import METHODS
 from mavattitude.estimation.conventions import euler_from_quat
 from mavattitude.files import refuse_overwriting
 from mavattitude.link.logstreams import TILT_ONLY
-from mavattitude.reports import compass_unused_warning, heading_lost, rate_handling
+from mavattitude.reports import compass_unused_warning, heading_lost, profile_units, rate_handling
 from mavattitude.sensors.frontend import SampleFlag
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES, get_profile
 
@@ -330,7 +330,9 @@ def _replay_log(job: Job) -> LogResult:
         replayed = replay(source, job.config, progress)
         if replayed.counters.received == 0:
             source, replayed = _with_the_message_it_sent(job, source, replayed, progress)
-        _check_found(str(job.log), _telemetry_message(source) or job.config.input.message, replayed)
+        telemetry = _telemetry_message(source)
+        units_from = _units_from(job.config, telemetry)
+        _check_found(str(job.log), telemetry or job.config.input.message, replayed, units_from)
     except MavAttitudeError as exc:
         return dataclasses.replace(result, status="failed", note=str(exc) + _dead_imu_hint(job, source, replayed))
     message = _telemetry_message(source)
@@ -496,7 +498,15 @@ def _report_cross_check(check: Any, events: list[Any], job: Job, result: LogResu
     }
 
 
-def _check_found(path: str, message: str, result: Any) -> None:
+def _units_from(config: Config, telemetry: str | None) -> Callable[[str], str]:
+    """What to check for a units finding (:mod:`mavattitude.sensors.unitcheck`): the scales a telemetry log's IMU
+    message is read with (``--profile``); an autopilot's own log records its units itself."""
+    if telemetry is None:
+        return lambda sensor: "the log: its format records its units, so a reader misread them (please report it)"
+    return lambda sensor: profile_units(config, telemetry, sensor, "--profile")
+
+
+def _check_found(path: str, message: str, result: Any, units_from: Callable[[str], str]) -> None:
     if result.counters.ignored:
         log.info(
             "ignored %d message(s) not from the autopilot (other system or component, or before its HEARTBEAT)",
@@ -511,7 +521,7 @@ def _check_found(path: str, message: str, result: Any) -> None:
         )
     if result.counters.received == 0:
         raise DataFileError(f"{path}: no {message} from the autopilot (set input.message, or --message)")
-    summarise(result.pipeline, result.counters.received, path, result.compass)
+    summarise(result.pipeline, result.counters.received, path, result.compass, units_from)
 
 
 def summary_table(results: list[LogResult], method: str) -> str:

@@ -47,6 +47,14 @@ from mavattitude.files import (
     refuse_overwriting,
 )
 
+
+def csv_units(sensor: str) -> str:
+    """What to check for a units finding (:mod:`mavattitude.sensors.unitcheck`) of a CSV: its columns' units."""
+    return (
+        "the CSV's acc_*_mps2 columns, read as m/s²" if sensor == "accelerometer" else "the CSV's mag_*_uT, read as µT"
+    )
+
+
 NAME = "solve"
 HELP = "attitude for every sample of a CSV file (offline, same pipeline as the service)"
 
@@ -115,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
     with about(args.input):
         # every row its own magnetometer reading: the samples as push() takes them one by one, all at once
         pushed = pipeline.push_batch(t, data["acc"], gyr, data["mag"], np.ones(n, dtype=bool), progress=progress)
-        summarise(pipeline, n, args.input, pushed.compass)
+        summarise(pipeline, n, args.input, pushed.compass, csv_units)
         frontend = pipeline.counters.frontend
         log.info("%s", rate_handling(config, "samples", median_rate_hz(t), frontend.per_sample, n))
     write_outputs(args.output, pushed.outputs)

@@ -205,9 +205,10 @@ def fit_ellipsoid(
     )
 
 
-def unlike_earth(radius_uT: float) -> str | None:
-    """Why ``radius_uT`` (a fitted |B|) cannot be the Earth's field in µT, or ``None`` when it can."""
+def unlike_earth(field_uT: float, what: str = "the fitted field") -> str | None:
+    """Why ``field_uT`` (``what``: a fitted |B|, or a compass's median) cannot be the Earth's field in µT, or
+    ``None`` when it can."""
     low, high = EARTH_FIELD_UT
-    if low / UNITS_MARGIN <= radius_uT <= high * UNITS_MARGIN:
+    if low / UNITS_MARGIN <= field_uT <= high * UNITS_MARGIN:
         return None
-    return f"the fitted field is {radius_uT:.3g} µT, where the Earth's is {low:g}-{high:g} µT"
+    return f"{what} is {field_uT:.3g} µT, where the Earth's is {low:g}-{high:g} µT"

@@ -339,3 +339,17 @@ def test_a_zero_imu_message_of_a_shared_log_is_refused_naming_the_one_to_replay(
     done = run_cli(["replay", str(log), "-o", str(tmp_path / "out"), "--message", message, "--no-plot"])
     assert done.returncode == 2  # a log not replayed
     assert re.search(r"refused: dead_acc \d+ \(.*\)\); it sent RAW_IMU too: --message RAW_IMU$", done.stderr.strip())
+
+
+def test_a_shared_log_read_with_another_sensors_profile_is_said_to_be_in_the_wrong_units(tmp_path):
+    """The real ArduSub dive read with --profile adis16405 (3.33 mg per count for ArduPilot's 1 mg): the
+    accelerometer reads 3.33 g. The dive has no GPS and, never still, no field measured: the error leads with the
+    units, the warning gives the profile's scale to check."""
+    log = shared_path("data", "real", "ardusub41_2023-04-18.tlog")
+    done = run_cli(["replay", str(log), "-o", str(tmp_path / "out.csv"), "--profile", "adis16405", "--no-plot"])
+    assert done.returncode == 2
+    assert (
+        "accelerometer: its median |f| over the first 5 s is 3.33 g, where a vehicle's is about 1 g: wrong units: "
+        "check --profile adis16405's scale, 0.03266 m/s² per unit of RAW_IMU's accelerometer"
+    ) in done.stderr
+    assert "wrong units, so the vehicle never read as still: fix them (the warning above), or give" in done.stderr

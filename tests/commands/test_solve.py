@@ -32,15 +32,23 @@ ACC_STD, MAG_STD = 0.05, 0.5  # the config's default σ, used to draw the noise
 MAX_ERR_DEG = 2.1
 
 
-def write_csv(path: Path, n: int = 200, rate_hz: float = 100.0, gyro: bool = True, extra: bool = False) -> Path:
-    """A vehicle at rest at Q_TRUE, seeded sensor noise; columns shuffled, optionally extra ones."""
+def write_csv(
+    path: Path,
+    n: int = 200,
+    rate_hz: float = 100.0,
+    gyro: bool = True,
+    extra: bool = False,
+    units: tuple[float, float] = (1.0, 1.0),
+) -> Path:
+    """A vehicle at rest at Q_TRUE, seeded sensor noise; columns shuffled, optionally extra ones; ``units``: the
+    accelerometer's in m/s² and the magnetometer's in µT (the file's numbers divided by them)."""
     rng = np.random.default_rng(7)
     t = 5.0 + np.arange(n) / rate_hz
     acc = rotate_ned_to_body(Q_TRUE, [0.0, 0.0, -G]) + rng.normal(0, ACC_STD, (n, 3))
     mag = rotate_ned_to_body(Q_TRUE, field_from_angles(DECL, INCL, F_UT)) + rng.normal(0, MAG_STD, (n, 3))
     cols = {"t_s": t}
-    cols |= {f"mag_{a}_uT": mag[:, i] for i, a in enumerate("xyz")}
-    cols |= {f"acc_{a}_mps2": acc[:, i] for i, a in enumerate("xyz")}
+    cols |= {f"mag_{a}_uT": mag[:, i] / units[1] for i, a in enumerate("xyz")}
+    cols |= {f"acc_{a}_mps2": acc[:, i] / units[0] for i, a in enumerate("xyz")}
     if gyro:
         cols |= {f"gyr_{a}_radps": rng.normal(0, 1e-3, n) for a in "xyz"}
     if extra:
@@ -282,6 +290,32 @@ def test_an_input_shorter_than_the_wait_for_a_position_is_a_failure_that_says_wh
         capsys.readouterr().err,
     )
     assert not out.exists()
+
+
+def test_an_accelerometer_in_g_is_said_as_the_cause_when_no_field_is_measured(tmp_path, capsys):
+    """acc_*_mps2 written in g: 0.102 g at rest, so the vehicle never reads as still and no field is measured
+    without a reference: the warning names the slip and the columns, the error leads with it."""
+    src = write_csv(tmp_path / "in.csv", n=1000, units=(G, 1.0))  # 10 s
+    assert main(["solve", str(src), "-o", str(tmp_path / "o.csv")]) == 2
+    err = capsys.readouterr().err
+    assert (
+        "t=10.0 s: accelerometer: its median |f| over the first 5 s is 0.102 g, where a vehicle's is about 1 g "
+        "(readings in g taken for m/s²?): wrong units: check the CSV's acc_*_mps2 columns, read as m/s²"
+    ) in err
+    assert "wrong units, so the vehicle never read as still: fix them (the warning above), or give --declination" in err
+
+
+def test_a_magnetometer_in_milligauss_is_said_and_still_solved(tmp_path, capsys):
+    """mag_*_uT written in milligauss (10× the µT): a snapshot solve reads only its direction, so the attitude is
+    right, but its weight against the accelerometer is not (Eq. 21): said, with the columns to check."""
+    out = tmp_path / "o.csv"
+    assert main(["solve", str(write_csv(tmp_path / "in.csv", n=700, units=(1.0, 0.1))), "-o", str(out), *REF]) == 0
+    assert (
+        "magnetometer: its median |B| over the first 5 s is 480 µT, where the Earth's is 22-67 µT: wrong units "
+        "(readings in gauss (100 µT) or milligauss (0.1 µT)?): check the CSV's mag_*_uT, read as µT"
+    ) in capsys.readouterr().err
+    _, rows = read_output(out)
+    assert np.degrees(angle_between(rows[10:, 1:5], Q_TRUE)).max() < MAX_ERR_DEG
 
 
 def test_progress_goes_to_stderr(tmp_path, capsys):
