@@ -142,6 +142,7 @@ def counters_line(
         ("received", c.received),
         ("emitted", c.emitted),
         ("ignored", c.ignored),
+        ("skipped", link_counters.skipped),  # telemetry of no use here, not decoded
         *((f"rejected.{k}", rejected[k]) for k in sorted({*c.rejected, *rejected})),
         *((f"mag_rejected.{k}", v) for k, v in sorted(frontend.mag_rejected.items())),
         ("gap_resets", frontend.gap_resets),

@@ -244,6 +244,9 @@ class AttitudeService:
         self.config = config
         self.link = link
         self.decoder = MavlinkDecoder.from_config(config)
+        # what is read: the decoder's messages, the ACKs to our requests, and every IMU message (the other
+        # compasses', and what the vehicle sends besides input.message); the rest of its telemetry is skipped
+        self._reads = frozenset(message_id(m) for m in {*self.decoder.types, "COMMAND_ACK", *units.MESSAGES})
         self.pipeline = pipeline
         self.notifier = notifier if notifier is not None else default_notifier()
         self.alive_file = alive_file if alive_file is not None else alive.AliveFile()
@@ -334,7 +337,7 @@ class AttitudeService:
         quiet_until = self._quiet_until()
         # periodic work due before the next tick's sample can come waits for it (within a TICK_S): no wake of its own
         wait_s = max(wait_s, min(quiet_until - time.monotonic(), TICK_S))
-        for received in self.link.recv_items(wait_s, decoder, decoder.direct, quiet_until):
+        for received in self.link.recv_items(wait_s, decoder, decoder.direct, quiet_until, self._reads):
             handle(received)
         now = time.monotonic()
         if self._tick.due(now):

@@ -482,3 +482,29 @@ def test_an_accelerometer_in_the_wrong_units_is_said_with_the_profile_to_check(c
         "the field is measured from the compass while the vehicle is still (accelerometer: its median |f| over "
         "the first 5 s is 3.33 g, where a vehicle's is about 1 g: wrong units)"
     )
+
+
+def test_the_vehicles_other_telemetry_is_skipped_and_what_the_service_reads_is_not():
+    """A real autopilot streams a hundred other messages a second (the ArduSub dive: VFR_HUD, SYS_STATUS, AHRS2,
+    …): counted ``skipped``, never decoded. What the service does read still comes: the IMU stream, the ACK to
+    its request, the parameter it asked for, another IMU message (the vehicle's other compass)."""
+    service, link = _service(**{"compass.others_rate_hz": 5.0})
+    vehicle = Peer()
+    link.deliver(vehicle.heartbeat())
+    _step_until(service, lambda: service.counters.interval_requests >= 1)
+    hud = vehicle.pack(mavlink2.MAVLink_vfr_hud_message(1.0, 2.0, 90, 50, 10.0, 0.5))
+    status = vehicle.pack(mavlink2.MAVLink_sys_status_message(1, 1, 1, 500, 12000, 30, 80, 0, 0, 0, 0, 0, 0))
+    trim = vehicle.pack(mavlink2.MAVLink_param_value_message(b"AHRS_TRIM_X", 0.02, 9, 900, 1))
+    sample = units.ImuSample(100.0, (0.0, 0.0, -9.8), (0.0, 0.0, 0.0), (20.0, 0.0, 45.0))
+    second = vehicle.pack(
+        mavlink2.MAVLink_scaled_imu2_message(**units.encode(sample, units.PROFILES["ardupilot"], "SCALED_IMU2"))
+    )
+    link.deliver(_ack(vehicle), hud, trim, *vehicle.stream(400), status, second, hud)
+    _step_until(service, lambda: not link.inbox)
+    assert service.link.counters.skipped == 3
+    assert service.counters.acks == {"ACCEPTED": 1} and service.counters.received == 400
+    assert service.pipeline.frontend.settings.trim_rad[0] == pytest.approx(0.02)
+    assert service.other_imu_messages == {"SCALED_IMU2"}
+    assert "skipped=3" in service_module.counters_line(
+        service.counters, service.link.counters, service.pipeline.counters
+    )

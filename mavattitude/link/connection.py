@@ -45,6 +45,8 @@ Message = Any  # a pymavlink MAVLink_message: field attributes, get_type(), get_
 Sender = tuple[int, int]  # MAVLink (system id, component id)
 
 MAX_MESSAGES_PER_RECV = 64  # bound one recv() so a burst cannot starve heartbeats and the watchdog
+#: What a connection's ``recv_msg`` gives for a frame of a message the caller does not read (``reads``)
+SKIPPED = object()
 STREAM_READ_BYTES = 4096  # one read of a byte stream: what waits, up to 44 ms of a 921 600 baud serial line
 MIN_SLEEP_S = 0.001  # a shorter quiet spell is waited for on the socket: a sleep's wake-up would cost as much
 UDP_RECEIVE_BUFFER_BYTES = 1 << 20
@@ -114,6 +116,7 @@ class LinkCounters:
     """What the link saw and did, cumulative."""
 
     received: int = 0  # well-formed messages handed to the caller
+    skipped: int = 0  # frames of a message the caller does not read, left undecoded (:meth:`MavlinkLink.recv_items`)
     bad_data: int = 0  # garbage bytes, bad CRC, truncated or malformed frames
     signature_rejected: int = 0  # unsigned or badly signed while signing is required
     sent: int = 0
@@ -182,6 +185,7 @@ class FrameConnection:
     mav: Any
     on_truncated: Any = None  # called once per dropped incomplete frame
     direct: _FrameReader | None = None
+    reads: frozenset[int] | None = None  # the message ids the caller reads (None: all); others are SKIPPED
     stamps_arrivals = False  # the OS stamps each datagram's arrival: :attr:`arrival_s`
     arrival_s: float | None = None  # the last datagram's arrival (``time.monotonic()``) when known
 
@@ -236,9 +240,12 @@ class StreamConnection(FrameConnection):
         end = _frame_end(buf, start)
         if end is None or end > len(buf):
             return None
-        direct = self.direct
-        if direct is not None:
-            got = direct.read(bytes(buf[start:end]))
+        direct, reads = self.direct, self.reads
+        if direct is not None or reads is not None:
+            frame = bytes(buf[start:end])
+            got = direct.read(frame) if direct is not None else None
+            if got is None and reads is not None and _unread(frame, reads):
+                got = SKIPPED
             if got is not None:
                 mav.buf_index = end
                 return got
@@ -276,7 +283,12 @@ class DatagramConnection(FrameConnection):
             if got is not None:
                 self.heard()
                 return got
-            msg = self._decode(data) if _whole_frame(data) else self.mav.parse_char(data)
+            if not _whole_frame(data):
+                msg = self.mav.parse_char(data)
+            elif self.reads is not None and _unread(data, self.reads):
+                return SKIPPED  # (not heard: its CRC is unchecked, so it buys its sender nothing)
+            else:
+                msg = self._decode(data)
         if msg is not None and msg.get_type() != "BAD_DATA":
             self.heard()
         # no mavutil.post_message: its per-system bookkeeping (two message copies per instance-keyed
@@ -404,6 +416,12 @@ def _frame_end(buf: bytes | bytearray, start: int) -> int | None:
         return start + mavlink2.HEADER_LEN_V1 + buf[start + 1] + 2
     signed = buf[start + 2] & mavlink2.MAVLINK_IFLAG_SIGNED
     return start + mavlink2.HEADER_LEN_V2 + buf[start + 1] + 2 + (mavlink2.MAVLINK_SIGNATURE_BLOCK_LEN if signed else 0)
+
+
+def _unread(frame: bytes, reads: frozenset[int]) -> bool:
+    """Whether ``frame`` (one whole frame, as :func:`_frame_end` frames it) is a MAVLink 2 message whose id is not
+    in ``reads``. MAVLink 1 frames are left to pymavlink: no vehicle streams them to a companion any more."""
+    return frame[0] == mavlink2.PROTOCOL_MARKER_V2 and (frame[7] | frame[8] << 8 | frame[9] << 16) not in reads
 
 
 def _whole_frame(data: bytes) -> bool:
@@ -723,11 +741,15 @@ class MavlinkLink:
         decode: Callable[[Message], Any],
         direct: DirectFrame | None = None,
         quiet_until: float = -math.inf,
+        reads: frozenset[int] | None = None,
     ) -> list[tuple[float, Sender, Any]]:
         """Wait up to ``timeout_s`` for input; return ``(arrival time.monotonic(), sender, decode(message))`` of
         every message waiting (at most ``MAX_MESSAGES_PER_RECV``). A datagram that is exactly one unsigned frame
         of ``direct``'s message is decoded by it instead, without pymavlink (not while signing is required: then
-        every frame is pymavlink's to check).
+        every frame is pymavlink's to check). ``reads``: the ids of the messages the caller reads; a MAVLink 2
+        frame of any other is counted ``skipped`` and not decoded at all (a real autopilot streams a hundred
+        messages a second that an attitude service has no use for), its CRC unchecked (not while signing is
+        required either).
 
         ``quiet_until`` (``time.monotonic()``): the caller need not hear of anything before then, so the link
         sleeps until then (within ``timeout_s``) rather than wake for every message, and returns what arrived
@@ -742,6 +764,7 @@ class MavlinkLink:
         self._keep_signing_clock()
         if isinstance(conn, FrameConnection):
             conn.direct = self._reader(direct)
+            conn.reads = None if self._require_signing else reads
         asleep_since = self._backlog_since  # a backlog longer than one call is still stamped so
         self.backlog = False
         if asleep_since is None:
@@ -773,6 +796,9 @@ class MavlinkLink:
                 msg = conn.recv_msg()
                 if msg is None:
                     break
+                if msg is SKIPPED:
+                    self.counters.skipped += 1
+                    continue
                 if stamped and conn.arrival_s is not None:
                     t_rx = conn.arrival_s
                 elif slept_since is not None:

@@ -33,13 +33,15 @@ from tests.link.test_signing import KEY, OTHER_KEY
 SEED = 20250611
 
 
-def _drain(link: MavlinkLink, decoder: MavlinkDecoder, direct: bool, count: int) -> list[tuple]:
-    """``(sender, item)`` of everything the link hands over until ``count`` datagrams are accounted for."""
+def _drain(
+    link: MavlinkLink, decoder: MavlinkDecoder, direct: bool, count: int, reads: frozenset[int] | None = None
+) -> list[tuple]:
+    """``(arrival, sender, item)`` of everything the link hands over until ``count`` frames are accounted for."""
     got: list[tuple] = []
     deadline = time.monotonic() + WAIT_S
     c = link.counters
-    while time.monotonic() < deadline and c.received + c.bad_data + c.signature_rejected < count:
-        got += [(s, i) for _, s, i in link.recv_items(0.05, decoder, decoder.direct if direct else None)]
+    while time.monotonic() < deadline and c.received + c.bad_data + c.signature_rejected + c.skipped < count:
+        got += link.recv_items(0.05, decoder, decoder.direct if direct else None, reads=reads)
     return got
 
 
@@ -52,17 +54,8 @@ def _both_ways(datagrams: list[bytes], decoder: MavlinkDecoder, **link_kwargs: o
     """The same datagrams through a fresh link read directly and one read by pymavlink: (items, counters) each."""
     results = []
     for direct in (True, False):
-        link = MavlinkLink("udpin:127.0.0.1:0", source_system=1, **link_kwargs)
-        peer = UdpPeer()
-        peer.target = link.local_address
-        try:
-            for data in datagrams:
-                peer.send_raw(data)
-            got = _drain(link, decoder, direct, len(datagrams))
-            results.append(([(s, _comparable(i)) for s, i in got], dataclasses.asdict(link.counters)))
-        finally:
-            link.close()
-            peer.close()
+        got, counters = _received("udp", datagrams, decoder, None, direct, **link_kwargs)
+        results.append(([(s, _comparable(i)) for _, s, i in got], counters))
     return results
 
 
@@ -301,3 +294,96 @@ def test_frames_left_over_from_one_read_come_without_waiting_for_more_input():
         first = link.recv(WAIT_S)
         rest = link.recv(WAIT_S)
         assert (len(first), len(rest)) == (MAX_MESSAGES_PER_RECV, 80 - MAX_MESSAGES_PER_RECV)
+
+
+def _telemetry_frames() -> tuple[list[bytes], int]:
+    """A vehicle's RAW_IMU and HEARTBEAT among telemetry an attitude service does not read (VFR_HUD, SYS_STATUS,
+    one with a bad CRC, one in MAVLink 1), and how many of those are MAVLink 2 frames."""
+    vehicle = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    v1 = mavlink1.MAVLink(None, srcSystem=1, srcComponent=1)
+    sample = units.ImuSample(5.0, (0.1, 0.2, -9.8), (0.01, 0.0, 0.0), (20.0, 1.0, 40.0))
+    imu = mavlink2.MAVLink_raw_imu_message(**units.encode(sample, units.PROFILES["ardupilot"], "RAW_IMU"))
+    hud = mavlink2.MAVLink_vfr_hud_message(1.0, 2.0, 90, 50, 10.0, 0.5)
+    status = mavlink2.MAVLink_sys_status_message(1, 1, 1, 500, 12000, 30, 80, 0, 0, 0, 0, 0, 0)
+    bad_hud = bytes(hud.pack(vehicle))
+    frames = [
+        bytes(mavlink2.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3).pack(vehicle)),
+        bytes(imu.pack(vehicle)),
+        bytes(hud.pack(vehicle)),
+        bytes(status.pack(vehicle)),
+        bytes(imu.pack(vehicle)),
+        bad_hud[:-1] + bytes([bad_hud[-1] ^ 0xFF]),
+        bytes(mavlink1.MAVLink_vfr_hud_message(1.0, 2.0, 90, 50, 10.0, 0.5).pack(v1)),
+        bytes(imu.pack(vehicle)),
+    ]
+    return frames, 3
+
+
+READS = frozenset({mavlink2.MAVLINK_MSG_ID_RAW_IMU, mavlink2.MAVLINK_MSG_ID_HEARTBEAT})
+
+
+def _kinds(items: list[tuple]) -> list[str]:
+    return [type(i).__name__ if not hasattr(i, "get_type") else i.get_type() for _, _, i in items]
+
+
+@pytest.mark.parametrize("kind", ["udp", "tcp", "serial"])
+def test_messages_the_caller_does_not_read_are_skipped_undecoded(kind, monkeypatch):
+    """``reads``: a MAVLink 2 frame of another message is counted ``skipped`` and never reaches pymavlink's
+    decoder (its CRC unchecked: a bad one is skipped too); MAVLink 1 is still pymavlink's; what is read comes as
+    without ``reads``."""
+    frames, unread_v2 = _telemetry_frames()
+    decoder = MavlinkDecoder("RAW_IMU", units.PROFILES["ardupilot"])
+    decoded = []
+    real_decode = link_dialect.MAVLink.decode
+    monkeypatch.setattr(link_dialect.MAVLink, "decode", lambda mav, buf: decoded.append(1) or real_decode(mav, buf))
+    got = _received(kind, frames, decoder, READS)
+    assert _kinds(got[0]) == ["Heartbeat", "ImuSample", "ImuSample", "VFR_HUD", "ImuSample"]
+    assert got[1]["skipped"] == unread_v2 and got[1]["bad_data"] == 0
+    assert len(decoded) == 2  # the HEARTBEAT and the MAVLink 1 frame
+    everything = _received(kind, frames, decoder, None)
+    assert _kinds(everything[0]) == [
+        "Heartbeat",
+        "ImuSample",
+        "VFR_HUD",
+        "SYS_STATUS",
+        "ImuSample",
+        "VFR_HUD",
+        "ImuSample",
+    ]
+    assert everything[1]["skipped"] == 0 and everything[1]["bad_data"] == 1
+
+
+def test_nothing_is_skipped_while_signing_is_required():
+    """With signing required every frame is pymavlink's to check: none is skipped unchecked (these, unsigned, are
+    all refused: by their signature, the one with a bad CRC by that)."""
+    frames, _ = _telemetry_frames()
+    decoder = MavlinkDecoder("RAW_IMU", units.PROFILES["ardupilot"])
+    items, counters = _received("udp", frames, decoder, READS, signing_key=KEY, require_signing=True)
+    assert items == [] and counters["skipped"] == 0
+    assert (counters["signature_rejected"], counters["bad_data"]) == (len(frames) - 1, 1)
+
+
+def _received(
+    kind: str,
+    frames: list[bytes],
+    decoder: MavlinkDecoder,
+    reads: frozenset[int] | None,
+    direct: bool = True,
+    **link_kwargs: object,
+) -> tuple[list[tuple], dict[str, int]]:
+    """``frames`` through a fresh link of ``kind`` (one datagram each, or one stream) read with ``reads``: what
+    it handed over and its counters once every frame is accounted for."""
+    if kind != "udp":
+        with _stream_link(kind) as (link, write):
+            write(b"".join(frames))
+            return _drain(link, decoder, direct, len(frames), reads), dataclasses.asdict(link.counters)
+    link = MavlinkLink("udpin:127.0.0.1:0", source_system=1, **link_kwargs)
+    peer = UdpPeer()
+    peer.target = link.local_address
+    try:
+        for data in frames:
+            peer.send_raw(data)
+        return _drain(link, decoder, direct, len(frames), reads), dataclasses.asdict(link.counters)
+    finally:
+        link.close()
+        peer.close()
