@@ -16,8 +16,9 @@ The source hands its records out two ways, both through the one :class:`~mavatti
   lock-on and sender rule); what replay feeds :meth:`AttitudePipeline.push_batch`.
 
 A record whose CRC fails is skipped and counted (:attr:`TlogSource.bad_records`); bytes where no record
-starts are skipped up to the next MAVLink magic; a last record cut short ends the log. Each is
-:attr:`TlogSource.damage`.
+starts are skipped up to the next record in step with the log (a MAVLink magic after a receive time with the
+log's top bytes: :func:`_frame_by_record`), so bytes inserted inside a record cost that record alone; a last
+record cut short ends the log. Each is :attr:`TlogSource.damage`.
 """
 
 from __future__ import annotations
@@ -152,33 +153,82 @@ def _frame_whole(data: bytes) -> tuple[NDArray[np.int64], int] | None:
 
 
 def _frame_by_record(data: bytes) -> tuple[list[int], int, int, int]:
-    """:func:`_frame` one record after the other, skipping to the next magic where no record starts."""
+    """:func:`_frame` one record after the other, skipping damage to the next record.
+
+    A record is where a MAVLink magic follows a receive time whose top three bytes are the last record's (or one
+    more: they change once in 2⁴⁰ µs, 12.7 days); the first is one whose next record has its top bytes too.
+    Elsewhere (bytes inserted, a record cut short or its length byte hit) the bytes up to the next such place are
+    skipped. A magic alone would take the first 0xFD of a payload for a record and frame on from there out of
+    step, losing the records after it until one fell in step by chance (half a second of a log, measured)."""
     starts: list[int] = []
     append = starts.append
     n = len(data)
     last = n - MIN_RECORD  # the last place a record's header can start
     ofs = skipped = 0
     first_skip = -1
+    marks: tuple[bytes, bytes] | None = None  # the last record's top time bytes, and those one more
     while ofs <= last:  # the hot loop: one pass of it per record
-        magic = data[ofs + TIME_LEN]
-        if magic == MAGIC_V2:
-            end = ofs + 20 + data[ofs + 9]
-            if data[ofs + 10] & IFLAG_SIGNED:
-                end += SIGNATURE_LEN
-        elif magic == MAGIC_V1:
-            end = ofs + 16 + data[ofs + 9]
-        else:
-            found = [p for p in (data.find(b"\xfd", ofs + 9), data.find(b"\xfe", ofs + 9)) if p >= 0]
-            resume = min(found) - TIME_LEN if found else n
-            first_skip = ofs if first_skip < 0 else first_skip
-            skipped += resume - ofs
-            ofs = resume
+        end = _record_end(data, ofs)
+        if end is not None and not (marks and data.startswith(marks[0], ofs)):  # the first record, or none
+            in_step = data.startswith(marks[1], ofs) if marks else _starts_run(data, ofs, end)
+            end, marks = (end, _marks(data, ofs)) if in_step else (None, marks)
+        if end is not None:
+            if end > n:
+                break
+            append(ofs)
+            ofs = end
             continue
-        if end > n:
-            break
-        append(ofs)
-        ofs = end
+        resume = _next_record(data, ofs + 1, marks)
+        first_skip = ofs if first_skip < 0 else first_skip
+        skipped += resume - ofs
+        ofs = resume
     return starts, skipped, first_skip, ofs
+
+
+def _record_end(data: bytes, ofs: int) -> int | None:
+    """Where the record at ``ofs`` ends by its frame's header; None when no MAVLink magic follows its time."""
+    magic = data[ofs + TIME_LEN]
+    if magic == MAGIC_V2:
+        return ofs + 20 + data[ofs + 9] + (SIGNATURE_LEN if data[ofs + 10] & IFLAG_SIGNED else 0)
+    if magic == MAGIC_V1:
+        return ofs + 16 + data[ofs + 9]
+    return None
+
+
+def _marks(data: bytes, ofs: int) -> tuple[bytes, bytes]:
+    """The top three bytes of the receive time at ``ofs``, and those of the next 2⁴⁰ µs."""
+    top = int.from_bytes(data[ofs : ofs + 3], "big")
+    return data[ofs : ofs + 3], ((top + 1) & 0xFFFFFF).to_bytes(3, "big")
+
+
+def _starts_run(data: bytes, ofs: int, end: int) -> bool:
+    """Whether the record at ``ofs`` (ending at ``end``) is followed in step by another, or ends the log."""
+    if end > len(data) - MIN_RECORD:
+        return True
+    return _record_end(data, end) is not None and data[end : end + 3] in _marks(data, ofs)
+
+
+def _next_record(data: bytes, start: int, marks: tuple[bytes, bytes] | None) -> int:
+    """The next place from ``start`` a record can begin: a MAVLink magic after a receive time in step with
+    ``marks`` (any magic before the first record); the log's length when there is none."""
+    n = len(data)
+    if marks is None:
+        found = [p - TIME_LEN for p in (data.find(b"\xfd", start + TIME_LEN), data.find(b"\xfe", start + TIME_LEN))]
+        return min([p for p in found if p >= start], default=n)
+    p = start
+    while p <= n - MIN_RECORD:
+        # a window at a time: the next record is usually bytes away, and a mark absent (the next 2⁴⁰ µs's, nearly
+        # always) would be looked for through the rest of the log at every damage
+        stop = min(p + SCAN_BYTES, n)
+        found = [q for q in (data.find(marks[0], p, stop), data.find(marks[1], p, stop)) if q >= 0]
+        if not found:
+            p = stop - 2  # (a mark across the window's end)
+            continue
+        p = min(found)
+        if p <= n - MIN_RECORD and _record_end(data, p) is not None:
+            return p
+        p += 1
+    return n
 
 
 def looks_like_tlog(head: bytes) -> bool:

@@ -291,6 +291,30 @@ def test_bytes_that_start_no_record_are_skipped_to_the_next_frame(tmp_path: Path
     assert source.count == len(written)
 
 
+def test_bytes_inserted_inside_records_cost_those_records_alone(tmp_path: Path) -> None:
+    """A radio's or a disk's damage: runs of bytes inserted inside records (some holding a MAVLink magic). Each
+    costs the record it lands in, never the ones after: framing resumes at the next receive time in step with the
+    log's. (Resuming at the next magic alone took a payload's 0xFD for a record and framed on out of step.)"""
+    path = tmp_path / "imu.tlog"
+    n = 2000
+    write_tlog(path, [(1, "HEARTBEAT", HEARTBEAT)] + [(1, "RAW_IMU", _raw(i) | {"xacc": i % 256}) for i in range(n)])
+    data = bytearray(path.read_bytes())
+    rng = np.random.default_rng(11)
+    record = len(data) // (n + 1)  # every RAW_IMU record is the same length here (and the HEARTBEAT near it)
+    hit = sorted(rng.choice(np.arange(10, n - 10), 12, replace=False).tolist(), reverse=True)
+    for k in hit:  # from the end, so the offsets before stay right
+        junk = rng.integers(0, 256, 37, dtype=np.uint8)
+        junk[rng.integers(0, 37, 3)] = 0xFD
+        at = int(k * record + rng.integers(0, record))
+        data[at:at] = junk.tobytes()
+    path.write_bytes(bytes(data))
+    source = _source(path, _config())
+    kept = len(source.tables["RAW_IMU"].index)
+    assert n - len(hit) <= kept < n and source.damage is not None
+    t_us = source.tables["RAW_IMU"].fields["time_usec"]
+    assert np.diff(t_us).max() <= 2000  # no gap longer than the one record lost (1 ms apart)
+
+
 @pytest.mark.parametrize("length", [0, 1, 30, 31])
 def test_the_crc_is_mavlinks_x25(length: int) -> None:
     from pymavlink.mavutil import x25crc
