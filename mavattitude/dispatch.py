@@ -54,6 +54,8 @@ class DispatchCounters:
 
     received: int = 0  # input (IMU) messages from the autopilot
     ignored: int = 0  # items from other senders, or before locking on
+    #: the senders of an autopilot HEARTBEAT other than the vehicle followed (a swarm's, or a second vehicle's log)
+    other_autopilots: set[Sender] = field(default_factory=set)
     rejected: dict[str, int] = field(default_factory=lambda: dict.fromkeys(DISPATCH_REJECTS, 0))
     positions: int = 0  # vehicle positions handed to the pipeline (magnetic reference ``auto``)
 
@@ -131,6 +133,8 @@ class Dispatcher:
                 self._lock(sender)
             else:
                 self.counters.ignored += 1
+                if kind is Heartbeat and item.autopilot:
+                    self.counters.other_autopilots.add(sender)
             return
         if kind is ImuSample:
             self._on_sample(item, t_rx)
@@ -157,14 +161,16 @@ class Dispatcher:
         ``senders`` holds every record's sender (``system << 8 | component``) in log order, ``heartbeats``
         the HEARTBEAT items with their record's place, in order. They go through :meth:`handle` until it
         locks; the records after the one it locked on, from the vehicle, are taken, and the others counted
-        ignored, as :meth:`handle` counts them (the locking heartbeat excepted).
+        ignored, as :meth:`handle` counts them (the locking heartbeat excepted), other autopilots' HEARTBEATs among
+        them kept in ``other_autopilots`` as :meth:`handle` keeps them.
         """
         locked_at, fed = -1, 0
         for index, received in heartbeats:
-            if self.vehicle is not None:
-                break
-            self.handle(received)
-            locked_at, fed = index, fed + 1
+            if self.vehicle is None:
+                self.handle(received)
+                locked_at, fed = index, fed + 1
+            elif received[1] != self.vehicle and received[2].autopilot:  # (counted ignored below)
+                self.counters.other_autopilots.add(received[1])
         if self.vehicle is None:
             taken = np.zeros(len(senders), dtype=bool)
         else:

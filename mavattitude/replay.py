@@ -190,7 +190,13 @@ def _replay(source: LogSource, config: Config, progress: Callable[[int, int], No
     from mavattitude.link.logstreams import StreamSource  # the vehicle's streams, one by one
 
     c = result.counters
-    counters = DispatchCounters(c.rejected["decode"], c.ignored, dict(c.rejected))  # what reading the log counted
+    # what reading the log counted
+    counters = DispatchCounters(
+        received=c.rejected["decode"],
+        ignored=c.ignored,
+        rejected=dict(c.rejected),
+        other_autopilots=set(c.other_autopilots),
+    )
     result = Replayed([], [], counters, AttitudePipeline(config), vehicle)  # locked on already, and said so
     undecided = streams.compasses is not None and streams.compasses.why is None
     others = _judge_compasses(streams, result.pipeline, -math.inf) if undecided else []  # each on its own field

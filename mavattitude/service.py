@@ -11,7 +11,8 @@ what waited through a sleep counts its latency from the sleep's start, so the la
 What it reads comes from the live link, decoded (:mod:`mavattitude.link.source`'s decoder), through
 the dispatcher (:mod:`mavattitude.dispatch`) that ``replay`` uses too: it locks onto the autopilot
 (``link.vehicle_system_id``, or with 0 the first autopilot HEARTBEAT; every other sender is ignored and
-counted) and routes the IMU samples into the pipeline and the positions to its magnetic reference. The
+counted, and another autopilot heard is said once: in automatic mode the companion may follow the wrong
+vehicle) and routes the IMU samples into the pipeline and the positions to its magnetic reference. The
 service is the dispatcher's listener. What it does on the link:
 - sends its own HEARTBEAT at 1 Hz as the vehicle's system id (an onboard controller, component
   ``link.component_id``). Until it has locked on in automatic mode it has no id to use and sends as
@@ -263,6 +264,7 @@ class AttitudeService:
         self._refused: Counter[str] = Counter()  # the refusals up to the last attitude
         self._per_sample = False  # the input too slow to filter, as last said (_say_rate_handling)
         self._no_heading = SampleFlag.NONE  # our attitudes have no heading, as last said (_say_tilt_only)
+        self._others_said: set[Sender] = set()  # the other autopilots heard, as said (_say_other_autopilots)
         self._attitude_sent = False
         self._rate = RateMonitor(config.link.request_rate_hz, RATE_WINDOW_S) if config.link.request_messages else None
         self._xcheck = CrossCheck(config.crosscheck) if config.crosscheck.enabled else None
@@ -357,6 +359,8 @@ class AttitudeService:
         self.session.tick(now)
         if self.pipeline.frontend.per_sample != self._per_sample:
             self._say_rate_handling()
+        if self.vehicle is not None and self.counters.other_autopilots - self._others_said:
+            self._say_other_autopilots(self.vehicle)
         if self._rate is not None:
             self._check_rate(self._rate, now)
         if self._xcheck is not None and self._publish.due(now):
@@ -399,6 +403,11 @@ class AttitudeService:
         link = self.config.link
         if waiting is Waiting.AUTOPILOT:
             which = f" from system {link.vehicle_system_id}" if link.vehicle_system_id else ""
+            heard = sorted({system for system, _ in self.counters.other_autopilots})
+            if heard:  # the id configured is not the vehicle's, or the vehicle is not on this link
+                systems = ", ".join(map(str, heard))
+                kind = "systems" if len(heard) > 1 else "system"
+                return f"waiting for a HEARTBEAT{which} on {link.connect}: heard only autopilot {kind} {systems}"
             return f"waiting for a HEARTBEAT{which} on {link.connect} ({LINK_HINTS[self.link.endpoint.kind]})"
         if waiting is Waiting.IMU_STREAM:
             assert self.vehicle is not None
@@ -630,6 +639,27 @@ class AttitudeService:
         """A sensor whose magnitude says its units are wrong (judged once, at the start): with the scale to check."""
         log.warning("%s: check %s", finding.text, profile_units(self.config, self._input_name, finding.sensor))
         self._statustext(f"units:{finding.sensor}", finding.short, "warning", log_it=False)
+
+    def _say_other_autopilots(self, vehicle: Sender) -> None:
+        """Another autopilot on the link (a swarm on one radio, a second vehicle): said once each. Locked on in
+        automatic mode, the first heard was taken, and the companion may be following the wrong vehicle."""
+        chosen = self.config.link.vehicle_system_id != 0
+        for system, component in sorted(self.counters.other_autopilots - self._others_said):
+            following = f"following system {vehicle[0]}, component {vehicle[1]}"
+            if chosen:
+                log.info("another autopilot on the link: system %d, component %d (%s)", system, component, following)
+            else:
+                log.warning(
+                    "another autopilot on the link: system %d, component %d (%s, the first heard): if this companion "
+                    "is on the other vehicle, set link.vehicle_system_id: %d",
+                    system,
+                    component,
+                    following,
+                    system,
+                )
+                text = f"mavattitude: autopilot sys {system} also heard"
+                self._statustext(f"autopilot{system}", text, "warning", log_it=False)
+        self._others_said = set(self.counters.other_autopilots)
 
     def _say_tilt_only(self, unknown: bool) -> None:
         """Our attitudes lost or found their heading (no magnetometer reading at all): said once each way."""

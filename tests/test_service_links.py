@@ -508,3 +508,38 @@ def test_the_vehicles_other_telemetry_is_skipped_and_what_the_service_reads_is_n
     assert "skipped=3" in service_module.counters_line(
         service.counters, service.link.counters, service.pipeline.counters
     )
+
+
+def test_another_autopilot_on_the_link_is_said_once_with_the_setting_that_chooses(caplog):
+    """Two vehicles on one radio: locked on in automatic mode to the first autopilot heard, the service says
+    once (log and STATUSTEXT) that it hears another, and how to follow that one instead; a ground station's
+    HEARTBEAT is no autopilot's."""
+    caplog.set_level(logging.WARNING, logger="mavattitude.service")
+    service, link = _service()
+    first, second, station = Peer(), Peer(system=2), Peer(system=255)
+    gcs = station.pack(mavlink2.MAVLink_heartbeat_message(6, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3))
+    link.deliver(first.heartbeat(), gcs, second.heartbeat(), *first.stream(20), second.heartbeat())
+    _step_until(service, lambda: not link.inbox)
+    service.step(STEP_S)
+    assert service.vehicle == (1, 1) and service.counters.other_autopilots == {(2, 1)}
+    said = [r.getMessage() for r in caplog.records if "another autopilot" in r.getMessage()]
+    assert said == [
+        "another autopilot on the link: system 2, component 1 (following system 1, component 1, the first heard): "
+        "if this companion is on the other vehicle, set link.vehicle_system_id: 2"
+    ]
+    assert [s.text for s in sent(link, "STATUSTEXT") if "also heard" in s.text] == [
+        "mavattitude: autopilot sys 2 also heard"
+    ]
+
+
+def test_waiting_for_the_configured_autopilot_names_the_ones_heard():
+    """link.vehicle_system_id set to an id no autopilot on the link has: the wait names the ones heard."""
+    service, link = _service(**{"link.vehicle_system_id": 3})
+    link.deliver(Peer().heartbeat(), Peer(system=2).heartbeat())
+    _step_until(service, lambda: not link.inbox)
+    assert service.vehicle is None
+    connect = service.config.link.connect
+    assert (
+        service.waiting_text()
+        == f"waiting for a HEARTBEAT from system 3 on {connect}: heard only autopilot systems 1, 2"
+    )

@@ -5,12 +5,13 @@ format is read from the file's content) goes through the service's own dispatche
 (mavattitude.replay), as fast as the CPU goes. From a .tlog the IMU messages are input.message decoded with
 input.profile (without --message, a log whose autopilot sent none is replayed with the first other IMU message
 of the profile it sent, and said: a PX4's HIGHRES_IMU), and replay follows one autopilot as the service does
-(link.vehicle_system_id, or the first autopilot HEARTBEAT); a .bin, .log or .ulg is the autopilot's own log
-(IMU and MAG instances chosen with --imu / --mag). With reference.magnetic auto, the World Magnetic Model is
-evaluated at the log's positions, on the log's date; a log without a position is replayed with the dip and |B|
-its compass shows while the vehicle is still (reference.position_wait_s after its start, as the live service
-does), heading from magnetic north, or from true north by the autopilot's declination where its parameters
-give it (ArduPilot's COMPASS_DEC, PX4's EKF2_MAG_DECL).
+(--system-id or link.vehicle_system_id, else the first autopilot HEARTBEAT; the others the log holds are
+named); a .bin, .log or .ulg is the autopilot's own log (IMU and MAG instances chosen with --imu / --mag).
+With reference.magnetic auto, the World Magnetic Model is evaluated at the log's positions, on the log's
+date; a log without a position is replayed with the dip and |B| its compass shows while the vehicle is still
+(reference.position_wait_s after its start, as the live service does), heading from magnetic north, or from
+true north by the autopilot's declination where its parameters give it (ArduPilot's COMPASS_DEC, PX4's
+EKF2_MAG_DECL).
 
 One log and OUT ending in .csv (or .csv.gz): the attitude is written there. Several logs, or a
 directory of them: OUT is a directory, with one CSV per log (the columns of `mavattitude solve`), and
@@ -136,6 +137,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--profile", choices=PROFILE_NAMES, help=f"unit profile of a .tlog (config default: {DEFAULTS.input.profile})"
     )
     parser.add_argument(
+        "--system-id",
+        type=int,
+        metavar="ID",
+        help="the autopilot of a .tlog to follow, by MAVLink system id, where it holds several (a swarm, a ground "
+        "station's log of two vehicles); default: the first whose HEARTBEAT it holds",
+    )
+    parser.add_argument(
         "--plot", metavar="PNG", help="plot file of a single log (default: the output's name with .png)"
     )
     parser.add_argument("--no-plot", action="store_true", help="write no plot")
@@ -194,7 +202,7 @@ class Job:
 
 
 def run(args: argparse.Namespace) -> int:
-    overrides = {"input.message": args.message, "input.profile": args.profile}
+    overrides = {"input.message": args.message, "input.profile": args.profile, "link.vehicle_system_id": args.system_id}
     config = config_from_args(args, {k: v for k, v in overrides.items() if v is not None})
     jobs = _jobs(args, config)
     if len(jobs) == 1 and jobs[0].table:
@@ -511,6 +519,16 @@ def _check_found(path: str, message: str, result: Any, units_from: Callable[[str
         log.info(
             "ignored %d message(s) not from the autopilot (other system or component, or before its HEARTBEAT)",
             result.counters.ignored,
+        )
+    others = sorted(result.counters.other_autopilots)
+    if others and result.vehicle is not None:
+        log.info(
+            "the log holds other autopilots than system %d, component %d, the one replayed: %s (--system-id %d "
+            "replays %s)",
+            *result.vehicle,
+            ", ".join(f"system {s}, component {c}" for s, c in others),
+            others[0][0],
+            "it" if len(others) == 1 else "the first",
         )
     if result.vehicle is None:
         if not result.counters.ignored:

@@ -144,15 +144,36 @@ def test_the_compass_line_says_when_the_field_strength_is_not_known(tmp_path, ca
     assert ratio == pytest.approx(1.0, abs=0.05)  # the written field, 0.3 µT noise on 49 µT
 
 
-def test_the_configured_system_id_selects_the_vehicle(tmp_path, capsys):
+@pytest.mark.parametrize("chosen_by", ["config", "flag"])
+def test_the_configured_system_id_selects_the_vehicle(tmp_path, capsys, chosen_by):
     log = write_tlog(tmp_path / "two.tlog", attitude=False)
     config = tmp_path / "c.yaml"
     config.write_text(yaml.safe_dump({"link": {"vehicle_system_id": 2}}))
     out = tmp_path / "v2.csv"
-    assert main(["replay", str(log), "-o", str(out), *REF, "--config", str(config)]) == 0
+    choice = ["--config", str(config)] if chosen_by == "config" else ["--system-id", "2"]
+    assert main(["replay", str(log), "-o", str(out), *REF, *choice]) == 0
     assert errors_deg(read_rows(out)[10:], sysid=2).max() < MAX_ERR_DEG
-    assert capsys.readouterr().out == ""  # no ATTITUDE in the log: no table
+    captured = capsys.readouterr()
+    assert captured.out == ""  # no ATTITUDE in the log: no table
     assert not out.with_suffix(".png").exists()
+    assert (
+        "the log holds other autopilots than system 2, component 1, the one replayed: system 1, component 1 "
+        "(--system-id 1 replays it)"
+    ) in captured.err
+
+
+def test_the_other_autopilots_a_log_holds_are_named_with_the_flag_that_replays_them(tmp_path, capsys):
+    """A ground station's log of two vehicles: the first autopilot heard is followed, the other named (a ground
+    station's and a gimbal's HEARTBEAT are no autopilot's)."""
+    log = write_tlog(tmp_path / "two.tlog", attitude=False, gimbal_first=True)
+    assert main(["replay", str(log), "-o", str(tmp_path / "v1.csv"), *REF]) == 0
+    assert (
+        "the log holds other autopilots than system 1, component 1, the one replayed: system 2, component 1 "
+        "(--system-id 2 replays it)"
+    ) in capsys.readouterr().err
+    one = write_tlog(tmp_path / "one.tlog", attitude=False, second_vehicle=False, gimbal_first=True)
+    assert main(["replay", str(one), "-o", str(tmp_path / "one.csv"), *REF]) == 0
+    assert "other autopilots" not in capsys.readouterr().err
 
 
 def test_a_gimbal_heartbeat_is_not_taken_for_the_autopilot(tmp_path, capsys):
