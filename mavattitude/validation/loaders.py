@@ -50,7 +50,8 @@ class Recording:
         t = self.time_s - self.time_s[0]
         keep = (t >= (start_s if start_s is not None else -np.inf)) & (t < (stop_s if stop_s is not None else np.inf))
         if keep.sum() < 2:
-            raise DataFileError(f"{self.name}: the slice {start_s}–{stop_s} s holds fewer than 2 samples")
+            span = f"{start_s or 0:g} s to {'the end' if stop_s is None else f'{stop_s:g} s'}"
+            raise DataFileError(f"{self.name}: {span} holds fewer than 2 samples (the recording is {t[-1]:.1f} s long)")
         arrays = {
             k: getattr(self, k)[keep]
             for k in ("time_s", "acc_mps2", "gyr_radps", "mag_uT", "mag_new", "truth_q", "movement", "rest")

@@ -117,5 +117,11 @@ def test_bad_files_are_data_file_errors(tmp_path) -> None:
 
 
 def test_a_slice_outside_the_recording_is_refused(recordings) -> None:
-    with pytest.raises(DataFileError, match="fewer than 2 samples"):
+    """Said with the recording's length (from ``--start`` alone: to its end)."""
+    length = recordings["px4"].time_s[-1] - recordings["px4"].time_s[0]
+    with pytest.raises(
+        DataFileError, match=rf"1000 s to 1001 s holds fewer than 2 samples \(the recording is {length:.1f} s"
+    ):
         recordings["px4"].slice(1000, 1001)
+    with pytest.raises(DataFileError, match="500 s to the end holds fewer than 2 samples"):
+        recordings["px4"].slice(500)
