@@ -15,6 +15,7 @@ the figures the README quotes; `--quick` is the CI smoke run (seconds); `-o FILE
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import logging
 import os
@@ -590,6 +591,8 @@ EXPECTED_ROWS["live"] = [
     "service ign on that serial device, CPU ÷ the bare loop's on it (alternated)",
     "the bare loop's wake-ups per second (one per message)",
     "the service's (ign) wake-ups per second (a 50 Hz output needs 50 at the fewest)",
+    "bare pymavlink receive loop with a real autopilot's other telemetry too (80 messages/s), CPU share of one core",
+    "service ign on that stream, CPU ÷ the bare loop's on it (alternated)",
 ]
 
 _LOOP_HEAD = """
@@ -663,12 +666,13 @@ def _service_usage(
 @section("live")
 def bench_live(settings: Settings) -> list[Row]:
     """The bare loop and the service in turn on one fake vehicle's RAW_IMU-only stream (200 Hz, no ATTITUDE),
-    ``rounds`` times: a slow spell of the shared machine falls on every program rather than on one."""
+    ``rounds`` times: a slow spell of the shared machine falls on every program rather than on one. Then the same on
+    a serial device, and on a stream with a real autopilot's other telemetry besides (``other_telemetry``)."""
     seconds, rounds, settle_s = (1.0, 1, 0.5) if settings.quick else (10.0, 2, LIVE_SETTLE_S)
     script = scenarios.slow_rotation(3600.0)
     vehicle_cfg = vehicle_mod.VehicleConfig("udpin:127.0.0.1:0", stream_on_start=True, seed=SEED, attitude_rate_hz=0.0)
     # (CPU share, wake-ups per second) of each program, the mean of its rounds
-    usage = {k: np.zeros(2) for k in ("bare", "ign", "fused", "tick", "serial bare", "serial")}
+    usage = {k: np.zeros(2) for k in ("bare", "ign", "fused", "tick", "serial bare", "serial", "chatty bare", "chatty")}
     with vehicle_mod.FakeVehicle(script, scenarios.consumer_sensors(200.0), vehicle_cfg) as vehicle:
         vehicle.set_rate(vehicle_cfg.message, 200.0)
         udp = f"udpout:127.0.0.1:{vehicle.port}"
@@ -684,6 +688,15 @@ def bench_live(settings: Settings) -> list[Row]:
             for _ in range(rounds):
                 usage["serial bare"] += _loop_usage(device, BARE_LOOP, seconds, settle_s) / rounds
                 usage["serial"] += _service_usage(vehicle, "ign", seconds, settle_s, connect=device) / rounds
+    # a real autopilot's other telemetry besides (sim.vehicle.OTHER_TELEMETRY_HZ), which the service skips undecoded
+    chatty_cfg = dataclasses.replace(vehicle_cfg, other_telemetry=True)
+    with vehicle_mod.FakeVehicle(script, scenarios.consumer_sensors(200.0), chatty_cfg) as vehicle:
+        vehicle.set_rate(vehicle_cfg.message, 200.0)
+        for _ in range(rounds):
+            usage["chatty bare"] += (
+                _loop_usage(f"udpout:127.0.0.1:{vehicle.port}", BARE_LOOP, seconds, settle_s) / rounds
+            )
+            usage["chatty"] += _service_usage(vehicle, "ign", seconds, settle_s) / rounds
     share = {k: u[0] for k, u in usage.items()}
     sec, names = "live", EXPECTED_ROWS["live"]
     return [
@@ -695,6 +708,8 @@ def bench_live(settings: Settings) -> list[Row]:
         _row(sec, names[5], share["serial"] / share["serial bare"], "×"),
         _row(sec, names[6], usage["bare"][1], "/s"),
         _row(sec, names[7], usage["ign"][1], "/s"),
+        _row(sec, names[8], 100.0 * share["chatty bare"], "%"),
+        _row(sec, names[9], share["chatty"] / share["chatty bare"], "×"),
     ]
 
 

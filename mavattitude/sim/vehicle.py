@@ -8,6 +8,8 @@ It behaves like an autopilot on a companion-computer link:
   fix (``gps_fix``, or :meth:`FakeVehicle.set_gps_fix`) latitude, longitude and altitude 0, as ArduPilot
   sends it with no GPS;
 - GPS_RAW_INT when asked for: the script's true ground speed and course, a 3D fix (none without ``gps_fix``);
+- with ``other_telemetry``, the rest of a real autopilot's telemetry (:data:`OTHER_TELEMETRY_HZ`: VFR_HUD,
+  SYS_STATUS, AHRS2, …, 80 messages a second), none of which the service reads;
 - ATTITUDE (10 Hz by default, ``attitude_rate_hz``), as an autopilot's own estimate: the truth, turned
   by ``attitude_error_deg`` (roll, pitch, yaw) to play an autopilot that is off, so a log recorded from
   it gives ``replay`` and the service's cross-check something to compare with;
@@ -36,6 +38,7 @@ and by changing stream rates.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import math
 import threading
@@ -78,6 +81,14 @@ _MSG_GPS_RAW_INT = mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT
 _GPS_SATELLITES = 12
 _AUTOPILOT = {"px4": mavlink2.MAV_AUTOPILOT_PX4}
 _POSITION_RATE_HZ = 2.0
+#: A real autopilot's other telemetry, messages a second by type: what the ground station of the real ArduSub dive
+#: (../shared/data/real) received beside the streams above and the IMU's, 80 a second in all (``other_telemetry``)
+OTHER_TELEMETRY_HZ = {
+    **{"AHRS2": 20.0, "NAMED_VALUE_FLOAT": 16.0, "VFR_HUD": 10.0},
+    **dict.fromkeys(("AHRS", "HWSTATUS", "EKF_STATUS_REPORT", "VIBRATION", "BATTERY_STATUS", "SYS_STATUS"), 3.0),
+    **dict.fromkeys(("POWER_STATUS", "MEMINFO", "NAV_CONTROLLER_OUTPUT", "SERVO_OUTPUT_RAW", "RC_CHANNELS"), 2.0),
+    **dict.fromkeys(("SCALED_PRESSURE", "SCALED_PRESSURE2", "MISSION_CURRENT"), 2.0),
+}
 _HEARTBEAT_PERIOD_S = 1.0
 # The sender wakes at least this often (s): the pacing granularity of IMU sends at high rates.
 _MAX_SLEEP_S = 0.002
@@ -118,6 +129,7 @@ class VehicleConfig:
     # are the board's, its ATTITUDE the frame's, and PARAM_REQUEST_READ of AHRS_TRIM_X/Y answers it
     trim_deg: tuple[float, float] = (0.0, 0.0)
     compass_use: tuple[int, int, int] = (1, 1, 1)  # COMPASS_USE, COMPASS_USE2, COMPASS_USE3: which it heads by
+    other_telemetry: bool = False  # also stream OTHER_TELEMETRY_HZ from boot (their fields ones, their values moot)
 
 
 @dataclass(frozen=True)
@@ -184,6 +196,17 @@ class _Epoch:
         return vehicle_s + self.boot_script_s - self.clock_offset_s
 
 
+def _filled_message(name: str) -> Any:
+    """A message of type ``name`` with every field one (strings "1"): a frame of its usual length."""
+    cls = getattr(mavlink2, f"MAVLink_{name.lower()}_message")
+    values: list[Any] = []
+    for field_name, kind in zip(cls.fieldnames, cls.fieldtypes, strict=True):
+        one: Any = b"1" if kind == "char" else 1.0 if kind in ("float", "double") else 1
+        length = cls.array_lengths[cls.ordered_fieldnames.index(field_name)]
+        values.append(one if length == 0 or kind == "char" else [one] * length)
+    return cls(*values)
+
+
 class FakeVehicle:
     """Run with ``with FakeVehicle(...) as v:`` (or :meth:`start` / :meth:`stop`)."""
 
@@ -213,6 +236,8 @@ class FakeVehicle:
         }
         if config.gps_unix_s is not None:
             self._telemetry[_MSG_SYSTEM_TIME] = self._send_system_time
+        for name in OTHER_TELEMETRY_HZ if config.other_telemetry else ():
+            self._telemetry[message_id(name)] = functools.partial(self._send_as_is, _filled_message(name))
         self._peer_order: list[tuple[str, int]] = []
         self._fault: tuple[Callable[[list[ImuRow]], list[ImuRow]], float, threading.Event] | None = None
         # Records (appended by the receive thread, read under self._cond).
@@ -288,6 +313,8 @@ class FakeVehicle:
             self._streams[_MSG_ATTITUDE] = _Stream(self.config.attitude_rate_hz, now)
         if self.config.stream_on_start:
             self._set_stream(message_id(self.config.message), self.sensors.rate_hz)
+        for name, rate_hz in OTHER_TELEMETRY_HZ.items() if self.config.other_telemetry else ():
+            self._streams[message_id(name)] = _Stream(rate_hz, now)
 
     def start(self) -> FakeVehicle:
         for target in (self._send_loop, self._receive_loop):
@@ -469,6 +496,9 @@ class FakeVehicle:
                 self._fault = None
             done.set()
         return out
+
+    def _send_as_is(self, msg: Any, now_s: float) -> None:
+        self.send(msg)
 
     def _send_heartbeat(self) -> None:
         autopilot = _AUTOPILOT.get(self.config.profile, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA)

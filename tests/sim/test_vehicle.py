@@ -12,7 +12,7 @@ from mavattitude.estimation.conventions import quat_multiply
 from mavattitude.link.mavlink2 import force_mavlink2, mavlink2, mavutil
 from mavattitude.sensors.units import decode, get_profile
 from mavattitude.sim import scenarios
-from mavattitude.sim.vehicle import FakeVehicle, VehicleConfig, _next_deadline
+from mavattitude.sim.vehicle import OTHER_TELEMETRY_HZ, FakeVehicle, VehicleConfig, _next_deadline
 
 TIMEOUT_S = 5.0
 
@@ -127,6 +127,25 @@ def test_telemetry_keeps_its_rate_on_absolute_deadlines() -> None:
     behind_us = stamps_us[1:] - stamps_us[0] - 20_000 * periods
     drift_us = np.median(behind_us[-25:]) - np.median(behind_us[:25])
     assert abs(drift_us) < 10_000, f"ATTITUDE stamps drift {drift_us / 1000:.1f} ms off the 20 ms grid"
+
+
+def test_other_telemetry_streams_a_real_autopilots_mix_at_its_rates() -> None:
+    """``other_telemetry``: the messages of OTHER_TELEMETRY_HZ from boot, each at its rate, counted between two of
+    its heartbeats a second apart: one more for where the second falls; fewer only by ticks a stall of the loaded
+    machine skipped (never half of them)."""
+    config = VehicleConfig("udpin:127.0.0.1:0", other_telemetry=True)
+    with FakeVehicle(scenarios.static(600.0), scenarios.ideal_sensors(200.0), config) as vehicle:
+        conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{vehicle.port}", source_system=1, source_component=191)
+        try:
+            conn.mav.heartbeat_send(mavlink2.MAV_TYPE_ONBOARD_CONTROLLER, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            _recv(conn, "HEARTBEAT")
+            counts: dict[str, int] = {}
+            while (msg := _recv(conn, None)).get_type() != "HEARTBEAT":  # type: ignore[arg-type]
+                counts[msg.get_type()] = counts.get(msg.get_type(), 0) + 1
+        finally:
+            conn.close()
+    for name, rate_hz in OTHER_TELEMETRY_HZ.items():
+        assert rate_hz / 2 <= counts.get(name, 0) <= rate_hz + 1, (name, counts.get(name, 0))
 
 
 def test_a_deadline_stays_on_its_grid_and_a_stall_skips_ticks() -> None:
