@@ -24,7 +24,8 @@ reset, late, overflow), rejects (inputs and ticks refused), rate_handling (an IM
 about twice the low-pass cutoff, gives one unfiltered attitude per sample; --method fused then solves them with
 IGN: too slow to integrate), heading, its source (a log without a magnetometer, or one reading zero, gives roll
 and pitch with the yaw NaN), reference, the magnetic one used (WMM release, place and date; the field measured
-from the compass; or the one given), trim_deg (the autopilot's level trim applied, roll and pitch: ArduPilot's
+from the compass; or the one given), units (a sensor whose first seconds' magnitude says its units are wrong:
+"accelerometer reads 3.33 g"), trim_deg (the autopilot's level trim applied, roll and pitch: ArduPilot's
 AHRS_TRIM_X/Y from the log's parameters, with mounting.autopilot_trim), the estimator's own counters named by
 its method (ign.noise_rest_s, the still time seen, and ign.noise_measured, 1 where the σ measured at rest were
 used; the fused filter's fused.*, among them fused.noise_rest_s, fused.noise_measured and fused.bias_from_rest,
@@ -436,6 +437,7 @@ def _fill(result: LogResult, replayed: Any, imu_name: str) -> None:
     result.outputs = len(replayed.outputs)
     result.duration_s = replayed.last_sample_s - replayed.first_sample_s
     result.columns["reference"] = replayed.pipeline.magref.describe()  # the magnetic reference(s), in order
+    result.columns["units"] = "; ".join(f"{f.sensor} reads {f.reads}" for f in replayed.pipeline.units.findings)
     trim = replayed.pipeline.frontend.settings.trim_rad
     result.columns["trim_deg"] = ", ".join(f"{math.degrees(a):.2f}" for a in trim) if any(trim) else ""
     result.rejects = (

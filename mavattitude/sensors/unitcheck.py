@@ -49,6 +49,7 @@ class UnitsFinding:
     time_s: float  # the vehicle time it was judged at
     text: str
     short: str
+    reads: str  # the median it read, with its unit ("3.33 g", "480 µT")
 
 
 def unlike_gravity(median_mps2: float, what: str = "the median |f|") -> str | None:
@@ -102,12 +103,15 @@ class UnitsCheck:
         acc, mag = _readings(self._acc), _readings(self._mag)
         over = f"over the first {WINDOW_S:g} s"
         if len(acc) and (why := unlike_gravity(float(np.median(acc)), f"its median |f| {over}")) is not None:
-            short = f"accel reads {np.median(acc) / STANDARD_GRAVITY_MPS2:.3g} g: check units, profile"
-            findings.append(UnitsFinding("accelerometer", time_s, f"accelerometer: {why}: wrong units", short))
+            g = f"{np.median(acc) / STANDARD_GRAVITY_MPS2:.3g} g"
+            text, short = f"accelerometer: {why}: wrong units", f"accel reads {g}: check units, profile"
+            findings.append(UnitsFinding("accelerometer", time_s, text, short, g))
         if len(mag) and (why := unlike_earth(float(np.median(mag)), f"its median |B| {over}")) is not None:
+            field = f"{np.median(mag):.3g}"
             guess = "readings in gauss (100 µT) or milligauss (0.1 µT)?"
-            short = f"compass reads {np.median(mag):.3g} uT: check units, profile"
-            findings.append(UnitsFinding("magnetometer", time_s, f"magnetometer: {why}: wrong units ({guess})", short))
+            text = f"magnetometer: {why}: wrong units ({guess})"
+            short = f"compass reads {field} uT: check units, profile"  # (STATUSTEXT is ASCII)
+            findings.append(UnitsFinding("magnetometer", time_s, text, short, f"{field} µT"))
         return findings
 
 

@@ -315,6 +315,19 @@ def test_help_names_every_summary_column(tmp_path):
     assert [c for c in columns if c not in help_text] == []
 
 
+def test_the_summary_names_a_sensor_read_in_the_wrong_units(tmp_path, capsys):
+    """ArduPilot's RAW_IMU read with --profile adis16405 (3.33 mg per count for 1 mg): with a reference given the
+    attitude is solved (each vector normalised), and the summary's units column says what the accelerometer read;
+    with the right profile the column is empty."""
+    logs = [write_tlog(tmp_path / f"{n}.tlog", seconds=6.0, second_vehicle=False) for n in ("a", "b")]
+    out = tmp_path / "out"
+    for profile, said in (("adis16405", "accelerometer reads 3.33 g"), ("ardupilot", "")):
+        assert main(["replay", *map(str, logs), "-o", str(out), *REF, "--no-plot", "--profile", profile]) == 0
+        with (out / "summary.csv").open(encoding="utf-8") as f:
+            assert [r["units"] for r in csv.DictReader(f)] == [said] * 2
+    assert capsys.readouterr().err.count("--profile adis16405's scale, 0.03266 m/s² per unit") == 2
+
+
 def test_a_telemetry_log_without_the_configured_message_is_replayed_with_the_one_its_autopilot_sent(tmp_path, capsys):
     """A PX4's telemetry log holds HIGHRES_IMU, not the default RAW_IMU: replayed with it (and said), as a
     directory of logs from several vehicles is; with --message RAW_IMU asked for, refused naming what it sent."""

@@ -46,6 +46,7 @@ def test_an_accelerometer_far_from_g_is_a_finding_with_its_figure(g, words):
     (finding,) = check.add(*_stream(WINDOW_S + 1.0, g=g))
     assert finding.sensor == "accelerometer" and words in finding.text
     assert finding.short == f"accel reads {g:.3g} g: check units, profile" and len(finding.short) <= 50
+    assert finding.reads == f"{g:.3g} g"
     assert finding.time_s == pytest.approx(100.0 + WINDOW_S)  # judged with the first sample WINDOW_S on
 
 
@@ -53,7 +54,10 @@ def test_an_accelerometer_far_from_g_is_a_finding_with_its_figure(g, words):
 def test_a_magnetometer_far_from_any_earth_field_is_a_finding(factor):
     """Milligauss read as µT (10×), gauss read as µT (0.01×)."""
     (finding,) = UnitsCheck().add(*_stream(WINDOW_S + 1.0, field_uT=FIELD_UT * factor))
-    assert finding.sensor == "magnetometer"
+    assert finding.sensor == "magnetometer" and finding.reads == f"{FIELD_UT * factor:.3g} µT"
+    assert (
+        finding.short == f"compass reads {FIELD_UT * factor:.3g} uT: check units, profile" and finding.short.isascii()
+    )
     assert f"its median |B| over the first 5 s is {FIELD_UT * factor:.3g} µT, where the Earth's is 22-67 µT" in (
         finding.text
     )
