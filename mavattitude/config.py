@@ -34,7 +34,8 @@ from typing import Any
 
 import yaml
 
-from mavattitude.errors import ConfigError
+from mavattitude.endpoints import parse_connect
+from mavattitude.errors import ConfigError, LinkError
 from mavattitude.estimation import METHODS, SNAPSHOT_METHODS
 from mavattitude.estimation.compass import CompassSettings
 from mavattitude.estimation.conventions import Mat3, Vec3
@@ -105,6 +106,15 @@ def _boolean(value: Any, path: str) -> bool:
 def _text(value: Any, path: str) -> str:
     if not isinstance(value, str) or not value.strip():
         _fail(path, f"expected a non-empty string, got {value!r}")
+    return value
+
+
+def _connection(value: Any, path: str) -> str:
+    """A connection string :func:`~mavattitude.endpoints.parse_connect` takes."""
+    try:
+        parse_connect(_text(value, path))
+    except LinkError as exc:
+        _fail(path, str(exc))
     return value
 
 
@@ -179,7 +189,7 @@ class SigningConfig:
 class LinkConfig:
     connect: str = field(
         default="udpin:0.0.0.0:14551",
-        metadata=_meta(_text, "pymavlink connection string (udpin:, udpout:, tcp:, serial)"),
+        metadata=_meta(_connection, "pymavlink connection string (udpin:, udpout:, tcp:, serial)"),
     )
     vehicle_system_id: int = field(
         default=0, metadata=_meta(_number(0, 254, integer=True), "autopilot system id; 0 = first autopilot")

@@ -93,6 +93,8 @@ def test_example_file_comments_every_key_with_its_default(path):
             r"reference\.magnetic\.declination_deg: unknown key",
         ),
         ({"link": {"signing": {"require_signing": True}}}, r"require_signing: true needs link\.signing\.key_file"),
+        ({"link": {"connect": "udpout:localhost"}}, r"link\.connect: connection string 'udpout:localhost': expected"),
+        ({"link": {"connect": "udpin:0.0.0.0:99999"}}, r"link\.connect: .*port 99999 is out of range 0-65535"),
         (
             {"input": {"profile": "adis16405", "message": "SCALED_IMU"}},
             r"input\.message: profile adis16405 reads RAW_IMU",

@@ -34,6 +34,7 @@ from typing import Any
 
 from fastcrc import crc16
 
+from mavattitude.endpoints import Endpoint, parse_connect
 from mavattitude.errors import InputError, LinkError, SensorError, SigningError
 from mavattitude.link.mavlink2 import force_mavlink2, mavlink2, mavutil
 from mavattitude.link.signing import signing_timestamp_now, verify_signature
@@ -78,37 +79,6 @@ SEVERITY = {
     "notice": mavlink2.MAV_SEVERITY_NOTICE,
     "info": mavlink2.MAV_SEVERITY_INFO,
 }
-
-
-@dataclass(frozen=True)
-class Endpoint:
-    """A parsed connection string."""
-
-    kind: str  # udpin | udpout | tcp | tcpin | serial
-    address: str  # HOST:PORT, or the serial device
-    baud: int
-
-
-def parse_connect(connect: str, baud: int = 115200) -> Endpoint:
-    """Check a connection string and split it; a malformed one is a :class:`LinkError` naming the forms."""
-    kind, sep, rest = connect.partition(":")
-    if sep and kind in ("udpin", "udpout", "udp", "tcp", "tcpin"):
-        host, sep, port_text = rest.rpartition(":")
-        listening = kind in ("udpin", "udp", "tcpin")
-        if not sep or not host or not port_text.isdigit() or not (listening or int(port_text) > 0):
-            raise LinkError(f"connection string {connect!r}: expected {kind}:HOST:PORT")
-        if int(port_text) > 65535:
-            raise LinkError(f"connection string {connect!r}: port {port_text} is out of range 0-65535")
-        return Endpoint("udpin" if kind == "udp" else kind, f"{host}:{port_text}", baud)
-    if connect.startswith("/") or connect.upper().startswith("COM"):
-        device, sep, baud_text = connect.partition(",")
-        if sep and not baud_text.isdigit():
-            raise LinkError(f"connection string {connect!r}: expected DEVICE or DEVICE,BAUD")
-        return Endpoint("serial", device, int(baud_text) if sep else baud)
-    raise LinkError(
-        f"connection string {connect!r}: expected udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, "
-        "tcpin:HOST:PORT or a serial device such as /dev/ttyACM0[,BAUD]"
-    )
 
 
 @dataclass
