@@ -37,7 +37,10 @@ WINDOW_S = 5.0  # vehicle time from the first sample: a log's compass has spoken
 MIN_SAMPLES = 10  # the fewest IMU samples judged on (a 2 Hz telemetry stream's first 5 s)
 GRAVITY_BAND = (0.5, 2.0)  # median |f| / g (module docstring)
 #: Unit slips with a name, by the factor they scale the reading: the one within 15 % of the ratio is suggested.
-ACC_SLIPS = {1.0 / STANDARD_GRAVITY_MPS2: "readings in g taken for m/s²", STANDARD_GRAVITY_MPS2: "m/s² taken for g"}
+ACC_SLIPS = {
+    1.0 / STANDARD_GRAVITY_MPS2: "readings in g taken for m/s²",
+    STANDARD_GRAVITY_MPS2: "readings in m/s² taken for g",
+}
 SLIP_TOLERANCE = 1.15
 
 
