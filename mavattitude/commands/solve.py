@@ -47,6 +47,19 @@ from mavattitude.files import (
     refuse_overwriting,
 )
 
+#: Slower than this an IMU's CSV is more likely a time column in milliseconds or microseconds than a real rate
+SLOW_TIME_COLUMN_HZ = 1.0
+
+
+def time_unit_hint(rate_hz: float) -> str | None:
+    """What a CSV's median rate ``rate_hz`` would be if its t_s were in ms or µs, where it is too slow for seconds."""
+    if not rate_hz < SLOW_TIME_COLUMN_HZ:  # (NaN: one sample)
+        return None
+    return (
+        f"t_s advances {1.0 / rate_hz:.3g} s a sample ({rate_hz:.3g} Hz): t_s must be in seconds; in milliseconds "
+        f"the samples would be at {rate_hz * 1e3:.3g} Hz, in microseconds at {rate_hz * 1e6:.3g} Hz"
+    )
+
 
 def csv_units(sensor: str) -> str:
     """What to check for a units finding (:mod:`mavattitude.sensors.unitcheck`) of a CSV: its columns' units."""
@@ -121,6 +134,8 @@ def run(args: argparse.Namespace) -> int:
     wanted = n >= PROGRESS_MIN_SAMPLES if args.progress is None else args.progress
     progress = Progress(f"solve {Path(args.input).name}, output ticks", wanted)
     with about(args.input):
+        if (hint := time_unit_hint(median_rate_hz(t))) is not None:
+            log.warning("%s", hint)
         # every row its own magnetometer reading: the samples as push() takes them one by one, all at once
         pushed = pipeline.push_batch(t, data["acc"], gyr, data["mag"], np.ones(n, dtype=bool), progress=progress)
         summarise(pipeline, n, args.input, pushed.compass, csv_units)

@@ -116,6 +116,10 @@ def test_a_time_column_in_milliseconds_shows_as_a_slow_input_in_plain_words(tmp_
     assert main(["solve", str(src), "-o", str(tmp_path / "o.csv"), *REF]) == 0
     err = capsys.readouterr().err
     assert "samples at 0.1 Hz: one attitude per sample, no filtering" in err
+    # and what the rate would be if t_s were in ms or µs, said first (100 Hz written, read 1000× slower)
+    assert (
+        "t_s advances 10 s a sample (0.1 Hz): t_s must be in seconds; in milliseconds the samples would be at 100 Hz"
+    ) in err
     assert "nan" not in err and re.search(r"compass: dip [-\d.]+° \(spread [\d.]+°", err), err
 
 
