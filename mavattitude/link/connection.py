@@ -184,7 +184,7 @@ class StreamConnection(FrameConnection):
         """Whether a frame can be read: one already whole in the buffer at once, else the OS's word within
         ``timeout``."""
         mav = self.mav
-        end = _frame_end(mav.buf, mav.buf_index)
+        end = frame_end(mav.buf, mav.buf_index)
         return (end is not None and end <= len(mav.buf)) or super().select(timeout)
 
     def recv_msg(self) -> Message | tuple[Sender, Any] | None:
@@ -207,7 +207,7 @@ class StreamConnection(FrameConnection):
         as BAD_DATA at once); None while it is incomplete."""
         mav = self.mav
         buf, start = mav.buf, mav.buf_index
-        end = _frame_end(buf, start)
+        end = frame_end(buf, start)
         if end is None or end > len(buf):
             return None
         direct, reads = self.direct, self.reads
@@ -370,7 +370,7 @@ def _as_is(msg: Message) -> Message:
     return msg
 
 
-def _frame_end(buf: bytes | bytearray, start: int) -> int | None:
+def frame_end(buf: bytes | bytearray, start: int) -> int | None:
     """Where the frame at ``buf[start]`` ends as pymavlink's parser frames it: by its header's payload length and,
     in MAVLink 2, its signature; ``start + 1`` for a byte that starts no frame (the parser reports it at once);
     None before there is a byte, or a frame's first three."""
@@ -389,7 +389,7 @@ def _frame_end(buf: bytes | bytearray, start: int) -> int | None:
 
 
 def _unread(frame: bytes, reads: frozenset[int]) -> bool:
-    """Whether ``frame`` (one whole frame, as :func:`_frame_end` frames it) is a MAVLink 2 message whose id is not
+    """Whether ``frame`` (one whole frame, as :func:`frame_end` frames it) is a MAVLink 2 message whose id is not
     in ``reads``. MAVLink 1 frames are left to pymavlink: no vehicle streams them to a companion any more."""
     return frame[0] == mavlink2.PROTOCOL_MARKER_V2 and (frame[7] | frame[8] << 8 | frame[9] << 16) not in reads
 
@@ -399,7 +399,7 @@ def _whole_frame(data: bytes) -> bool:
     incompatibility flag, which the parser's framing rejects): what :meth:`_Udp._decode` takes."""
     if len(data) < mavlink2.HEADER_LEN_V2 or data[0] != mavlink2.PROTOCOL_MARKER_V2:
         return False
-    return not data[2] & ~mavlink2.MAVLINK_IFLAG_SIGNED and _frame_end(data, 0) == len(data)
+    return not data[2] & ~mavlink2.MAVLINK_IFLAG_SIGNED and frame_end(data, 0) == len(data)
 
 
 class _FramePacker:

@@ -36,6 +36,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
 from mavattitude.errors import DataFileError, SensorError
+from mavattitude.link.connection import frame_end
 from mavattitude.link.logstreams import (
     Compasses,
     Follower,
@@ -186,13 +187,10 @@ def _frame_by_record(data: bytes) -> tuple[list[int], int, int, int]:
 
 
 def _record_end(data: bytes, ofs: int) -> int | None:
-    """Where the record at ``ofs`` ends by its frame's header; None when no MAVLink magic follows its time."""
-    magic = data[ofs + TIME_LEN]
-    if magic == MAGIC_V2:
-        return ofs + 20 + data[ofs + 9] + (SIGNATURE_LEN if data[ofs + 10] & IFLAG_SIGNED else 0)
-    if magic == MAGIC_V1:
-        return ofs + 16 + data[ofs + 9]
-    return None
+    """Where the record at ``ofs`` ends by its frame's header, framed as the live link frames it
+    (:func:`~mavattitude.link.connection.frame_end`); None when no MAVLink magic follows its time."""
+    start = ofs + TIME_LEN
+    return frame_end(data, start) if data[start] in (MAGIC_V1, MAGIC_V2) else None
 
 
 def _marks(data: bytes, ofs: int) -> tuple[bytes, bytes]:
