@@ -133,14 +133,15 @@ def run(args: argparse.Namespace) -> int:
     gyr = data.get("gyr", np.zeros((n, 3)))
     wanted = n >= PROGRESS_MIN_SAMPLES if args.progress is None else args.progress
     progress = Progress(f"solve {Path(args.input).name}, output ticks", wanted)
+    rate_hz = median_rate_hz(t)
     with about(args.input):
-        if (hint := time_unit_hint(median_rate_hz(t))) is not None:
+        if (hint := time_unit_hint(rate_hz)) is not None:
             log.warning("%s", hint)
         # every row its own magnetometer reading: the samples as push() takes them one by one, all at once
         pushed = pipeline.push_batch(t, data["acc"], gyr, data["mag"], np.ones(n, dtype=bool), progress=progress)
         summarise(pipeline, n, args.input, pushed.compass, csv_units)
         frontend = pipeline.counters.frontend
-        log.info("%s", rate_handling(config, "samples", median_rate_hz(t), frontend.per_sample, n))
+        log.info("%s", rate_handling(config, "samples", rate_hz, frontend.per_sample, n))
     write_outputs(args.output, pushed.outputs)
     log.info("wrote %d attitudes to %s", len(pushed.outputs), args.output)
     if args.save_mag_offset:
