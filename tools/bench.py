@@ -663,6 +663,26 @@ def _service_usage(
     return usage
 
 
+@contextmanager
+def _streaming(script: Any, config: Any) -> Iterator[Any]:
+    """A fake vehicle on ``config`` streaming its IMU message at 200 Hz."""
+    with vehicle_mod.FakeVehicle(script, scenarios.consumer_sensors(200.0), config) as vehicle:
+        vehicle.set_rate(config.message, 200.0)
+        yield vehicle
+
+
+def _bare_and_ign(
+    vehicle: Any, loop_connect: str, service_connect: str | None, seconds: float, rounds: int, settle_s: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The bare loop (on ``loop_connect``) and the ign service (on ``service_connect``, else the vehicle's UDP port)
+    in turn, ``rounds`` times: each one's :func:`_steady_usage`, the mean of its rounds."""
+    bare, service = np.zeros(2), np.zeros(2)
+    for _ in range(rounds):
+        bare += _loop_usage(loop_connect, BARE_LOOP, seconds, settle_s) / rounds
+        service += _service_usage(vehicle, "ign", seconds, settle_s, connect=service_connect) / rounds
+    return bare, service
+
+
 @section("live")
 def bench_live(settings: Settings) -> list[Row]:
     """The bare loop and the service in turn on one fake vehicle's RAW_IMU-only stream (200 Hz, no ATTITUDE),
@@ -673,8 +693,7 @@ def bench_live(settings: Settings) -> list[Row]:
     vehicle_cfg = vehicle_mod.VehicleConfig("udpin:127.0.0.1:0", stream_on_start=True, seed=SEED, attitude_rate_hz=0.0)
     # (CPU share, wake-ups per second) of each program, the mean of its rounds
     usage = {k: np.zeros(2) for k in ("bare", "ign", "fused", "tick", "serial bare", "serial", "chatty bare", "chatty")}
-    with vehicle_mod.FakeVehicle(script, scenarios.consumer_sensors(200.0), vehicle_cfg) as vehicle:
-        vehicle.set_rate(vehicle_cfg.message, 200.0)
+    with _streaming(script, vehicle_cfg) as vehicle:
         udp = f"udpout:127.0.0.1:{vehicle.port}"
         for _ in range(rounds):
             usage["bare"] += _loop_usage(udp, BARE_LOOP, seconds, settle_s) / rounds
@@ -682,21 +701,12 @@ def bench_live(settings: Settings) -> list[Row]:
             for method in ("ign", "fused"):
                 usage[method] += _service_usage(vehicle, method, seconds, settle_s) / rounds
     # a vehicle of its own: the one above still streams to the last UDP peer it heard
-    with vehicle_mod.FakeVehicle(script, scenarios.consumer_sensors(200.0), vehicle_cfg) as vehicle:
-        vehicle.set_rate(vehicle_cfg.message, 200.0)
-        with serial_relay(vehicle.port) as device:
-            for _ in range(rounds):
-                usage["serial bare"] += _loop_usage(device, BARE_LOOP, seconds, settle_s) / rounds
-                usage["serial"] += _service_usage(vehicle, "ign", seconds, settle_s, connect=device) / rounds
+    with _streaming(script, vehicle_cfg) as vehicle, serial_relay(vehicle.port) as device:
+        usage["serial bare"], usage["serial"] = _bare_and_ign(vehicle, device, device, seconds, rounds, settle_s)
     # a real autopilot's other telemetry besides (sim.vehicle.OTHER_TELEMETRY_HZ), which the service skips undecoded
-    chatty_cfg = dataclasses.replace(vehicle_cfg, other_telemetry=True)
-    with vehicle_mod.FakeVehicle(script, scenarios.consumer_sensors(200.0), chatty_cfg) as vehicle:
-        vehicle.set_rate(vehicle_cfg.message, 200.0)
-        for _ in range(rounds):
-            usage["chatty bare"] += (
-                _loop_usage(f"udpout:127.0.0.1:{vehicle.port}", BARE_LOOP, seconds, settle_s) / rounds
-            )
-            usage["chatty"] += _service_usage(vehicle, "ign", seconds, settle_s) / rounds
+    with _streaming(script, dataclasses.replace(vehicle_cfg, other_telemetry=True)) as vehicle:
+        udp = f"udpout:127.0.0.1:{vehicle.port}"
+        usage["chatty bare"], usage["chatty"] = _bare_and_ign(vehicle, udp, None, seconds, rounds, settle_s)
     share = {k: u[0] for k, u in usage.items()}
     sec, names = "live", EXPECTED_ROWS["live"]
     return [
