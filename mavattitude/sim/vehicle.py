@@ -55,6 +55,7 @@ from mavattitude.errors import InputError, LinkError
 from mavattitude.estimation.conventions import Array, euler_from_quat
 from mavattitude.link.logstreams import compass_use_parameter
 from mavattitude.link.mavlink2 import force_mavlink2, mavlink2, mavutil, message_id
+from mavattitude.link.source import FIRMWARE_PROFILES
 from mavattitude.sensors.magref import DECLINATION_PARAMETERS, declination_parameter
 from mavattitude.sensors.mounting import TRIM_PARAMETERS, trim_matrix
 from mavattitude.sensors.units import (
@@ -79,7 +80,7 @@ _MSG_ATTITUDE = mavlink2.MAVLINK_MSG_ID_ATTITUDE
 _MSG_SYSTEM_TIME = mavlink2.MAVLINK_MSG_ID_SYSTEM_TIME
 _MSG_GPS_RAW_INT = mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT
 _GPS_SATELLITES = 12
-_AUTOPILOT = {"px4": mavlink2.MAV_AUTOPILOT_PX4}
+_AUTOPILOT = {profile: autopilot for autopilot, profile in FIRMWARE_PROFILES.items()}
 _POSITION_RATE_HZ = 2.0
 #: A real autopilot's other telemetry, messages a second by type: what the ground station of the real ArduSub dive
 #: (../shared/data/real) received beside the streams above and the IMU's, 80 a second in all (``other_telemetry``)
@@ -217,6 +218,8 @@ class FakeVehicle:
         self._rng = np.random.default_rng(config.seed)
         self._profile = get_profile(config.profile)
         self._profile.scale(config.message)  # SensorError now, for a message the profile cannot send
+        # the IMU messages its autopilot has: another one asked for is denied, as a real one has no such stream
+        self._imu_ids = frozenset(message_id(name) for name in self._profile.messages)
         self._send_lock = threading.Lock()
         self._cond = threading.Condition()
         self._stop = threading.Event()
@@ -619,7 +622,7 @@ class FakeVehicle:
         )
 
     def _set_interval(self, msg_id: int, interval_us: float, param3: float) -> int:
-        if msg_id not in _IMU_MESSAGE_IDS and msg_id not in self._telemetry:
+        if msg_id not in self._imu_ids and msg_id not in self._telemetry:
             return mavlink2.MAV_RESULT_DENIED
         if self.config.deny_nonzero_param3 and param3 != 0:
             return mavlink2.MAV_RESULT_DENIED

@@ -77,6 +77,24 @@ def test_silent_until_asked_then_streams_the_truth(vehicle: FakeVehicle, gcs: ob
     assert _set_interval(gcs, mavlink2.MAVLINK_MSG_ID_PARAM_VALUE, 1000) == mavlink2.MAV_RESULT_DENIED
 
 
+def test_a_px4_denies_an_imu_message_it_has_no_stream_of_and_goes_on() -> None:
+    """PX4 has no RAW_IMU stream: asked for it, the px4 vehicle denies it (its send loop once took the request
+    and died encoding RAW_IMU, with no heartbeat after) and streams what it has when asked."""
+    config = VehicleConfig("udpin:127.0.0.1:0", profile="px4", message="HIGHRES_IMU")
+    with FakeVehicle(scenarios.paper_static(60.0), scenarios.paper_sensors(100.0), config) as vehicle:
+        gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{vehicle.port}", source_system=1, source_component=191)
+        force_mavlink2(gcs)
+        gcs.mav.heartbeat_send(mavlink2.MAV_TYPE_ONBOARD_CONTROLLER, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        assert _recv(gcs, "HEARTBEAT").autopilot == mavlink2.MAV_AUTOPILOT_PX4
+        assert _set_interval(gcs, mavlink2.MAVLINK_MSG_ID_RAW_IMU, 10_000) == mavlink2.MAV_RESULT_DENIED
+        assert vehicle.stream_rate("RAW_IMU") is None
+        assert _set_interval(gcs, mavlink2.MAVLINK_MSG_ID_HIGHRES_IMU, 10_000) == mavlink2.MAV_RESULT_ACCEPTED
+        _recv(gcs, "HIGHRES_IMU")
+        _recv(gcs, "HEARTBEAT")
+        gcs.close()
+        assert vehicle.thread_errors == []
+
+
 def _stamps(gcs: object, kind: str, count: int) -> np.ndarray:
     """The vehicle times (µs) of the next ``count`` messages of ``kind``."""
     msgs = [_recv(gcs, kind) for _ in range(count)]
