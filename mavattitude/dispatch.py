@@ -119,6 +119,7 @@ class Dispatcher:
         self.counters = counters if counters is not None else DispatchCounters()
         self.wants_position = wants_position
         self.vehicle: Sender | None = None
+        self.vehicle_profile: str | None = None  # the unit profile of its firmware, from the HEARTBEAT locked on
         if vehicle is not None:
             self._lock(vehicle)
 
@@ -130,6 +131,7 @@ class Dispatcher:
             return
         if sender != self.vehicle:
             if self.vehicle is None and locks_on(item, sender, self.system_id):
+                self.vehicle_profile = item.profile
                 self._lock(sender)
             else:
                 self.counters.ignored += 1

@@ -130,6 +130,7 @@ POSITION_RATE_HZ = 1.0
 TIME_MESSAGE = "SYSTEM_TIME"
 # The fused filter's GPS velocity: the receiver's own, at the 5 Hz most receivers give (a faster stream repeats fixes)
 GPS_VELOCITY_MESSAGE = "GPS_RAW_INT"
+FIRMWARE_NAMES = {"ardupilot": "an ArduPilot", "px4": "a PX4"}  # by unit profile (link.source.FIRMWARE_PROFILES)
 GPS_VELOCITY_RATE_HZ = 5.0
 TIME_RATE_HZ = 0.2
 ATTITUDE_MESSAGE = "ATTITUDE"
@@ -413,9 +414,12 @@ class AttitudeService:
             assert self.vehicle is not None
             source = f"{self._input_name} from system {self.vehicle[0]}, component {self.vehicle[1]}"
             # a PX4 sends HIGHRES_IMU, not the default RAW_IMU: what it does send is the likely fix
-            instead = self._other_imu_text()
+            instead = self._other_imu_text() + "".join(f"; {text}" for text in [self._firmware_text()] if text)
             if link.request_messages:
-                return f"waiting for the IMU stream: {source}, asked for at {link.request_rate_hz:g} Hz{instead}"
+                answer = self.session.answers.get(self._input_name, "ACCEPTED")
+                refused = f" (answered {answer})" if answer != "ACCEPTED" else ""
+                asked = f"asked for at {link.request_rate_hz:g} Hz{refused}"
+                return f"waiting for the IMU stream: {source}, {asked}{instead}"
             return (
                 f"waiting for the IMU stream: {source} (link.request_messages is off: is the autopilot streaming "
                 f"it?){instead}"
@@ -442,6 +446,24 @@ class AttitudeService:
         sends = ", ".join(sorted(self.other_imu_messages))
         return f"; it sends {sends}: set input.message (and input.profile) to read one" if sends else ""
 
+    def _firmware_lacking_input(self) -> str | None:
+        """The unit profile of the autopilot's firmware (its HEARTBEAT) when that firmware has no ``input.message``
+        stream; None when it has, or when the firmware is not one with a profile."""
+        profile = self.dispatcher.vehicle_profile
+        if profile is None or self.config.input.message in units.PROFILES[profile].messages:
+            return None
+        return profile
+
+    def _firmware_text(self) -> str:
+        """That the autopilot's firmware sends no ``input.message``, and what to read instead (empty: it does)."""
+        profile = self._firmware_lacking_input()
+        if profile is None:
+            return ""
+        return (
+            f"the autopilot is {FIRMWARE_NAMES[profile]} (its HEARTBEAT), which has no {self._input_name} stream: "
+            f"set input.message: {units.PROFILES[profile].default_message} and input.profile: {profile}"
+        )
+
     def _dead_imu_hint(self, refused: Counter[str]) -> str:
         """:meth:`_other_imu_text` when the input is refused as an IMU the vehicle lacks (``refused_as_dead_imu``)."""
         return self._other_imu_text() if refused_as_dead_imu(refused) else ""
@@ -462,6 +484,11 @@ class AttitudeService:
         self.session.lock(vehicle, time.monotonic())
         log.info("locked onto the autopilot: system %d, component %d", *vehicle)
         self._statustext("start", start_statustext(__version__, self._input_name), "info")
+        profile = self._firmware_lacking_input()
+        if profile is not None:
+            log.warning("%s", self._firmware_text())
+            text = f"mavattitude: {FIRMWARE_NAMES[profile]} sends no {self._input_name}"
+            self._statustext("firmware", text, "warning", log_it=False)
 
     @staticmethod
     def _stream_requests(config: Config) -> list[StreamRequest]:

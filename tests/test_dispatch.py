@@ -36,12 +36,10 @@ class Peer:
     def pack(self, msg: object) -> bytes:
         return bytes(msg.pack(self.mav))  # type: ignore[attr-defined]
 
-    def heartbeat(self, mav_type: int = mavlink2.MAV_TYPE_QUADROTOR) -> bytes:
-        return self.pack(
-            mavlink2.MAVLink_heartbeat_message(
-                mav_type, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, mavlink2.MAV_STATE_ACTIVE, 3
-            )
-        )
+    def heartbeat(
+        self, mav_type: int = mavlink2.MAV_TYPE_QUADROTOR, autopilot: int = mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA
+    ) -> bytes:
+        return self.pack(mavlink2.MAVLink_heartbeat_message(mav_type, autopilot, 0, 0, mavlink2.MAV_STATE_ACTIVE, 3))
 
     def raw_imu(self, mag_uT: object = None, acc_mps2: object = None) -> bytes:
         acc = rotate_ned_to_body(Q_TRUE, G_NED_MPS2) if acc_mps2 is None else acc_mps2

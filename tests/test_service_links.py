@@ -20,6 +20,7 @@ from mavattitude.estimation.conventions import (
     rotate_ned_to_body,
 )
 from mavattitude.link.memory import MemoryLink
+from mavattitude.link.source import Heartbeat
 from mavattitude.pipeline import AttitudePipeline
 from mavattitude.reports import REFUSAL_HINTS
 from mavattitude.sensors import units
@@ -428,6 +429,31 @@ def test_waiting_for_the_imu_stream_names_the_imu_message_the_vehicle_sends_inst
         "waiting for the IMU stream: RAW_IMU from system 1, component 1, asked for at 200 Hz; it sends HIGHRES_IMU: "
         "set input.message (and input.profile) to read one"
     )
+
+
+def test_a_px4_asked_for_raw_imu_is_told_apart_by_its_heartbeat(caplog):
+    """The default config on a PX4, which has no RAW_IMU stream and denies the request: said once on locking on
+    (log and STATUSTEXT, with what to set), and the wait names the refusal and the fix; an ArduPilot's HEARTBEAT
+    with the same config says nothing of its firmware."""
+    caplog.set_level(logging.WARNING, logger="mavattitude.service")
+    service, link = _service()
+    vehicle = Peer()
+    link.deliver(vehicle.heartbeat(autopilot=mavlink2.MAV_AUTOPILOT_PX4))
+    _step_until(service, lambda: service.counters.interval_requests >= 1)
+    link.deliver(_ack(vehicle, result=mavlink2.MAV_RESULT_DENIED))
+    _step_until(service, lambda: not link.inbox)
+    fix = (
+        "the autopilot is a PX4 (its HEARTBEAT), which has no RAW_IMU stream: set input.message: HIGHRES_IMU and "
+        "input.profile: px4"
+    )
+    assert [r.getMessage() for r in caplog.records if r.name == "mavattitude.service"] == [fix]
+    assert [m.text for m in sent(link, "STATUSTEXT") if "PX4" in m.text] == ["mavattitude: a PX4 sends no RAW_IMU"]
+    assert service.waiting_text() == (
+        f"waiting for the IMU stream: RAW_IMU from system 1, component 1, asked for at 200 Hz (answered DENIED); {fix}"
+    )
+    ardupilot, _ = _service()
+    ardupilot.dispatcher.handle((0.0, (1, 1), Heartbeat(autopilot=True, profile="ardupilot")))
+    assert ardupilot.waiting_text().endswith("asked for at 200 Hz")
 
 
 @pytest.mark.parametrize(("rate_hz", "asked"), [(5.0, ["SCALED_IMU2", "SCALED_IMU3"]), (0.0, [])])

@@ -61,6 +61,7 @@ class LinkSession:
         self._requests = RequestSchedule(streams, repeat_s)
         self._pending = PendingRequests(ACK_TIMEOUT_S, ACK_FORGET_S)
         self._answers_said: set[tuple[str, str]] = set()  # (stream, result) logged once each
+        self.answers: dict[str, str] = {}  # each stream's latest answer: ACCEPTED, DENIED, …, TIMEOUT
         self._reconnects_seen = 0
         self._parameter_tries = dict.fromkeys(parameters, 0)  # of those not answered yet
         self._parameters_next_s = math.inf  # asked first on locking
@@ -131,7 +132,8 @@ class LinkSession:
         self._say_answer(request, result)
 
     def _say_answer(self, request: StreamRequest, result: str) -> None:
-        """Log the autopilot's answer to a stream request, once per stream and answer (no flip-flop)."""
+        """Keep the autopilot's answer to a stream request, and log it once per stream and answer (no flip-flop)."""
+        self.answers[request.name] = result
         if (request.name, result) in self._answers_said:
             return
         self._answers_said.add((request.name, result))

@@ -40,11 +40,17 @@ Received = tuple[float, Sender, Any]  # (t_rx, sender, item): see the module doc
 ATTITUDE_MESSAGES = ("ATTITUDE", "ATTITUDE_QUATERNION")  # the autopilot's own attitude, as Euler angles or q
 
 
+# the unit profile of the messages an autopilot firmware sends, by its HEARTBEAT's autopilot field
+FIRMWARE_PROFILES = {mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA: "ardupilot", mavlink2.MAV_AUTOPILOT_PX4: "px4"}
+
+
 @dataclass(frozen=True, slots=True)
 class Heartbeat:
-    """A HEARTBEAT; ``autopilot`` when it comes from a flight controller."""
+    """A HEARTBEAT; ``autopilot`` when it comes from a flight controller, ``profile`` the unit profile its
+    firmware's messages follow (:data:`FIRMWARE_PROFILES`; None: another firmware, or not said)."""
 
     autopilot: bool
+    profile: str | None = None
 
 
 def locks_on(item: Any, sender: Sender, system_id: int) -> bool:
@@ -189,7 +195,7 @@ class MavlinkDecoder:
 
 
 def _heartbeat(msg: Message) -> Heartbeat:
-    return Heartbeat(MavlinkLink.is_autopilot_heartbeat(msg))
+    return Heartbeat(MavlinkLink.is_autopilot_heartbeat(msg), FIRMWARE_PROFILES.get(msg.autopilot))
 
 
 def _parameter(msg: Message) -> AutopilotParameter:

@@ -48,6 +48,7 @@ from mavattitude.link.logstreams import (
 from mavattitude.link.mavlink2 import mavlink2
 from mavattitude.link.source import (
     ATTITUDE_MESSAGES,
+    FIRMWARE_PROFILES,
     AutopilotAttitude,
     Heartbeat,
     MavlinkDecoder,
@@ -350,7 +351,7 @@ class TlogSource:
     def _decode_items(self, table: _Table) -> list[Any]:
         name, f = table.name, table.fields
         if name == "HEARTBEAT":
-            return [Heartbeat(bool(a)) for a in _autopilot_heartbeats(table).tolist()]
+            return _heartbeats(table)
         if name in ATTITUDE_MESSAGES:
             return _attitudes(name, f)
         if name in units.POSITION_MESSAGES:
@@ -550,10 +551,16 @@ def _parameters(
 
 def _heartbeat_items(table: _Table) -> Iterator[tuple[int, Received]]:
     """The HEARTBEAT records as the live link's items, with their place in the log."""
+    rows = zip(table.index.tolist(), table.t_rx.tolist(), table.sender.tolist(), _heartbeats(table), strict=True)
+    for i, t_rx, code, heartbeat in rows:
+        yield i, (t_rx, _sender(code), heartbeat)
+
+
+def _heartbeats(table: _Table) -> list[Heartbeat]:
+    """The HEARTBEAT records as the live decoder makes them: a flight controller's or not, its firmware's profile."""
     autopilot = _autopilot_heartbeats(table).tolist()
-    rows = zip(table.index.tolist(), table.t_rx.tolist(), table.sender.tolist(), autopilot, strict=True)
-    for i, t_rx, code, ap in rows:
-        yield i, (t_rx, _sender(code), Heartbeat(ap))
+    firmware = table.fields["autopilot"].tolist()
+    return [Heartbeat(a, FIRMWARE_PROFILES.get(f)) for a, f in zip(autopilot, firmware, strict=True)]
 
 
 def _lock(heartbeats: _Table, system_id: int) -> tuple[int, Sender] | None:
