@@ -227,6 +227,7 @@ class FakeVehicle:
         self._threads: list[threading.Thread] = []
         self._epoch = _Epoch()
         self._imu_paused = False
+        self._down_until_mono = -math.inf  # restarting until then (reboot): silent and deaf
         self._gps_fix = config.gps_fix
         # its readings are its board's: a frame row vector v turns into the board's as v · T (Tᵀ v, as a column)
         self._frame_to_board_rows = trim_matrix(*np.radians(config.trim_deg))
@@ -374,10 +375,12 @@ class FakeVehicle:
         with self._cond:
             self._epoch = dataclasses.replace(self._epoch, clock_offset_s=self._epoch.clock_offset_s + delta_s)
 
-    def reboot(self) -> None:
-        """A simulated reboot: boot time restarts at 0 and the streams fall back to their defaults."""
+    def reboot(self, down_s: float = 0.0) -> None:
+        """A simulated reboot: boot time restarts at 0 and the streams fall back to their defaults. For ``down_s``
+        (wall-clock) before it boots it sends nothing and hears nothing, as an autopilot while it restarts."""
+        self._down_until_mono = time.monotonic() + down_s
         with self._cond:
-            self._epoch = _Epoch(boot_script_s=self.script_time())
+            self._epoch = _Epoch(boot_script_s=self.script_time() + down_s * self.config.speed)
         self._default_streams()
 
     def set_gps_fix(self, fix: bool = True) -> None:
@@ -429,6 +432,9 @@ class FakeVehicle:
         next_heartbeat = time.monotonic()
         while not self._stop.is_set():
             mono = time.monotonic()
+            if mono < self._down_until_mono:
+                self._stop.wait(min(self._down_until_mono - mono, _MAX_SLEEP_S))
+                continue
             if mono >= next_heartbeat:
                 self._send_heartbeat()
                 next_heartbeat = _next_deadline(next_heartbeat, mono, _HEARTBEAT_PERIOD_S)
@@ -584,6 +590,8 @@ class FakeVehicle:
             self._handle(msg, mono)
 
     def _handle(self, msg: Any, mono: float) -> None:
+        if mono < self._down_until_mono:
+            return
         kind = msg.get_type()
         with self._cond:  # every message wakes the waiters (a heartbeat at least once a second)
             self.received[(msg.get_srcSystem(), msg.get_srcComponent(), kind)] += 1
