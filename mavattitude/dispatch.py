@@ -120,6 +120,7 @@ class Dispatcher:
         self.wants_position = wants_position
         self.vehicle: Sender | None = None
         self.vehicle_profile: str | None = None  # the unit profile of its firmware, from the HEARTBEAT locked on
+        self.vehicle_heard_s: float | None = None  # the arrival (t_rx) of its latest HEARTBEAT
         if vehicle is not None:
             self._lock(vehicle)
 
@@ -131,7 +132,7 @@ class Dispatcher:
             return
         if sender != self.vehicle:
             if self.vehicle is None and locks_on(item, sender, self.system_id):
-                self.vehicle_profile = item.profile
+                self.vehicle_profile, self.vehicle_heard_s = item.profile, t_rx
                 self._lock(sender)
             else:
                 self.counters.ignored += 1
@@ -154,7 +155,9 @@ class Dispatcher:
             self.listener.on_parameter(item)
         elif kind is Undecodable:
             self.undecodable(item.error)
-        elif kind is not Heartbeat and item is not None:
+        elif kind is Heartbeat:
+            self.vehicle_heard_s = t_rx
+        elif item is not None:
             self.listener.on_message(item, t_rx)
 
     def follow(self, senders: NDArray[np.int64], heartbeats: Iterable[tuple[int, Received]]) -> NDArray[np.bool_]:

@@ -51,6 +51,8 @@ service is the dispatcher's listener. What it does on the link:
   check, and a STATUSTEXT), and in the wait for a position, which it keeps from ending;
 - the compass judged inconsistent (:mod:`mavattitude.estimation.compass`): said once (log warning with the
   measured and expected dip, and a STATUSTEXT) until it clears; its figures go into the counters line;
+- the autopilot's HEARTBEAT missed for ``HEARTBEAT_LOST_S`` is said (a restart, the link down), nothing asked of it
+  meanwhile, and its streams asked for at once when it is back (a restarted autopilot has forgotten them);
 - while it waits (for the autopilot's HEARTBEAT, the IMU stream, a GPS position, the first attitude:
   :class:`Waiting`, read as :attr:`AttitudeService.waiting`) it says what for and the likely cause, first
   after ``WAIT_REPORT_FIRST_S`` and then at a slowing rate, so a wrong wiring does not look like a hang;
@@ -130,6 +132,7 @@ POSITION_RATE_HZ = 1.0
 TIME_MESSAGE = "SYSTEM_TIME"
 # The fused filter's GPS velocity: the receiver's own, at the 5 Hz most receivers give (a faster stream repeats fixes)
 GPS_VELOCITY_MESSAGE = "GPS_RAW_INT"
+HEARTBEAT_LOST_S = 5.0  # the autopilot's 1 Hz HEARTBEAT missed this long: the link or the autopilot is down
 FIRMWARE_NAMES = {"ardupilot": "an ArduPilot", "px4": "a PX4"}  # by unit profile (link.source.FIRMWARE_PROFILES)
 GPS_VELOCITY_RATE_HZ = 5.0
 TIME_RATE_HZ = 0.2
@@ -175,6 +178,7 @@ class Waiting(enum.Enum):
     """What the service waits for, in the order it needs them; ``RUNNING`` once an attitude went out."""
 
     AUTOPILOT = "autopilot"  # its HEARTBEAT (the first, or ``link.vehicle_system_id``'s)
+    AUTOPILOT_BACK = "autopilot back"  # its HEARTBEAT again, silent for HEARTBEAT_LOST_S with no input
     IMU_STREAM = "IMU stream"  # the input message, at start or after input_timeout_s of silence
     POSITION = "GPS position"  # ``reference.magnetic: auto``: the position, or the field measured without one
     FIRST_ATTITUDE = "first attitude"  # input flows, the filter and solver have not produced one yet
@@ -260,6 +264,7 @@ class AttitudeService:
         self._sample_wait_s = config.output.wait_ms / 1000.0
         self._last_input: float | None = None
         self._input_lost = False
+        self._autopilot_silent_since: float | None = None  # its last HEARTBEAT's arrival, while it is silent
         self._output_since = -math.inf  # the last attitude sent (or the input's return), time.monotonic()
         self._stalled = False  # input arrives but every sample is refused: said (_watch_output)
         self._refused: Counter[str] = Counter()  # the refusals up to the last attitude
@@ -357,6 +362,8 @@ class AttitudeService:
 
     def _periodic(self, now: float) -> None:
         """The work due every ``TICK_S`` at most: the link's upkeep, the watches, what is said and touched."""
+        if self.vehicle is not None:
+            self._watch_autopilot(now)
         self.session.tick(now)
         if self.pipeline.frontend.per_sample != self._per_sample:
             self._say_rate_handling()
@@ -389,7 +396,7 @@ class AttitudeService:
         if self.vehicle is None:
             return Waiting.AUTOPILOT
         if self._last_input is None or self._input_lost:
-            return Waiting.IMU_STREAM
+            return Waiting.IMU_STREAM if self._autopilot_silent_since is None else Waiting.AUTOPILOT_BACK
         if self.pipeline.waiting_for_reference and self.pipeline.frontend.counters.accepted:
             return Waiting.POSITION  # (with every sample refused, the refusals are what to say, not the position)
         if not self._attitude_sent:
@@ -410,6 +417,13 @@ class AttitudeService:
                 kind = "systems" if len(heard) > 1 else "system"
                 return f"waiting for a HEARTBEAT{which} on {link.connect}: heard only autopilot {kind} {systems}"
             return f"waiting for a HEARTBEAT{which} on {link.connect} ({LINK_HINTS[self.link.endpoint.kind]})"
+        if waiting is Waiting.AUTOPILOT_BACK:
+            assert self.vehicle is not None and self._autopilot_silent_since is not None
+            silent_s = time.monotonic() - self._autopilot_silent_since
+            return (
+                f"waiting for the autopilot: no HEARTBEAT from system {self.vehicle[0]}, component {self.vehicle[1]} "
+                f"for {silent_s:.0f} s (the link or the autopilot is down; a restarting autopilot is back in seconds)"
+            )
         if waiting is Waiting.IMU_STREAM:
             assert self.vehicle is not None
             source = f"{self._input_name} from system {self.vehicle[0]}, component {self.vehicle[1]}"
@@ -666,6 +680,28 @@ class AttitudeService:
         """A sensor whose magnitude says its units are wrong (judged once, at the start): with the scale to check."""
         log.warning("%s: check %s", finding.text, profile_units(self.config, self._input_name, finding.sensor))
         self._statustext(f"units:{finding.sensor}", finding.short, "warning", log_it=False)
+
+    def _watch_autopilot(self, now: float) -> None:
+        """The autopilot's HEARTBEAT missed for ``HEARTBEAT_LOST_S`` (a restart, the link down) is said, and so is
+        its return, when the streams are asked for at once: a restarted autopilot has forgotten them, and the next
+        ``link.request_repeat_s`` may be seconds away. Nothing is asked while it is silent."""
+        heard = self.dispatcher.vehicle_heard_s
+        assert heard is not None and self.vehicle is not None
+        since = self._autopilot_silent_since
+        if since is None and now - heard > HEARTBEAT_LOST_S:
+            self._autopilot_silent_since = heard
+            self.counters.autopilot_silent += 1
+            self.session.hold()
+            log.warning(
+                "no HEARTBEAT from the autopilot (system %d, component %d) for %.0f s: the link or the autopilot is "
+                "down",
+                *self.vehicle,
+                now - heard,
+            )
+        elif since is not None and heard > since:
+            self._autopilot_silent_since = None
+            self.session.ask_now(now)
+            log.info("the autopilot's HEARTBEAT again after %.1f s: its streams asked for at once", heard - since)
 
     def _say_other_autopilots(self, vehicle: Sender) -> None:
         """Another autopilot on the link (a swarm on one radio, a second vehicle): said once each. Locked on in

@@ -573,3 +573,29 @@ def test_waiting_for_the_configured_autopilot_names_the_ones_heard():
         service.waiting_text()
         == f"waiting for a HEARTBEAT from system 3 on {connect}: heard only autopilot systems 1, 2"
     )
+
+
+def test_an_autopilot_whose_heartbeat_stops_is_said_and_asked_again_when_it_is_back(monkeypatch, caplog):
+    """An autopilot restarting (or a link down) stops its HEARTBEAT: said once, and the wait says it rather than
+    blame the IMU stream; nothing is asked meanwhile (each request would time out); its HEARTBEAT back, its streams
+    are asked for at once, as a restarted autopilot has forgotten them."""
+    monkeypatch.setattr(service_module, "HEARTBEAT_LOST_S", 0.2)  # not 5 s of a test's time
+    caplog.set_level(logging.INFO, logger="mavattitude.service")
+    service, link = _service(**{"link.request_repeat_s": 0.5})
+    vehicle = Peer()
+    link.deliver(vehicle.heartbeat())
+    _step_until(service, lambda: service.counters.autopilot_silent == 1)
+    asked = len(sent(link, "COMMAND_LONG"))
+    assert service.waiting is service_module.Waiting.AUTOPILOT_BACK
+    assert service.waiting_text().startswith("waiting for the autopilot: no HEARTBEAT from system 1, component 1 for")
+    silent_until = time.monotonic() + 1.2  # over two of request_repeat_s
+    _step_until(service, lambda: time.monotonic() > silent_until)
+    assert len(sent(link, "COMMAND_LONG")) == asked
+    link.deliver(vehicle.heartbeat())
+    _step_until(service, lambda: len(sent(link, "COMMAND_LONG")) > asked)
+    assert [c.param1 for c in sent(link, "COMMAND_LONG")[asked:]] == [mavlink2.MAVLINK_MSG_ID_RAW_IMU]
+    assert service.waiting is service_module.Waiting.IMU_STREAM
+    said = [r.getMessage() for r in caplog.records if "HEARTBEAT" in r.getMessage()]
+    assert len(said) == 2
+    assert said[0].startswith("no HEARTBEAT from the autopilot (system 1, component 1) for 0 s: the link")
+    assert said[1].startswith("the autopilot's HEARTBEAT again after ")

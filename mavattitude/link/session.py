@@ -2,7 +2,8 @@
 
 :class:`LinkSession` sends our HEARTBEAT every ``HEARTBEAT_PERIOD_S`` (at once on locking on, under the
 vehicle's system id), asks for the streams with MAV_CMD_SET_MESSAGE_INTERVAL on their schedule (on locking,
-every ``repeat_s``, at once after a reconnect or when told: a rebooted autopilot has forgotten them), and
+every ``repeat_s``, at once after a reconnect or when told: a rebooted autopilot has forgotten them; nothing
+while told to ``hold``: a silent autopilot would not answer), and
 matches each COMMAND_ACK to the request it answers (:class:`~.requests.PendingRequests`), saying each
 stream's answer, or its absence, once. It reads the autopilot's ``parameters`` the service needs (its level
 trim, whether it uses the compass the input carries) with PARAM_REQUEST_READ, on locking and with every stream
@@ -65,6 +66,7 @@ class LinkSession:
         self._reconnects_seen = 0
         self._parameter_tries = dict.fromkeys(parameters, 0)  # of those not answered yet
         self._parameters_next_s = math.inf  # asked first on locking
+        self._held = False  # nothing asked (hold) until ask_now
 
     def lock(self, vehicle: Sender, now: float) -> None:
         """Locked onto ``vehicle``: speak as its system, announce ourselves and ask for the streams at once."""
@@ -77,7 +79,12 @@ class LinkSession:
     def ask_now(self, now: float) -> None:
         """Ask for the streams at the next tick (a rebooted autopilot has forgotten them)."""
         if self.vehicle is not None:
+            self._held = False
             self._requests.ask_now(now)
+
+    def hold(self) -> None:
+        """Ask nothing until :meth:`ask_now` (the autopilot is silent: a request would only time out)."""
+        self._held = True
 
     def tick(self, now: float) -> None:
         if self._heartbeat.due(now):
@@ -85,7 +92,7 @@ class LinkSession:
         if self.link.counters.reconnects != self._reconnects_seen:
             self._reconnects_seen = self.link.counters.reconnects
             self.ask_now(now)  # a new connection: the autopilot may have lost our requests
-        vehicle = self.vehicle
+        vehicle = None if self._held else self.vehicle
         for stream in self._requests.due(now) if vehicle is not None else ():
             if self.link.request_message_interval(vehicle, stream.message_id, stream.rate_hz):
                 self.counters.interval_requests += 1
