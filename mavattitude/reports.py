@@ -29,7 +29,7 @@ from mavattitude.link.connection import STATUSTEXT_LEN
 from mavattitude.link.session import RequestCounters
 from mavattitude.pipeline import SLOW_INPUT_METHOD
 from mavattitude.sensors.frontend import SLOW_PACE, FrontEndSettings
-from mavattitude.sensors.units import get_profile
+from mavattitude.sensors.units import PROFILES, get_profile
 
 
 @dataclass
@@ -262,6 +262,17 @@ REFUSAL_HINTS = {
 #: (its log line says more).
 DEGENERATE_STATUSTEXT = "mavattitude: acc and mag collinear, no attitude"
 CLOCKS_APART_STATUSTEXT = "mavattitude: no cross-check: clocks apart"
+
+
+FIRMWARE_NAMES = {"ardupilot": "an ArduPilot", "px4": "a PX4"}  # by unit profile (link.source.FIRMWARE_PROFILES)
+
+
+def firmware_without(vehicle_profile: str | None, message: str) -> str | None:
+    """That the autopilot's firmware (the unit profile its HEARTBEAT names) has no ``message`` stream, as a PX4 has
+    no RAW_IMU; None when it has one, or when the firmware is not one with a profile."""
+    if vehicle_profile is None or message in PROFILES[vehicle_profile].messages:
+        return None
+    return f"the autopilot is {FIRMWARE_NAMES[vehicle_profile]} (its HEARTBEAT), which has no {message} stream"
 
 
 def start_statustext(version: str, message: str) -> str:

@@ -96,12 +96,14 @@ from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, CrossCheckGat
 from mavattitude.reports import (
     CLOCKS_APART_STATUSTEXT,
     DEGENERATE_STATUSTEXT,
+    FIRMWARE_NAMES,
     ServiceCounters,
     compass_event_words,
     compass_statustext,
     compass_unused_statustext,
     compass_unused_warning,
     counters_line,
+    firmware_without,
     heading_lost,
     input_lost_statustext,
     profile_units,
@@ -133,7 +135,6 @@ TIME_MESSAGE = "SYSTEM_TIME"
 # The fused filter's GPS velocity: the receiver's own, at the 5 Hz most receivers give (a faster stream repeats fixes)
 GPS_VELOCITY_MESSAGE = "GPS_RAW_INT"
 HEARTBEAT_LOST_S = 5.0  # the autopilot's 1 Hz HEARTBEAT missed this long: the link or the autopilot is down
-FIRMWARE_NAMES = {"ardupilot": "an ArduPilot", "px4": "a PX4"}  # by unit profile (link.source.FIRMWARE_PROFILES)
 GPS_VELOCITY_RATE_HZ = 5.0
 TIME_RATE_HZ = 0.2
 ATTITUDE_MESSAGE = "ATTITUDE"
@@ -460,23 +461,13 @@ class AttitudeService:
         sends = ", ".join(sorted(self.other_imu_messages))
         return f"; it sends {sends}: set input.message (and input.profile) to read one" if sends else ""
 
-    def _firmware_lacking_input(self) -> str | None:
-        """The unit profile of the autopilot's firmware (its HEARTBEAT) when that firmware has no ``input.message``
-        stream; None when it has, or when the firmware is not one with a profile."""
-        profile = self.dispatcher.vehicle_profile
-        if profile is None or self.config.input.message in units.PROFILES[profile].messages:
-            return None
-        return profile
-
     def _firmware_text(self) -> str:
         """That the autopilot's firmware sends no ``input.message``, and what to read instead (empty: it does)."""
-        profile = self._firmware_lacking_input()
-        if profile is None:
+        profile = self.dispatcher.vehicle_profile
+        lacks = firmware_without(profile, self._input_name)
+        if lacks is None or profile is None:
             return ""
-        return (
-            f"the autopilot is {FIRMWARE_NAMES[profile]} (its HEARTBEAT), which has no {self._input_name} stream: "
-            f"set input.message: {units.PROFILES[profile].default_message} and input.profile: {profile}"
-        )
+        return f"{lacks}: set input.message: {units.PROFILES[profile].default_message} and input.profile: {profile}"
 
     def _dead_imu_hint(self, refused: Counter[str]) -> str:
         """:meth:`_other_imu_text` when the input is refused as an IMU the vehicle lacks (``refused_as_dead_imu``)."""
@@ -498,8 +489,8 @@ class AttitudeService:
         self.session.lock(vehicle, time.monotonic())
         log.info("locked onto the autopilot: system %d, component %d", *vehicle)
         self._statustext("start", start_statustext(__version__, self._input_name), "info")
-        profile = self._firmware_lacking_input()
-        if profile is not None:
+        profile = self.dispatcher.vehicle_profile
+        if profile is not None and firmware_without(profile, self._input_name):
             log.warning("%s", self._firmware_text())
             text = f"mavattitude: {FIRMWARE_NAMES[profile]} sends no {self._input_name}"
             self._statustext("firmware", text, "warning", log_it=False)

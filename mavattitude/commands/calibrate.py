@@ -113,7 +113,11 @@ def run(args: argparse.Namespace) -> int:
         from mavattitude.link.connection import MavlinkLink
 
         with MavlinkLink(source, source_system=args.system_id or 1) as link:
-            mag = _collect(_live_samples(link, args), args, sys.stderr, live=True)
+            live = _live(link, args)
+            try:
+                mag = _collect(_live_samples(link, args, live), args, sys.stderr, live=True)
+            except CalibrationError as exc:
+                raise CalibrationError(f"{exc}: {live.why_none()}") from None
     try:
         fit = magfit.fit_ellipsoid(mag, field_uT=args.field_uT, min_coverage=args.min_coverage)
     except CalibrationError as exc:
@@ -246,30 +250,62 @@ class _Live(_Skipped):
         self.request = request
         self.session = LinkSession(link, [request], REQUEST_REPEAT_S, now)
         self.deadline = now + duration_s
+        self.dispatcher: Dispatcher | None = None  # the one reading the link, once it has run
 
     def on_lock(self, vehicle: tuple[int, int]) -> None:
         self.session.lock(vehicle, time.monotonic())
         log.info("locked onto the autopilot at system %d, component %d; asking for %s", *vehicle, self.request.name)
+        if self._firmware_lacks() is not None:
+            self.deadline = time.monotonic()  # it never sends it: said at once, not after --duration
 
     def on_message(self, msg: Any, t_rx: float) -> None:
         self.session.on_message(msg, time.monotonic())
 
     def __call__(self, dispatcher: Dispatcher) -> bool:
+        self.dispatcher = dispatcher
         now = time.monotonic()
         self.session.tick(now)
         return now < self.deadline
 
+    def _firmware_lacks(self) -> str | None:
+        """That the autopilot's firmware has no stream of the message asked for, and the --profile that reads what
+        it has; None when it has one (or its firmware is unknown)."""
+        from mavattitude.reports import firmware_without
 
-def _live_samples(link: MavlinkLink, args: argparse.Namespace) -> Iterator[units.ImuSample]:
-    """The IMU samples of the autopilot on a live link, read as the service reads them (the link as a message
-    source, the service's dispatcher) and asked for as the service asks (:class:`_Live`)."""
+        profile = None if self.dispatcher is None else self.dispatcher.vehicle_profile
+        lacks = firmware_without(profile, self.request.name)
+        if lacks is None or profile is None:
+            return None
+        return f"{lacks}: --profile {profile} reads its {units.PROFILES[profile].default_message}"
+
+    def why_none(self) -> str:
+        """Why the link gave no magnetometer reading, as far as the link shows (the words after a colon)."""
+        dispatcher, name = self.dispatcher, self.request.name
+        if dispatcher is None or dispatcher.vehicle is None:
+            return "no autopilot HEARTBEAT heard"
+        lacks = self._firmware_lacks()
+        if lacks is not None:
+            return lacks
+        if dispatcher.counters.received:
+            return f"its {dispatcher.counters.received} {name} messages carry none (all zero)"
+        answer = self.session.answers.get(name)
+        return f"no {name} from the autopilot" + (f" (it answered the request with {answer})" if answer else "")
+
+
+def _live(link: MavlinkLink, args: argparse.Namespace) -> _Live:
+    """The upkeep of a live collection: ``--message`` (or the profile's own) asked for as the service asks."""
     from mavattitude.link.mavlink2 import message_id
+
+    message = args.message or units.get_profile(args.profile).default_message
+    return _Live(link, StreamRequest(message, message_id(message), LIVE_RATE_HZ), args.duration)
+
+
+def _live_samples(link: MavlinkLink, args: argparse.Namespace, live: _Live) -> Iterator[units.ImuSample]:
+    """The IMU samples of the autopilot on a live link, read as the service reads them (the link as a message
+    source, the service's dispatcher) and asked for by ``live``."""
     from mavattitude.link.source import MavlinkDecoder, MavlinkSource
 
-    profile = units.get_profile(args.profile)
-    message = args.message or profile.default_message
-    source = MavlinkSource(link, MavlinkDecoder(message, profile))
-    live = _Live(link, StreamRequest(message, message_id(message), LIVE_RATE_HZ), args.duration)
+    source = MavlinkSource(link, MavlinkDecoder(live.request.name, units.get_profile(args.profile)))
     return _read(source, args.system_id or 0, live, live)
 
 

@@ -8,6 +8,7 @@ import io
 import itertools
 import socket
 import threading
+import time
 import warnings
 from pathlib import Path
 
@@ -17,13 +18,14 @@ import yaml
 from pymavlink import mavutil
 
 from mavattitude.cli import main
-from mavattitude.commands.calibrate import _collect, _live_samples
+from mavattitude.commands.calibrate import _collect, _live, _live_samples
 from mavattitude.config import from_dict
 from mavattitude.link.mavlink2 import mavlink2
 from mavattitude.sensors.calibration import Calibration
 from mavattitude.sensors.units import ImuSample, encode, get_profile
-from mavattitude.sim import logwriter
+from mavattitude.sim import logwriter, scenarios
 from mavattitude.sim.logwriter import SensorLog, write_dataflash
+from mavattitude.sim.vehicle import FakeVehicle, VehicleConfig
 from tests.link.test_tlog import HEARTBEAT, write_tlog
 
 OFFSET = np.array([18.0, -25.0, 9.0])
@@ -183,6 +185,24 @@ def test_live_over_udp_asks_for_the_stream_and_shows_coverage(
     assert "coverage [" in err and "at rest" not in err
 
 
+def test_live_on_a_px4_asked_for_raw_imu_ends_at_once_saying_why(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A PX4 has no RAW_IMU, the default profile's message: the collection ends on locking on, not after
+    --duration's 180 s of nothing, and the error says what to give instead."""
+    config = VehicleConfig("udpin:127.0.0.1:0", profile="px4", message="HIGHRES_IMU")
+    with FakeVehicle(scenarios.paper_static(60.0), scenarios.paper_sensors(100.0), config) as vehicle:
+        start = time.monotonic()
+        code = main(["calibrate", "mag", f"udpout:127.0.0.1:{vehicle.port}", "-o", str(tmp_path / "x.yaml")])
+        took_s = time.monotonic() - start
+    assert code == 2
+    assert capsys.readouterr().err.endswith(
+        "no magnetometer readings found: the autopilot is a PX4 (its HEARTBEAT), which has no RAW_IMU stream: "
+        "--profile px4 reads its HIGHRES_IMU\n"
+    )
+    assert took_s < 30.0  # its first HEARTBEAT within a second or two of ours; the default --duration is 180 s
+
+
 def test_live_reads_the_chosen_autopilot_as_the_service_does() -> None:
     """Live, through the service's message source and dispatcher: a ground station, a second autopilot and
     an undecodable message are not read; only the chosen system is locked onto, asked and read."""
@@ -204,7 +224,7 @@ def test_live_reads_the_chosen_autopilot_as_the_service_does() -> None:
                 link.deliver(links[system].raw_imu_encode(**fields, xmag=200 + i, ymag=0, zmag=400).pack(links[system]))
 
     args = argparse.Namespace(message=None, profile="ardupilot", system_id=2, duration=30.0)
-    samples = _live_samples(link, args)
+    samples = _live_samples(link, args, _live(link, args))
     imu(0)
     first = list(itertools.islice(samples, 10))
     imu(10)  # read after the next periodic work: the request goes out on locking
