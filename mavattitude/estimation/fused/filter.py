@@ -32,7 +32,9 @@ nothing else, so a wrong or disturbed field can never move roll and pitch. ``σ_
 ``(τ_m |ω × m|)²``: the field error of a sample-time skew ``τ_m`` between gyro and magnetometer in a turn.
 
 Start-up and gaps: the first sample with both vectors initialises ``q`` from IGN and ``P_θθ`` from its
-covariance, ``P_bb = σ_b0² I`` (or the bias measured at rest: :meth:`FusedFilter.set_rest_noise`); a gap longer
+covariance, ``P_bb = σ_b0² I`` (or the bias measured at rest: :meth:`FusedFilter.set_rest_noise`); with its dip off
+the reference's (the field check's dip term, :mod:`.magnetic`) the heading IGN gives is another field's, and
+``P_θθ`` starts with the heading unknown about the vertical, for the heading updates to set it; a gap longer
 than ``max_gap_s``, or a time before the last (the autopilot rebooted: its clock starts again), restarts from
 IGN, keeping the bias. With no
 magnetometer reading for ``max_gap_s`` from the first sample (a vehicle without a compass), it starts on roll
@@ -61,7 +63,7 @@ from numpy.typing import ArrayLike
 
 from mavattitude.errors import InputError
 from mavattitude.estimation import NoiseModel, solve
-from mavattitude.estimation.compass import HEADING_UNKNOWN_STD_RAD
+from mavattitude.estimation.compass import HEADING_UNKNOWN_STD_RAD, heading_uncertain
 from mavattitude.estimation.conventions import (
     ACC_REF_NED,
     Array,
@@ -94,6 +96,7 @@ COUNTERS = (
     "skipped_updates",
     "gps_updates",
     "gps_refused",
+    "start_heading_unknown",
 )
 _MAX_UNIT_STD = 0.5  # rad: the largest direction noise handed to a measurement update
 # The update pace is the mean of the last PACE_WINDOW update intervals, measured once PACE_MIN_INTERVALS are
@@ -389,8 +392,7 @@ class FusedFilter:
     def _check_field(self, mag: Vec3, r: Sequence[float], down: Vec3, time_s: float) -> tuple[float, float]:
         """``(d, |m|)``; the disturbance tracked, the field learnt, the hard-iron offset gathered (``r``: R(q),
         ``down``: A(q) e_D)."""
-        p = self._ekf.p_tt
-        d, mag_norm, dip = self._mag.check(mag, down, p[0] + p[4] + p[8])
+        d, mag_norm, dip = self._mag.check(mag, down, _vertical_variance(self._ekf.p_tt, down))
         # The counters written only when they count: a dict item's += costs as much as four float operations.
         if math.isfinite(d):
             checks = self._mag
@@ -468,6 +470,9 @@ class FusedFilter:
             r = solve(acc, mag, self.mag_ref, self._noise, acc_ref=self.acc_ref)
             q = tuple(float(v) for v in r.q)  # type: ignore[assignment]
             p_tt = tuple(r.covariance.ravel().tolist())
+            if self._dip_off(mag, q, p_tt):  # IGN's heading is the field's, whose dip says it is another field
+                self.counters["start_heading_unknown"] += 1
+                p_tt = tuple(heading_uncertain(r.covariance, acc).ravel().tolist())
         if self._started:
             self._ekf.start(q, p_tt)  # type: ignore[arg-type]
         else:
@@ -486,6 +491,17 @@ class FusedFilter:
         self._next_update_s = time_s + self._update_period_s
         self._ticks = 0.0
         return self._outputs(time_s)
+
+    def _dip_off(self, mag_uT: ArrayLike, q: Quat, p_tt: Sequence[float]) -> bool:
+        """Whether a first reading's dip is off the reference's (the field check's dip term, its magnitude being
+        learnt from it): the heading it gives then starts as unknown, for the field checks to judge the readings
+        after it and the heading updates to set it when one passes."""
+        r = rotation_matrix_parts(q)
+        down = (r[6], r[7], r[8])
+        vertical_var = _vertical_variance(p_tt, down)
+        mag = self._mag.corrected((float(mag_uT[0]), float(mag_uT[1]), float(mag_uT[2])))
+        _, _, dip = self._mag.check(mag, down, vertical_var)
+        return self._mag.dip_deviation(dip, vertical_var) >= 1.0
 
     def _acquire_heading(self, mag_uT: ArrayLike, time_s: float) -> None:
         """The first magnetometer reading of a filter running on roll and pitch alone: the attitude turned about
@@ -555,3 +571,15 @@ def _carried(mag: Vec3, rate: Vec3, age_s: float) -> Vec3:
         mag[1] * c - kxm[1] * s + ky * along,
         mag[2] * c - kxm[2] * s + kz * along,
     )
+
+
+def _vertical_variance(p: Sequence[float], down: Vec3) -> float:
+    """``tr P − v̂ᵀ P v̂``: the variance of the predicted vertical's direction, the error about it (the heading's)
+    left out (``p``: ``P_θθ`` row by row, ``down``: the unit vertical in the body)."""
+    d0, d1, d2 = down
+    about = (
+        d0 * (p[0] * d0 + p[1] * d1 + p[2] * d2)
+        + d1 * (p[3] * d0 + p[4] * d1 + p[5] * d2)
+        + d2 * (p[6] * d0 + p[7] * d1 + p[8] * d2)
+    )
+    return p[0] + p[4] + p[8] - about

@@ -3,7 +3,10 @@
 Disturbance measure — field magnitude and dip against the reference, the dip measured against the
 *predicted* vertical (so an accelerating vehicle does not look magnetically disturbed)::
 
-    d = max(| |m| − |m_ref| | / (τ_n |m_ref|),  |δ(m, q) − δ_ref| / (τ_δ + 3 √tr P_θθ))
+    d = max(| |m| − |m_ref| | / (τ_n |m_ref|),  |δ(m, q) − δ_ref| / (τ_δ + 3 σ_v)),   σ_v² = tr P_θθ − v̂ᵀ P_θθ v̂
+
+``σ_v``: the predicted vertical ``v̂``'s own error (the rotation about it, the heading's, moves no dip: a heading
+unknown leaves the test as strict as a known one).
 
 ``|m_ref|`` and ``δ_ref`` are the magnitude and dip as this magnetometer measures them here, learnt from the
 clean field from start-up on: a running mean (from the reference's) over the first ``τ_ref =
@@ -94,9 +97,9 @@ class MagneticChecks:
         o = self.offset_uT
         return (mag[0] - o[0], mag[1] - o[1], mag[2] - o[2])
 
-    def check(self, mag: Vec3, down_body: Vec3, p_trace: float) -> tuple[float, float, float]:
+    def check(self, mag: Vec3, down_body: Vec3, vertical_var: float) -> tuple[float, float, float]:
         """``(d, |m|, dip)``: ``d`` of the module docstring (≥ 1 disturbed); ``down_body``: the predicted
-        vertical (NED down in the body frame), ``p_trace``: ``tr P_θθ``."""
+        vertical (NED down in the body frame), ``vertical_var``: ``σ_v²``."""
         s = self.s
         (m0, m1, m2), (v0, v1, v2) = mag, down_body  # the dot products written out: a call costs as much
         norm = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
@@ -104,12 +107,15 @@ class MagneticChecks:
             return math.inf, norm, 0.0
         dip = math.asin(clip_unit((v0 * m0 + v1 * m1 + v2 * m2) / norm))
         d_norm = abs(norm - self.norm_ref) / (s.mag_norm_tolerance_fraction * self.norm_ref)
-        if self._dip_tolerance_rad == 0.0:
-            return d_norm, norm, dip
-        # The predicted vertical is itself uncertain: widen the dip tolerance by 3σ of the attitude error.
-        tolerance = self._dip_tolerance_rad + 3.0 * math.sqrt(p_trace)
-        d_dip = abs(dip - self.dip_ref) / tolerance
+        d_dip = self.dip_deviation(dip, vertical_var)
         return (d_dip if d_dip > d_norm else d_norm), norm, dip  # max(): the builtin parses its arguments
+
+    def dip_deviation(self, dip: float, vertical_var: float) -> float:
+        """The dip's term of ``d``: off the reference's dip by its tolerance, widened by 3σ of the predicted
+        vertical's error (itself uncertain); 0 with the dip test off."""
+        if self._dip_tolerance_rad == 0.0:
+            return 0.0
+        return abs(dip - self.dip_ref) / (self._dip_tolerance_rad + 3.0 * math.sqrt(vertical_var))
 
     def observe(self, d: float, norm: float, dip: float, time_s: float) -> bool:
         """Track the disturbance and learn the field; True when a disturbed field was adopted."""
