@@ -410,20 +410,21 @@ class AttitudeService:
         """``waiting`` (default: the current state) in words, with what to check."""
         waiting = self.waiting if waiting is None else waiting
         link = self.config.link
+        others = self._other_autopilots_text()
         if waiting is Waiting.AUTOPILOT:
             which = f" from system {link.vehicle_system_id}" if link.vehicle_system_id else ""
-            heard = sorted({system for system, _ in self.counters.other_autopilots})
-            if heard:  # the id configured is not the vehicle's, or the vehicle is not on this link
-                systems = ", ".join(map(str, heard))
-                kind = "systems" if len(heard) > 1 else "system"
-                return f"waiting for a HEARTBEAT{which} on {link.connect}: heard only autopilot {kind} {systems}"
+            if others:  # the id configured is not the vehicle's, or the vehicle is not on this link
+                return f"waiting for a HEARTBEAT{which} on {link.connect}: heard only {others}"
             return f"waiting for a HEARTBEAT{which} on {link.connect} ({LINK_HINTS[self.link.endpoint.kind]})"
         if waiting is Waiting.AUTOPILOT_BACK:
             assert self.vehicle is not None and self._autopilot_silent_since is not None
             silent_s = time.monotonic() - self._autopilot_silent_since
+            # another autopilot heard: the link is up (a vehicle back under a new system id is one)
+            heard = f"; {others} heard: link.vehicle_system_id chooses" if others else ""
             return (
                 f"waiting for the autopilot: no HEARTBEAT from system {self.vehicle[0]}, component {self.vehicle[1]} "
-                f"for {silent_s:.0f} s (the link or the autopilot is down; a restarting autopilot is back in seconds)"
+                f"for {silent_s:.0f} s (the link or the autopilot is down; a restarting autopilot is back in "
+                f"seconds){heard}"
             )
         if waiting is Waiting.IMU_STREAM:
             assert self.vehicle is not None
@@ -455,6 +456,12 @@ class AttitudeService:
             hint = self._dead_imu_hint(since)
             return f"{self._input_name} arrives but no attitude goes out ({refusals_text(since)}){hint}"
         return "running"
+
+    def _other_autopilots_text(self) -> str:
+        """The other autopilots heard on the link, as "autopilot system 2" (empty: none)."""
+        heard = sorted({system for system, _ in self.counters.other_autopilots})
+        kind = "systems" if len(heard) > 1 else "system"
+        return f"autopilot {kind} {', '.join(map(str, heard))}" if heard else ""
 
     def _other_imu_text(self) -> str:
         """The IMU messages the vehicle sends besides ``input.message``, as the fix to try (empty: none)."""
