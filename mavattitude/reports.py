@@ -160,6 +160,7 @@ def counters_line(
         ("parameter_requests", c.parameter_requests),
         *((f"acks.{k.lower()}", v) for k, v in sorted(c.acks.items())),
         ("ack_timeouts", c.ack_timeouts),
+        ("requests_unheard", c.requests_unheard),
         ("acks_unmatched", c.acks_unmatched),
         ("input_rate_hz", c.input_rate_hz),
         ("rate_warnings", c.rate_warnings),

@@ -365,7 +365,8 @@ class AttitudeService:
         """The work due every ``TICK_S`` at most: the link's upkeep, the watches, what is said and touched."""
         if self.vehicle is not None:
             self._watch_autopilot(now)
-        self.session.tick(now)
+        heard = self.dispatcher.vehicle_heard_s
+        self.session.tick(now, math.inf if heard is None else heard)
         if self.pipeline.frontend.per_sample != self._per_sample:
             self._say_rate_handling()
         if self.vehicle is not None and self.counters.other_autopilots - self._others_said:
@@ -433,7 +434,7 @@ class AttitudeService:
             instead = self._other_imu_text() + "".join(f"; {text}" for text in [self._firmware_text()] if text)
             if link.request_messages:
                 answer = self.session.answers.get(self._input_name, "ACCEPTED")
-                refused = f" (answered {answer})" if answer != "ACCEPTED" else ""
+                refused = {"ACCEPTED": "", "TIMEOUT": " (no answer)"}.get(answer, f" (answered {answer})")
                 asked = f"asked for at {link.request_rate_hz:g} Hz{refused}"
                 return f"waiting for the IMU stream: {source}, {asked}{instead}"
             return (

@@ -177,9 +177,20 @@ def test_missing_acks_counted_and_said_once(served, caplog):
     running, vehicle = served
     caplog.set_level(logging.WARNING, logger="mavattitude.service")
     lock_on(vehicle)  # and never answer: each unanswered request times out after 2 s
-    wait_until(vehicle, lambda: running.service.counters.ack_timeouts >= 2, timeout_s=8.0)
+    beat_s = time.monotonic()
+
+    def alive_without_acks() -> bool:
+        """An autopilot still there (its 1 Hz HEARTBEAT: a silent one's requests are not timeouts) that answers
+        no request."""
+        nonlocal beat_s
+        if time.monotonic() >= beat_s:
+            vehicle.send(vehicle.heartbeat())
+            beat_s += 1.0
+        return running.service.counters.ack_timeouts >= 2
+
+    wait_until(vehicle, alive_without_acks, timeout_s=8.0)
     counters = running.finish()
-    assert counters.interval_requests >= 2 and not counters.acks
+    assert counters.interval_requests >= 2 and not counters.acks and counters.requests_unheard == 0
     assert sum("no COMMAND_ACK" in r.getMessage() for r in caplog.records) == 1
 
 

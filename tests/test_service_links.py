@@ -577,8 +577,9 @@ def test_waiting_for_the_configured_autopilot_names_the_ones_heard():
 
 def test_an_autopilot_whose_heartbeat_stops_is_said_and_asked_again_when_it_is_back(monkeypatch, caplog):
     """An autopilot restarting (or a link down) stops its HEARTBEAT: said once, and the wait says it rather than
-    blame the IMU stream, naming any other autopilot heard meanwhile; nothing is asked meanwhile (each request would
-    time out); its HEARTBEAT back, its streams are asked for at once, as a restarted autopilot has forgotten them."""
+    blame the IMU stream, naming any other autopilot heard meanwhile; nothing is asked meanwhile, and what was asked
+    unanswered is not said to time out; its HEARTBEAT back, its streams are asked for at once, as a restarted
+    autopilot has forgotten them."""
     monkeypatch.setattr(service_module, "HEARTBEAT_LOST_S", 0.2)  # not 5 s of a test's time
     caplog.set_level(logging.INFO, logger="mavattitude.service")
     service, link = _service(**{"link.request_repeat_s": 0.5})
@@ -588,9 +589,11 @@ def test_an_autopilot_whose_heartbeat_stops_is_said_and_asked_again_when_it_is_b
     asked = len(sent(link, "COMMAND_LONG"))
     assert service.waiting is service_module.Waiting.AUTOPILOT_BACK
     assert service.waiting_text().startswith("waiting for the autopilot: no HEARTBEAT from system 1, component 1 for")
-    silent_until = time.monotonic() + 1.2  # over two of request_repeat_s
+    silent_until = time.monotonic() + 2.5  # over two of request_repeat_s, and the ACK time-out of 2 s
     _step_until(service, lambda: time.monotonic() > silent_until)
     assert len(sent(link, "COMMAND_LONG")) == asked
+    # the requests sent before it fell silent went unanswered: its silence, not a refusal (no warning)
+    assert service.counters.requests_unheard == asked and service.counters.ack_timeouts == 0
     link.deliver(Peer(system=2).heartbeat())  # another vehicle, or this one back under a new system id
     _step_until(service, lambda: service.counters.other_autopilots)
     assert service.waiting_text().endswith("; autopilot system 2 heard: link.vehicle_system_id chooses")

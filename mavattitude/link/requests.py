@@ -86,15 +86,19 @@ class PendingRequests:
         self._forget(now_s)
         return self._pending.popleft().request if self._pending else None
 
-    def timed_out(self, now_s: float) -> list[StreamRequest]:
-        """Requests unanswered for ``timeout_s``, each reported once (they still match a late ACK)."""
+    def timed_out(self, now_s: float, heard_s: float = math.inf) -> tuple[list[StreamRequest], int]:
+        """Requests unanswered for ``timeout_s``, each reported once (they still match a late ACK), and how many
+        more were dropped unreported: sent to a vehicle not heard from since (``heard_s``: its latest HEARTBEAT's
+        arrival), whose silence (a restart, the link down) is no refusal, and which will not answer them."""
         self._forget(now_s)
-        out = []
+        out, unheard = [], [p for p in self._pending if heard_s < p.sent_s and now_s - p.sent_s >= self.timeout_s]
+        for p in unheard:
+            self._pending.remove(p)
         for p in self._pending:
             if not p.timed_out and now_s - p.sent_s >= self.timeout_s:
                 p.timed_out = True
                 out.append(p.request)
-        return out
+        return out, len(unheard)
 
     def _forget(self, now_s: float) -> None:
         while self._pending and now_s - self._pending[0].sent_s >= self.forget_s:

@@ -40,6 +40,7 @@ class RequestCounters:
     parameter_requests: int = 0  # PARAM_REQUEST_READ sent
     acks: dict[str, int] = field(default_factory=dict)  # SET_MESSAGE_INTERVAL results by name (of our requests)
     ack_timeouts: int = 0
+    requests_unheard: int = 0  # unanswered, sent to a vehicle silent since (not timeouts: it did not hear them)
     acks_unmatched: int = 0  # ACKs of SET_MESSAGE_INTERVAL addressed to us with no request of ours waiting
 
 
@@ -86,7 +87,9 @@ class LinkSession:
         """Ask nothing until :meth:`ask_now` (the autopilot is silent: a request would only time out)."""
         self._held = True
 
-    def tick(self, now: float) -> None:
+    def tick(self, now: float, heard_s: float = math.inf) -> None:
+        """What is due at ``now``; ``heard_s``: the arrival of the vehicle's latest HEARTBEAT (a request it has not
+        been heard from since is not said unanswered: :meth:`~.requests.PendingRequests.timed_out`)."""
         if self._heartbeat.due(now):
             self.link.send_heartbeat()
         if self.link.counters.reconnects != self._reconnects_seen:
@@ -97,7 +100,9 @@ class LinkSession:
             if self.link.request_message_interval(vehicle, stream.message_id, stream.rate_hz):
                 self.counters.interval_requests += 1
                 self._pending.sent(stream, now)
-        for request in self._pending.timed_out(now):
+        unanswered, unheard = self._pending.timed_out(now, heard_s)
+        self.counters.requests_unheard += unheard
+        for request in unanswered:
             self.counters.ack_timeouts += 1
             self._say_answer(request, "TIMEOUT")
         if vehicle is not None and now >= self._parameters_next_s:

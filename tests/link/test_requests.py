@@ -27,12 +27,22 @@ def test_acks_answer_the_oldest_waiting_request_in_order():
 def test_a_timed_out_request_is_reported_once_and_still_takes_its_late_ack():
     pending = PendingRequests(timeout_s=2.0, forget_s=10.0)
     pending.sent(IMU, 0.0)
-    assert pending.timed_out(1.9) == []
-    assert pending.timed_out(2.0) == [IMU]
-    assert pending.timed_out(4.0) == []  # said once
+    assert pending.timed_out(1.9) == ([], 0)
+    assert pending.timed_out(2.0, heard_s=1.0) == ([IMU], 0)  # heard after it was sent: it did not answer
+    assert pending.timed_out(4.0) == ([], 0)  # said once
     pending.sent(POSITION, 5.0)
     assert pending.answered(5.5) == IMU  # the late ACK is the IMU request's, not the position's
     assert pending.answered(5.6) == POSITION
+
+
+def test_a_request_to_a_vehicle_silent_since_is_dropped_not_said_unanswered():
+    """Sent at 5 s to a vehicle last heard at 4.5 s (restarting, or the link down): at the time-out it is dropped,
+    counted, and no ACK is matched to it; one sent before the vehicle was last heard times out as before."""
+    pending = PendingRequests(timeout_s=2.0, forget_s=10.0)
+    pending.sent(IMU, 4.0)
+    pending.sent(POSITION, 5.0)
+    assert pending.timed_out(7.0, heard_s=4.5) == ([IMU], 1)
+    assert len(pending) == 1 and pending.answered(7.5) == IMU
 
 
 def test_requests_unanswered_for_long_are_forgotten():
