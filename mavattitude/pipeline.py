@@ -107,12 +107,15 @@ class AttitudeOutput:
     converged: bool
     flags: SampleFlag = SampleFlag.NONE
     covariance_source: Callable[[], Array] | None = field(default=None, repr=False, compare=False)
+    _covariance: Array | None = field(default=None, init=False, repr=False, compare=False)  # computed once
 
     @property
     def covariance(self) -> Array:
-        if self.covariance_source is None:
-            raise InputError("this output carries no covariance")
-        return self.covariance_source()
+        if self._covariance is None:
+            if self.covariance_source is None:
+                raise InputError("this output carries no covariance")
+            self._covariance = self.covariance_source()
+        return self._covariance
 
     def covariance_or_nan(self) -> Array:
         """The covariance, or all NaN where there is none (a singular information matrix): for outputs
@@ -121,6 +124,24 @@ class AttitudeOutput:
             return self.covariance
         except MavAttitudeError:
             return np.full((3, 3), np.nan)
+
+
+#: A heading whose σ is over this is none to compare (one uniform over ±180° has 104°, an estimate's a few degrees).
+NO_HEADING_STD_RAD = math.radians(30.0)
+
+
+def comparable_heading(q: Any, covariance: Any, flags: Any) -> Any:
+    """The cross-check's heading rule, for one output or many (``q`` (…, 4), ``covariance`` (…, 3, 3), ``flags`` the
+    :class:`SampleFlag` ints): a heading to compare is not flagged ``NO_HEADING`` and its σ about the body's
+    vertical (``v̂ᵀ P v̂``) is within ``NO_HEADING_STD_RAD``. The fused filter started in a field of another dip, or
+    a snapshot of nearly parallel vectors, has none: the yaw difference there would be ours, not the autopilot's.
+    A covariance unknown (NaN) refuses nothing."""
+    q, p = np.asarray(q), np.asarray(covariance)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    # A(q) e_D, the body's vertical, written out: one live output's costs 11 µs so, 30 µs through a matrix and einsum
+    down = (2.0 * (x * z - w * y), 2.0 * (y * z + w * x), w * w - x * x - y * y + z * z)
+    variance = sum(down[i] * p[..., i, j] * down[j] for i in range(3) for j in range(3))
+    return ((np.asarray(flags) & _NO_HEADING) == 0) & ~(variance > NO_HEADING_STD_RAD**2)
 
 
 class CrossCheckGate:

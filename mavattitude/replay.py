@@ -39,7 +39,14 @@ from mavattitude.link.logs import LogSource
 from mavattitude.link.logstreams import LogStreams
 from mavattitude.link.source import AutopilotAttitude, AutopilotParameter, MessageSource, Sender
 from mavattitude.link.tlog import TlogSource
-from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, CrossCheckGate, Pushed
+from mavattitude.pipeline import (
+    AttitudeOutput,
+    AttitudePipeline,
+    CrossCheckGate,
+    Pushed,
+    comparable_heading,
+    output_covariances,
+)
 from mavattitude.sensors.frontend import SampleFlag, median_rate_hz
 from mavattitude.sensors.magref import distance_km
 from mavattitude.sensors.units import COMPASS_INSTANCES, ImuSample
@@ -109,15 +116,17 @@ class Replayed:
 
     def cross_check(self) -> tuple[CrossCheck, list[Difference], list[CrossCheckEvent]]:
         """The service's cross-check over the whole replay (:func:`cross_check_log`): ours against the autopilot's
-        attitudes, each pair judged as live (not where ours has no heading's yaw, nor where :class:`CrossCheckGate`
-        says it may be fooled by the vehicle's acceleration)."""
+        attitudes, each pair judged as live (the yaw not where ours has no heading to compare,
+        :func:`comparable_heading`; nor where :class:`CrossCheckGate` says it may be fooled by the vehicle's
+        acceleration)."""
         ours, autopilot = self.output_array(), self.autopilot_array()
         gate = CrossCheckGate()
         moving = np.array([gate.moving(o) for o in self.outputs], dtype=bool)
+        flags = np.array([int(o.flags) for o in self.outputs], dtype=np.int64)
+        judged = comparable_heading(ours[:, 1:5], output_covariances(self.outputs), flags)
         settings = self.pipeline.config.crosscheck
-        return cross_check_log(
-            ours[:, 0], ours[:, 1:5], autopilot[:, 0], autopilot[:, 1:5], settings, self.heading(), moving
-        )
+        t, q = ours[:, 0], ours[:, 1:5]
+        return cross_check_log(t, q, autopilot[:, 0], autopilot[:, 1:5], settings, self.heading(), moving, judged)
 
     def heading(self) -> NDArray[np.bool_]:
         """Which outputs have a heading (not flagged ``NO_HEADING``: their yaw means something)."""

@@ -92,7 +92,7 @@ from mavattitude.link.requests import LOW_FRACTION, RateMonitor, StreamRequest
 from mavattitude.link.session import LinkSession
 from mavattitude.link.source import AutopilotAttitude, AutopilotParameter, MavlinkDecoder, Sender
 from mavattitude.periodic import Every
-from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, CrossCheckGate, Pushed
+from mavattitude.pipeline import AttitudeOutput, AttitudePipeline, CrossCheckGate, Pushed, comparable_heading
 from mavattitude.reports import (
     CLOCKS_APART_STATUSTEXT,
     DEGENERATE_STATUSTEXT,
@@ -672,7 +672,9 @@ class AttitudeService:
         if self._xcheck is not None and outputs:
             for out in outputs:
                 moving = self._gate.moving(out)
-                self._xcheck.add_ours(out.time_s, out.q, not out.flags & SampleFlag.NO_HEADING, moving)
+                flags = int(out.flags)
+                judged = bool(comparable_heading(out.q, out.covariance_or_nan(), flags))
+                self._xcheck.add_ours(out.time_s, out.q, not flags & SampleFlag.NO_HEADING, moving, judged)
             self._cross_check(self._xcheck)
 
     def _say_units(self, finding: UnitsFinding) -> None:

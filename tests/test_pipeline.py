@@ -590,3 +590,24 @@ def test_fused_outputs_say_whether_the_gps_took_the_acceleration_out():
 def test_an_attitude_reads_acceleration_as_tilt_while_moving_unless_the_gps_took_it_out(flags, reads):
     output = AttitudeOutput(1.0, Q_TRUE, np.zeros(3), 0, True, flags)
     assert CrossCheckGate().moving(output) is reads  # a first output: nothing yet to turn unlike the gyro
+
+
+def test_a_heading_is_judged_by_the_cross_check_only_when_its_sigma_about_the_vertical_is_small():
+    """The σ about the body's vertical, not about body z: a vehicle pitched 60° with 90° of variance about its
+    vertical has none to judge by; the same variance about body x (roll) leaves its heading judged. NO_HEADING
+    has none whatever the covariance; an unknown covariance (NaN) refuses nothing."""
+    q = quat_from_euler(0.0, np.radians(60.0), np.radians(30.0))
+    down = rotate_ned_to_body(q, np.array([0.0, 0.0, 1.0]))
+    small = np.eye(3) * np.radians(1.0) ** 2
+    about_vertical = small + np.radians(90.0) ** 2 * np.outer(down, down)
+    about_x = small + np.radians(90.0) ** 2 * np.outer([1.0, 0.0, 0.0], [1.0, 0.0, 0.0])
+    # pitched 60°, the body's x axis is 60° above the horizontal: sin(60°)·90° = 78° of its variance about the vertical
+    assert bool(pipeline_module.comparable_heading(q, about_x, 0)) is False
+    flat = quat_from_euler(0.0, 0.0, np.radians(30.0))
+    assert bool(pipeline_module.comparable_heading(flat, about_x, 0)) is True  # level: roll moves no heading
+    assert bool(pipeline_module.comparable_heading(q, about_vertical, 0)) is False
+    assert bool(pipeline_module.comparable_heading(q, small, 0)) is True
+    assert bool(pipeline_module.comparable_heading(q, small, int(SampleFlag.NO_HEADING))) is False
+    assert bool(pipeline_module.comparable_heading(q, np.full((3, 3), np.nan), 0)) is True
+    many = pipeline_module.comparable_heading(np.stack([q, q]), np.stack([small, about_vertical]), np.zeros(2, int))
+    assert many.tolist() == [True, False]

@@ -306,11 +306,12 @@ def test_the_covariance_message_is_off_when_configured():
 
 
 def _autopilot_8_deg_off(
-    vehicle: Peer, clock_offset_s: float = 0.0, gps: bool = False, **raw_imu: object
+    vehicle: Peer, clock_offset_s: float = 0.0, gps: bool = False, axis: int = 0, **raw_imu: object
 ) -> list[bytes]:
-    """6 s of RAW_IMU at 200 Hz with the autopilot's ATTITUDE at 10 Hz, its roll 8° off Q_TRUE's (stamped
-    ``clock_offset_s`` from the IMU's clock); with ``gps``, GPS_RAW_INT at 5 Hz: a 3D fix, 10 satellites, 0 m/s."""
-    roll_deg, pitch_deg, yaw_deg = 10.0 + 8.0, -20.0, 135.0
+    """6 s of RAW_IMU at 200 Hz with the autopilot's ATTITUDE at 10 Hz, its roll (``axis`` 0; 2: its yaw) 8° off
+    Q_TRUE's (stamped ``clock_offset_s`` from the IMU's clock); with ``gps``, GPS_RAW_INT at 5 Hz: a 3D fix,
+    10 satellites, 0 m/s."""
+    roll_deg, pitch_deg, yaw_deg = (a + (8.0 if k == axis else 0.0) for k, a in enumerate((10.0, -20.0, 135.0)))
     datagrams = [vehicle.heartbeat()]
     for i in range(60):  # 0.1 s of RAW_IMU, then the autopilot's ATTITUDE for its middle
         datagrams += vehicle.stream(20, **raw_imu)
@@ -348,6 +349,20 @@ def test_the_cross_check_publishes_the_difference_and_warns_once(caplog):
     pairs = dict(item.split("=") for item in line.removeprefix("counters (final): ").split())
     assert pairs["xc_warnings"] == "1" and int(pairs["xc_pairs"]) >= 55  # 60 less the first, before ours
     assert float(pairs["xc_total_deg"]) == pytest.approx(8.0, abs=0.5) and pairs["xc_unjudged"] == "0"
+
+
+@pytest.mark.parametrize(("mag_std_uT", "warned"), [(0.5, True), (30.0, False)])
+def test_a_yaw_difference_is_not_judged_where_our_heading_is_too_uncertain(mag_std_uT, warned):
+    """The autopilot's yaw 8° off ours. With the compass's σ at 30 µT (on a 50 µT field) our heading's σ is over
+    30°: the difference is published, yaw and all, and the verdict goes on the tilt alone (no warning); at 0.5 µT
+    it warns."""
+    service, link = _service(**{"crosscheck.enabled": True, "noise.mag_std_uT": mag_std_uT})
+    link.deliver(*_autopilot_8_deg_off(Peer(), axis=2))
+    _step_until(service, lambda: not link.inbox)
+    _step_until(service, lambda: len(sent(link, "NAMED_VALUE_FLOAT")) >= 4)  # published at 2 Hz
+    values = {m.name: m.value for m in sent(link, "NAMED_VALUE_FLOAT")[-4:]}
+    assert values["xc_yaw"] == pytest.approx(-8.0, abs=0.5)
+    assert bool([m for m in sent(link, "STATUSTEXT") if "off the autopilot" in m.text]) is warned
 
 
 def test_an_autopilot_attitude_on_another_clock_than_the_imu_is_said_to_leave_no_cross_check(caplog):

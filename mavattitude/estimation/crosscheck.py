@@ -222,7 +222,8 @@ class CrossCheck:
         self.settings = settings
         self._times: deque[float] = deque()
         self._quats: deque[Quat] = deque()
-        self._headings: deque[bool] = deque()  # whether each of ours has a heading (a magnetometer)
+        # for each of ours: 2 a heading judged, 1 one not judged (too uncertain), 0 none (no magnetometer)
+        self._headings: deque[int] = deque()
         self._moved: deque[float] = deque()  # for each of ours, the time of the last moving one up to it
         # autopilot attitudes ahead of our outputs (bounded: while we output nothing, the oldest go)
         self._waiting: deque[tuple[float, Quat]] = deque()
@@ -254,9 +255,12 @@ class CrossCheck:
         inside = self.pairs + self.missed
         return self.pairs / inside if inside else math.nan
 
-    def add_ours(self, time_s: float, q: Iterable[float], heading: bool = True, moving: bool = False) -> None:
+    def add_ours(
+        self, time_s: float, q: Iterable[float], heading: bool = True, moving: bool = False, judged_heading: bool = True
+    ) -> None:
         """One of our attitudes; ``heading`` false: it has none (roll and pitch only); ``moving``: a snapshot
-        solve while the vehicle turned or accelerated (the module docstring)."""
+        solve while the vehicle turned or accelerated (the module docstring); ``judged_heading`` false: its heading
+        is too uncertain to judge the autopilot's by (the difference keeps its yaw, the verdict takes the tilt's)."""
         if self._times and time_s <= self._times[-1]:  # our clock went back (a reboot): start over
             self._times.clear()
             self._quats.clear()
@@ -270,7 +274,7 @@ class CrossCheck:
         self._moved.append(time_s if moving else self._moved[-1] if self._moved else -math.inf)
         self._times.append(time_s)
         self._quats.append(_quat(q))
-        self._headings.append(heading)
+        self._headings.append(2 if heading and judged_heading else int(heading))
         while self._times[0] < time_s - KEEP_S:
             self._dropped_s = self._times.popleft()
             self._quats.popleft()
@@ -321,7 +325,7 @@ class CrossCheck:
                 continue
             q, heading, moved_s = ours
             judged = t - moved_s > self.settings.settle_s  # (settle_s 0: a moving one itself is not judged)
-            d = difference(t, q, theirs, heading, judged)
+            d = difference(t, q, theirs, heading > 0, judged)
             diffs.append(d)
             self.last = d
             self.pairs += 1
@@ -330,14 +334,15 @@ class CrossCheck:
                 self.unjudged += 1
                 self._since = None  # the hold is of judged pairs in a row
                 continue
-            event = self._judge(d)
+            total_deg = d.total_deg if heading != 1 else difference(t, q, theirs, False).total_deg
+            event = self._judge(t, total_deg)
             if event is not None:
                 events.append(event)
         return diffs, events
 
-    def _ours_at(self, t: float) -> tuple[Quat, bool, float] | str:
-        """Ours at ``t`` (within our newest output's time), whether it has a heading and when the vehicle last
-        moved up to it, or why there is none."""
+    def _ours_at(self, t: float) -> tuple[Quat, int, float] | str:
+        """Ours at ``t`` (within our newest output's time), its heading (as kept: 2 judged, 1 not, 0 none) and when
+        the vehicle last moved up to it, or why there is none."""
         times, headings, moved = self._times, self._headings, self._moved
         i = bisect.bisect_left(times, t)
         if times[i] == t:
@@ -351,7 +356,7 @@ class CrossCheck:
         if self._gap(times[i - 1], times[i]):
             return "gap"
         q = interpolate(times[i - 1], self._quats[i - 1], times[i], self._quats[i], t)
-        return q, headings[i - 1] and headings[i], moved[i]
+        return q, min(headings[i - 1], headings[i]), moved[i]
 
     def _gap(self, before_s: float, after_s: float) -> bool:
         """Whether two of ours are too far apart to interpolate between."""
@@ -364,20 +369,20 @@ class CrossCheck:
         intervals = sorted(b - a for a, b in zip(times, list(times)[1:], strict=False))
         return gap_limit_s(self.settings.max_gap_s, intervals[len(intervals) // 2] if intervals else math.nan)
 
-    def _judge(self, d: Difference) -> CrossCheckEvent | None:
+    def _judge(self, time_s: float, total_deg: float) -> CrossCheckEvent | None:
         s = self.settings
-        beyond = d.total_deg > s.threshold_deg if not self.disagree else d.total_deg >= CLEAR_FRACTION * s.threshold_deg
+        beyond = total_deg > s.threshold_deg if not self.disagree else total_deg >= CLEAR_FRACTION * s.threshold_deg
         if beyond == self.disagree:  # on the side of the current verdict
             self._since = None
             return None
         if self._since is None:
-            self._since = d.time_s
-        if d.time_s - self._since < s.hold_s:
+            self._since = time_s
+        if time_s - self._since < s.hold_s:
             return None
         self.disagree = not self.disagree
         self.warnings += self.disagree
         self._since = None
-        return CrossCheckEvent(d.time_s, self.disagree, d.total_deg)
+        return CrossCheckEvent(time_s, self.disagree, total_deg)
 
 
 def cross_check_log(
@@ -388,15 +393,18 @@ def cross_check_log(
     settings: CrossCheckSettings,
     ours_heading: np.ndarray | None = None,
     ours_moving: np.ndarray | None = None,
+    ours_judged_heading: np.ndarray | None = None,
 ) -> tuple[CrossCheck, list[Difference], list[CrossCheckEvent]]:
     """The live cross-check over a whole log: both attitude series, each in the log's order, fed in vehicle-time
     order, as they arrive (``ours_heading``: which of ours have a heading, default all; ``ours_moving``: which
-    are snapshot solves while the vehicle moved, default none). Where the vehicle
+    are snapshot solves while the vehicle moved, default none; ``ours_judged_heading``: whose heading the verdict
+    may judge by, default all). Where the vehicle
     rebooted both clocks go back: each series' k-th boot (its times going back as :meth:`CrossCheck.add_ours`
     and :meth:`CrossCheck.add_autopilot` tell a reboot) is merged with the other's k-th."""
     check = CrossCheck(settings)
     heading = [True] * len(ours_t_s) if ours_heading is None else ours_heading.tolist()
     moving = [False] * len(ours_t_s) if ours_moving is None else ours_moving.tolist()
+    judged = [True] * len(ours_t_s) if ours_judged_heading is None else ours_judged_heading.tolist()
     diffs: list[Difference] = []
     events: list[CrossCheckEvent] = []
     j = 0
@@ -408,7 +416,7 @@ def cross_check_log(
         while j < len(ours) and (
             ours_boot[j] < boot or (ours_boot[j] == boot and (j == 0 or ours_boot[j - 1] < boot or ours[j - 1] < t))
         ):
-            check.add_ours(ours[j], ours_q[j], heading[j], moving[j])
+            check.add_ours(ours[j], ours_q[j], heading[j], moving[j], judged[j])
             j += 1
         check.add_autopilot(t, q)
         d, e = check.update()

@@ -207,6 +207,21 @@ def test_ours_without_a_heading_is_compared_on_the_tilt_alone():
     assert np.isnan(between.yaw_deg)  # interpolated from one without a heading: none
 
 
+def test_a_heading_too_uncertain_to_judge_by_keeps_its_yaw_and_the_verdict_takes_the_tilt():
+    """Ours 20° of yaw off the autopilot's throughout (a compass judged off), the tilt 1° off: with the heading not
+    judged the difference still says the 20° (the figures and plot are the same), the verdict goes on the 1° and
+    says nothing; the same heading judged warns after hold_s."""
+    ours_t, theirs_t = np.arange(0.0, 10.0, 0.02), np.arange(0.0, 10.0, 0.1)
+    ours = quat_from_euler(np.full(len(ours_t), np.radians(1.0)), np.zeros(len(ours_t)), np.full(len(ours_t), 0.35))
+    theirs = quat_from_euler(np.zeros(len(theirs_t)), np.zeros(len(theirs_t)), np.zeros(len(theirs_t)))
+    settings = CrossCheckSettings(threshold_deg=5.0, hold_s=3.0)
+    for judged, warned in ((False, []), (True, [3.0])):
+        flags = np.full(len(ours_t), judged)
+        _, diffs, events = cross_check_log(ours_t, ours, theirs_t, theirs, settings, None, None, flags)
+        assert [round(e.time_s, 1) for e in events] == warned
+        assert all(d.yaw_deg == pytest.approx(np.degrees(0.35), abs=1e-6) for d in diffs)
+
+
 def test_an_attitude_that_waited_past_our_kept_outputs_is_late_and_too_many_waiting_overflow():
     q = tuple(truth(np.array([0.0]))[0].tolist())
     late = CrossCheck(CrossCheckSettings())
