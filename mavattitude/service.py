@@ -128,6 +128,8 @@ TICK_S = 0.05  # periodic work runs at least this often; also the longest wait o
 ATTITUDE_FRESH_S = 2.0  # the autopilot's attitudes still come: one within this long (its stream at 0.5 Hz or more)
 UNLOCKED_SYSTEM_ID = 1  # our system id before locking onto an autopilot in automatic mode
 RATE_WINDOW_S = 5.0  # the input rate is measured over windows this long
+# a window's input this share repeats the sample before's time, the rest taken: the stream arrives twice (or more)
+TWICE_SHARE = (0.4, 0.9)
 DEGENERATE = DegenerateGeometryError.__name__  # the pipeline's reject reason for collinear acc and mag
 POSITION_MESSAGE = "GLOBAL_POSITION_INT"
 POSITION_RATE_HZ = 1.0
@@ -309,6 +311,9 @@ class AttitudeService:
         watchdog_s = self.notifier.watchdog_interval_s
         self._watchdog = Every(watchdog_s / 4 if watchdog_s else math.inf, now)
         self._alive = Every(alive.PERIOD_S, now)
+        self._twice = Every(RATE_WINDOW_S, now, first_s=RATE_WINDOW_S)  # the input arriving twice (_watch_twice)
+        self._twice_from = (0, 0)  # (received, duplicates) at the window's start
+        self._twice_said = False
         self._wait_reports = WaitReports(Waiting.AUTOPILOT, now)
         self._last_counters: dict[str, str] = {}  # the last periodic line's key=value, to log what changed
         self.dispatcher = Dispatcher(
@@ -373,6 +378,8 @@ class AttitudeService:
             self._say_other_autopilots(self.vehicle)
         if self._rate is not None:
             self._check_rate(self._rate, now)
+        if self._twice.due(now):
+            self._watch_twice()
         if self._xcheck is not None and self._publish.due(now):
             self._publish_difference(self._xcheck)
             self._watch_pairing(self._xcheck, now)
@@ -642,6 +649,25 @@ class AttitudeService:
             self._statustext("input_rate", text, "warning", log_it=False)
         else:
             log.info("%s arrives at %.0f Hz again", self._input_name, rate.rate_hz)
+
+    def _watch_twice(self) -> None:
+        """The input arriving twice, every sample a second time (a router beside a direct link, a routing loop):
+        said once. The copies are dropped as duplicates and the attitude is right, at twice the cost; a clock that
+        does not advance refuses nearly every sample, which the output's watch says instead."""
+        received, duplicates = self.counters.received, self.pipeline.frontend.counters.rejected.get("duplicate", 0)
+        (received0, duplicates0), self._twice_from = self._twice_from, (received, duplicates)
+        share = (duplicates - duplicates0) / max(received - received0, 1)
+        if self._twice_said or not TWICE_SHARE[0] <= share < TWICE_SHARE[1]:
+            return
+        self._twice_said = True
+        log.warning(
+            "%.0f %% of the last %d %s repeated the time of the one before: the stream arrives twice, by two routes "
+            "(a router beside a direct link, or a routing loop); the copies are dropped, at their cost",
+            100.0 * share,
+            received - received0,
+            self._input_name,
+        )
+        self._statustext("twice", f"mavattitude: {self._input_name} arrives twice", "warning", log_it=False)
 
     # -- input and output -----------------------------------------------------------------------------
 

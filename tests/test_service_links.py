@@ -620,3 +620,26 @@ def test_an_autopilot_whose_heartbeat_stops_is_said_and_asked_again_when_it_is_b
     assert len(said) == 2
     assert said[0].startswith("no HEARTBEAT from the autopilot (system 1, component 1) for 0 s: the link")
     assert said[1].startswith("the autopilot's HEARTBEAT again after ")
+
+
+@pytest.mark.parametrize(("copies", "said"), [(2, True), (1, False)])
+def test_an_input_arriving_twice_is_said_once(monkeypatch, caplog, copies, said):
+    """Every RAW_IMU a second time (two routes to the autopilot: a router beside a direct link): the copies are
+    dropped as duplicates and the attitude goes on; said once, log and STATUSTEXT, however long it lasts. Each
+    once: nothing said."""
+    monkeypatch.setattr(service_module, "RATE_WINDOW_S", 0.2)  # judged over 0.2 s windows, not 5 s
+    caplog.set_level(logging.WARNING, logger="mavattitude.service")
+    service, link = _service()
+    vehicle = Peer()
+    link.deliver(vehicle.heartbeat())
+    for _ in range(4):  # four windows, each with 0.5 s of the vehicle's 200 Hz stream
+        link.deliver(*[m for m in vehicle.stream(100) for _ in range(copies)])
+        window_end = time.monotonic() + 0.25
+        _step_until(service, lambda end=window_end: not link.inbox and time.monotonic() > end)
+    warnings = [r.getMessage() for r in caplog.records if "arrives twice" in r.getMessage()]
+    assert len(warnings) == int(said)
+    for warning in warnings:  # (a window holds one delivery or two, as the windows fall: each half copies)
+        assert warning.startswith("50 % of the last ") and "RAW_IMU repeated the time of the one before" in warning
+    texts = [m.text for m in sent(link, "STATUSTEXT") if "twice" in m.text]
+    assert texts == (["mavattitude: RAW_IMU arrives twice"] if said else [])
+    assert service.counters.emitted >= 4 * 20  # 0.5 s at 50 Hz a window, less the filter's start
