@@ -276,6 +276,24 @@ def firmware_without(vehicle_profile: str | None, message: str) -> str | None:
     return f"the autopilot is {FIRMWARE_NAMES[vehicle_profile]} (its HEARTBEAT), which has no {message} stream"
 
 
+#: Of an input, this share repeating the time of the sample before, one copy each (a clock that stands still repeats
+#: in runs: one each): the stream arrives twice, or more.
+TWICE_SHARE = 0.25
+
+
+def arriving_twice(received: int, first_repeats: int, message: str) -> str | None:
+    """The words for an input that arrives twice, every sample followed by a copy (by two routes), from how many of
+    ``received`` were :func:`~mavattitude.sensors.clock.first_repeats`; None when it does not."""
+    share = first_repeats / received if received else 0.0
+    if share < TWICE_SHARE:
+        return None
+    return (
+        f"{100.0 * share:.0f} % of the last {received} {message} repeated the time of the one before, one copy each: "
+        "the stream arrives twice, by two routes (a router beside a direct link, or a routing loop); the copies are "
+        "dropped, at their cost"
+    )
+
+
 def start_statustext(version: str, message: str) -> str:
     return f"mavattitude {version}: attitude from {message}"
 

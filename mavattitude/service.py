@@ -98,6 +98,7 @@ from mavattitude.reports import (
     DEGENERATE_STATUSTEXT,
     FIRMWARE_NAMES,
     ServiceCounters,
+    arriving_twice,
     compass_event_words,
     compass_statustext,
     compass_unused_statustext,
@@ -115,6 +116,7 @@ from mavattitude.reports import (
     start_statustext,
 )
 from mavattitude.sensors import units
+from mavattitude.sensors.clock import first_repeats
 from mavattitude.sensors.frontend import SampleFlag
 from mavattitude.sensors.magref import declination_parameter
 from mavattitude.sensors.mounting import TRIM_PARAMETERS
@@ -128,8 +130,6 @@ TICK_S = 0.05  # periodic work runs at least this often; also the longest wait o
 ATTITUDE_FRESH_S = 2.0  # the autopilot's attitudes still come: one within this long (its stream at 0.5 Hz or more)
 UNLOCKED_SYSTEM_ID = 1  # our system id before locking onto an autopilot in automatic mode
 RATE_WINDOW_S = 5.0  # the input rate is measured over windows this long
-# a window's input this share repeats the sample before's time, the rest taken: the stream arrives twice (or more)
-TWICE_SHARE = (0.4, 0.9)
 DEGENERATE = DegenerateGeometryError.__name__  # the pipeline's reject reason for collinear acc and mag
 POSITION_MESSAGE = "GLOBAL_POSITION_INT"
 POSITION_RATE_HZ = 1.0
@@ -312,7 +312,7 @@ class AttitudeService:
         self._watchdog = Every(watchdog_s / 4 if watchdog_s else math.inf, now)
         self._alive = Every(alive.PERIOD_S, now)
         self._twice = Every(RATE_WINDOW_S, now, first_s=RATE_WINDOW_S)  # the input arriving twice (_watch_twice)
-        self._twice_from = (0, 0)  # (received, duplicates) at the window's start
+        self._twice_times: list[float] = []  # the window's input sample times, in arrival order
         self._twice_said = False
         self._wait_reports = WaitReports(Waiting.AUTOPILOT, now)
         self._last_counters: dict[str, str] = {}  # the last periodic line's key=value, to log what changed
@@ -651,28 +651,22 @@ class AttitudeService:
             log.info("%s arrives at %.0f Hz again", self._input_name, rate.rate_hz)
 
     def _watch_twice(self) -> None:
-        """The input arriving twice, every sample a second time (a router beside a direct link, a routing loop):
-        said once. The copies are dropped as duplicates and the attitude is right, at twice the cost; a clock that
-        does not advance refuses nearly every sample, which the output's watch says instead."""
-        received, duplicates = self.counters.received, self.pipeline.frontend.counters.rejected.get("duplicate", 0)
-        (received0, duplicates0), self._twice_from = self._twice_from, (received, duplicates)
-        share = (duplicates - duplicates0) / max(received - received0, 1)
-        if self._twice_said or not TWICE_SHARE[0] <= share < TWICE_SHARE[1]:
+        """The input arriving twice over the last window (:func:`~mavattitude.reports.arriving_twice`): said once.
+        The copies are dropped as duplicates and the attitude is right, at twice the cost."""
+        times, self._twice_times = self._twice_times, []
+        words = arriving_twice(len(times), first_repeats(times), self._input_name)
+        if words is None or self._twice_said:
             return
         self._twice_said = True
-        log.warning(
-            "%.0f %% of the last %d %s repeated the time of the one before: the stream arrives twice, by two routes "
-            "(a router beside a direct link, or a routing loop); the copies are dropped, at their cost",
-            100.0 * share,
-            received - received0,
-            self._input_name,
-        )
+        log.warning("%s", words)
         self._statustext("twice", f"mavattitude: {self._input_name} arrives twice", "warning", log_it=False)
 
     # -- input and output -----------------------------------------------------------------------------
 
     def on_input(self, sample: ImuSample, t_rx: float) -> None:
         self._last_input = t_rx
+        if not self._twice_said:
+            self._twice_times.append(sample.time_s)
         self._arrivals.add(sample.time_s, t_rx, self.link.backlog)
         for instance, event in self.other_compasses.push(sample, self.pipeline):
             self._on_compass(event, instance)

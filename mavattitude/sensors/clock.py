@@ -12,6 +12,9 @@ from __future__ import annotations
 import enum
 import math
 
+import numpy as np
+from numpy.typing import ArrayLike
+
 
 class ClockEvent(enum.Enum):
     OK = "ok"
@@ -50,3 +53,12 @@ class VehicleClock:
         self._offset_s = 0.0
         self._last_raw_s = raw_time_s
         return raw_time_s, ClockEvent.REBOOT
+
+
+def first_repeats(time_s: ArrayLike) -> int:
+    """How many samples, in arrival order, repeat the time of the one before while that one did not repeat its own:
+    one per copy of a stream that arrives twice (every sample followed by its copy), one per run of a clock that
+    stands still (however long the run)."""
+    t = np.asarray(time_s, dtype=float)
+    same = t[1:] == t[:-1]
+    return int(np.count_nonzero(same[1:] & ~same[:-1]) + (same[0] if len(same) else 0))

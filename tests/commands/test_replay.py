@@ -47,10 +47,12 @@ def write_tlog(
     mag_every: int = 1,
     heartbeats: bool = True,
     imu_clock_offset_s: float = 0.0,
+    imu_copies: int = 1,
 ) -> Path:
     """A ground station's recording: its own heartbeat, the autopilot(s') heartbeats, RAW_IMU at 100 Hz
     (ArduPilot units, seeded noise; each compass reading repeated in ``mag_every`` messages, as ArduPilot
-    sends a slower compass; stamped ``imu_clock_offset_s`` from the other messages), ATTITUDE at 10 Hz, optionally
+    sends a slower compass; stamped ``imu_clock_offset_s`` from the other messages; each recorded ``imu_copies``
+    times, as a station that hears the vehicle by two routes records it), ATTITUDE at 10 Hz, optionally
     GLOBAL_POSITION_INT at 5 Hz from ``position_from_s``; without ``heartbeats``, the station's alone."""
     field = field_from_angles(DECL, INCL, F_UT) if field_ned_uT is None else field_ned_uT
     rng = np.random.default_rng(3)
@@ -79,7 +81,8 @@ def write_tlog(
         gyr = np.tile([0.0, 0.0, np.radians(YAW_RATE_DEG_S) if s == 1 else 0.0], (len(t), 1))
         for i, ti in enumerate(t):
             sample = ImuSample(float(ti) + imu_clock_offset_s, tuple(acc[i]), tuple(gyr[i]), tuple(mag[i]))
-            add(ti, s, links[s].raw_imu_encode(**encode(sample, profile, "RAW_IMU")))
+            for _ in range(imu_copies):
+                add(ti, s, links[s].raw_imu_encode(**encode(sample, profile, "RAW_IMU")))
             if attitude and i % 10 == 5:
                 r, p, y = rpy[i] + [0.0, 0.0, np.radians(AUTOPILOT_YAW_OFFSET_DEG)]
                 add(ti, s, links[s].attitude_encode(round(ti * 1e3), r, p, y, 0.0, 0.0, 0.0))
@@ -358,3 +361,14 @@ def test_an_imu_stamped_on_another_clock_than_the_autopilots_attitude_is_said(tm
     assert len(said) == 1 and said[0].endswith(" s from our IMU's: stamped with Unix time?)")
     offset_s = float(said[0].split("(its clock ")[1].split(" s from")[0])
     assert offset_s == pytest.approx(-1.7e9, abs=5.0)  # the newest of each, within the log's 3 s
+
+
+def test_a_log_recorded_twice_over_is_said_and_replays_as_once(tmp_path: Path, capsys: pytest.CaptureFixture[str]):
+    """A ground station that heard the vehicle by two routes recorded every RAW_IMU twice: said (the service's words
+    for a stream arriving twice), the copies dropped, the attitudes those of the log recorded once."""
+    once, twice = write_tlog(tmp_path / "once.tlog"), write_tlog(tmp_path / "twice.tlog", imu_copies=2)
+    for log in (once, twice):
+        assert main(["replay", str(log), "-o", str(tmp_path / f"{log.stem}.csv"), "--no-plot", *REF]) == 0
+    said = [line for line in capsys.readouterr().err.splitlines() if "arrives twice" in line]
+    assert len(said) == 1 and f"{twice}: 50 % of the last " in said[0]
+    np.testing.assert_array_equal(read_rows(tmp_path / "once.csv"), read_rows(tmp_path / "twice.csv"))

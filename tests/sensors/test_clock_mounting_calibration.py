@@ -8,7 +8,7 @@ import pytest
 from mavattitude.config import from_dict
 from mavattitude.errors import ConfigError
 from mavattitude.sensors.calibration import hard_iron_with_body_offset, mag_block, sensor_affines
-from mavattitude.sensors.clock import ClockEvent, VehicleClock
+from mavattitude.sensors.clock import ClockEvent, VehicleClock, first_repeats
 from mavattitude.sensors.mounting import ARDUPILOT_ROTATIONS, mounting_matrix, rotation_angles_deg
 
 WRAP_MS = 2.0**32 * 1e-3
@@ -50,6 +50,21 @@ def test_uint64_time_never_wraps_but_reboots() -> None:
     clock = VehicleClock()
     clock.update(5000.0, None)
     assert clock.update(3.0, None)[1] is ClockEvent.REBOOT
+
+
+@pytest.mark.parametrize(
+    ("times", "expected"),
+    [
+        ([1, 1, 2, 2, 3, 3, 4, 4], 4),  # a stream arriving twice: every sample's copy
+        ([1, 1, 1, 2, 2, 2], 2),  # three times: one first copy per sample
+        ([1, 2, 3, 3, 3, 3, 3, 3, 3, 3], 1),  # a clock that stands still: one run
+        ([1, 2, 3], 0),
+        ([5, 5], 1),
+        ([], 0),
+    ],
+)
+def test_first_repeats_count_a_copy_per_sample_and_a_run_once(times: list[int], expected: int) -> None:
+    assert first_repeats(times) == expected
 
 
 def test_ardupilot_rotations_match_vector3_rotate() -> None:
