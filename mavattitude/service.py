@@ -151,6 +151,11 @@ LINK_HINTS = {  # the likely cause when no HEARTBEAT comes, by connection kind
     "tcpin": "is the autopilot connecting to this port?",
     "serial": "is the autopilot sending MAVLink 2 on this port, at this baud rate?",
 }
+GARBAGE_HINTS = {  # the likely cause when bytes come but no MAVLink frame is in them
+    "serial": "a baud rate other than the autopilot's, or another protocol on its port: its SERIALn_BAUD and "
+    "SERIALn_PROTOCOL 2",
+    "udpin": "another program sending to this port",
+}
 
 
 class WaitReports:
@@ -423,6 +428,10 @@ class AttitudeService:
             which = f" from system {link.vehicle_system_id}" if link.vehicle_system_id else ""
             if others:  # the id configured is not the vehicle's, or the vehicle is not on this link
                 return f"waiting for a HEARTBEAT{which} on {link.connect}: heard only {others}"
+            heard = self.link.counters
+            if heard.bad_data and not heard.received:  # something talks, but not MAVLink
+                garbage = GARBAGE_HINTS.get(self.link.endpoint.kind, GARBAGE_HINTS["udpin"])
+                return f"waiting for a HEARTBEAT{which} on {link.connect}: data, but no MAVLink frame in it ({garbage})"
             return f"waiting for a HEARTBEAT{which} on {link.connect} ({LINK_HINTS[self.link.endpoint.kind]})"
         if waiting is Waiting.AUTOPILOT_BACK:
             assert self.vehicle is not None and self._autopilot_silent_since is not None

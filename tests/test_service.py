@@ -510,6 +510,25 @@ def test_what_it_waits_for_is_said_after_a_few_seconds_then_ever_more_rarely(cap
     ]
 
 
+def test_data_that_holds_no_mavlink_is_said_in_the_wait_for_the_autopilot(served):
+    """Bytes on the port that are no MAVLink (another program's, or a serial line at another baud rate): the wait
+    says data comes but no frame is in it, rather than ask whether anything is sent; a MAVLink frame heard (a
+    ground station's heartbeat) is no longer that case."""
+    running, vehicle = served
+    vehicle.send_raw(bytes(range(256)) * 2)  # no start marker 0xFD or 0xFE followed by a frame that checks
+    wait_until(vehicle, lambda: running.service.link.counters.bad_data > 0)
+    assert running.service.waiting_text() == (
+        "waiting for a HEARTBEAT on udpin:127.0.0.1:0: data, but no MAVLink frame in it (another program sending to "
+        "this port)"
+    )
+    station = UdpPeer(system=255, component=190)
+    station.target = vehicle.target
+    station.send(station.heartbeat(mavlink2.MAV_AUTOPILOT_INVALID))
+    wait_until(vehicle, lambda: running.service.link.counters.received > 0)
+    station.close()
+    assert running.service.waiting_text().endswith("(is the autopilot sending to this port?)")
+
+
 def test_each_wait_is_said_in_words_with_what_to_check():
     running = Running(make_config(**{"link.vehicle_system_id": 7, "link.request_rate_hz": 100.0}))
     running.finish()
