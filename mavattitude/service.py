@@ -130,13 +130,13 @@ TICK_S = 0.05  # periodic work runs at least this often; also the longest wait o
 ATTITUDE_FRESH_S = 2.0  # the autopilot's attitudes still come: one within this long (its stream at 0.5 Hz or more)
 UNLOCKED_SYSTEM_ID = 1  # our system id before locking onto an autopilot in automatic mode
 RATE_WINDOW_S = 5.0  # the input rate is measured over windows this long
+HEARTBEAT_LOST_S = 5.0  # nothing from the autopilot this long (its 1 Hz HEARTBEAT missed): the link or it is down
 DEGENERATE = DegenerateGeometryError.__name__  # the pipeline's reject reason for collinear acc and mag
 POSITION_MESSAGE = "GLOBAL_POSITION_INT"
 POSITION_RATE_HZ = 1.0
 TIME_MESSAGE = "SYSTEM_TIME"
 # The fused filter's GPS velocity: the receiver's own, at the 5 Hz most receivers give (a faster stream repeats fixes)
 GPS_VELOCITY_MESSAGE = "GPS_RAW_INT"
-HEARTBEAT_LOST_S = 5.0  # the autopilot's 1 Hz HEARTBEAT missed this long: the link or the autopilot is down
 GPS_VELOCITY_RATE_HZ = 5.0
 TIME_RATE_HZ = 0.2
 ATTITUDE_MESSAGE = "ATTITUDE"
@@ -373,9 +373,9 @@ class AttitudeService:
 
     def _periodic(self, now: float) -> None:
         """The work due every ``TICK_S`` at most: the link's upkeep, the watches, what is said and touched."""
-        if self.vehicle is not None:
-            self._watch_autopilot(now)
-        heard = self.dispatcher.vehicle_heard_s
+        heard = self._vehicle_heard_s()
+        if heard is not None:
+            self._watch_autopilot(heard, now)
         self.session.tick(now, math.inf if heard is None else heard)
         if self.pipeline.frontend.per_sample != self._per_sample:
             self._say_rate_handling()
@@ -711,12 +711,16 @@ class AttitudeService:
         log.warning("%s: check %s", finding.text, profile_units(self.config, self._input_name, finding.sensor))
         self._statustext(f"units:{finding.sensor}", finding.short, "warning", log_it=False)
 
-    def _watch_autopilot(self, now: float) -> None:
-        """The autopilot's HEARTBEAT missed for ``HEARTBEAT_LOST_S`` (a restart, the link down) is said, and so is
-        its return, when the streams are asked for at once: a restarted autopilot has forgotten them, and the next
+    def _vehicle_heard_s(self) -> float | None:
+        """When the autopilot was last heard (its HEARTBEAT or its input's arrival); None before locking on."""
+        heartbeat, sample = self.dispatcher.vehicle_heard_s, self._last_input
+        return heartbeat if sample is None or heartbeat is None else max(heartbeat, sample)
+
+    def _watch_autopilot(self, heard: float, now: float) -> None:
+        """Nothing from the autopilot for ``HEARTBEAT_LOST_S`` (a restart, the link down) is said, and so is its
+        return, when the streams are asked for at once: a restarted autopilot has forgotten them, and the next
         ``link.request_repeat_s`` may be seconds away. Nothing is asked while it is silent."""
-        heard = self.dispatcher.vehicle_heard_s
-        assert heard is not None and self.vehicle is not None
+        assert self.vehicle is not None
         since = self._autopilot_silent_since
         if since is None and now - heard > HEARTBEAT_LOST_S:
             self._autopilot_silent_since = heard

@@ -643,3 +643,18 @@ def test_an_input_arriving_twice_is_said_once(monkeypatch, caplog, copies, said)
     texts = [m.text for m in sent(link, "STATUSTEXT") if "twice" in m.text]
     assert texts == (["mavattitude: RAW_IMU arrives twice"] if said else [])
     assert service.counters.emitted >= 4 * 20  # 0.5 s at 50 Hz a window, less the filter's start
+
+
+def test_an_autopilot_whose_input_flows_is_not_silent_for_want_of_heartbeats(monkeypatch):
+    """Its HEARTBEAT filtered out on the way (a router's rule) while its IMU stream flows: it is heard, not said
+    silent, and the streams are still asked for on their schedule."""
+    monkeypatch.setattr(service_module, "HEARTBEAT_LOST_S", 0.2)
+    service, link = _service(**{"link.request_repeat_s": 0.5})
+    vehicle = Peer()
+    link.deliver(vehicle.heartbeat())
+    until = time.monotonic() + 1.2  # six of HEARTBEAT_LOST_S, two of request_repeat_s
+    while time.monotonic() < until:
+        link.deliver(*vehicle.stream(10))
+        _step_until(service, lambda: not link.inbox)
+        service.step(STEP_S)
+    assert service.counters.autopilot_silent == 0 and service.counters.interval_requests >= 3
