@@ -17,6 +17,7 @@ from mavattitude.estimation import NoiseModel, solve, solve_batch
 from mavattitude.estimation import conventions as cv
 from mavattitude.estimation.fused import FusedFilter, FusedSettings
 from mavattitude.estimation.fused.ekf import ErrorStateFilter
+from mavattitude.estimation.fused.filter import _vertical_variance
 from mavattitude.reports import heading_lost
 from mavattitude.sim import scenarios
 from mavattitude.sim.scoring import heading_error, tilt_error
@@ -325,6 +326,17 @@ def test_a_start_in_a_field_of_another_dip_claims_no_heading_until_the_field_is_
     # a clean start keeps IGN's covariance: σ_m 3.75 µT (the filter's) on the 20 µT horizontal field, about 18°
     clean, clean_out = _run(t, acc, gyr, mag)
     assert clean.counters["start_heading_unknown"] == 0 and _heading_std_deg(clean_out[0]) < 22.0
+
+
+def test_the_vertical_variance_is_never_below_zero_beside_a_heading_unknown() -> None:
+    """A heading's variance (3.29 rad²) beside a tilt's far below its rounding: ``tr P − v̂ᵀ P v̂`` would come out
+    below 0 for about a third of the verticals (the dip check takes its square root)."""
+    rng = np.random.default_rng(SEED)
+    for _ in range(300):
+        down = rng.normal(size=3)
+        down /= np.linalg.norm(down)
+        p = 1e-20 * np.eye(3) + 3.29 * np.outer(down, down)
+        assert 0.0 <= _vertical_variance(tuple(p.ravel().tolist()), tuple(down.tolist())) < 1e-12
 
 
 def test_a_magnet_fixed_to_the_body_is_learnt_as_a_hard_iron_offset_while_turning() -> None:

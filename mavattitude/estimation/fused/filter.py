@@ -582,4 +582,5 @@ def _vertical_variance(p: Sequence[float], down: Vec3) -> float:
         + d1 * (p[3] * d0 + p[4] * d1 + p[5] * d2)
         + d2 * (p[6] * d0 + p[7] * d1 + p[8] * d2)
     )
-    return p[0] + p[4] + p[8] - about
+    vertical = p[0] + p[4] + p[8] - about
+    return vertical if vertical > 0.0 else 0.0  # (a heading variance far above the tilt's leaves rounding below 0)
