@@ -44,7 +44,7 @@ class ServiceCounters(DispatchCounters, RequestCounters):
     emitted: int = 0  # ATTITUDE_QUATERNION sent
     rejected: dict[str, int] = field(default_factory=lambda: dict.fromkeys(DISPATCH_REJECTS, 0))
     input_lost: int = 0  # times the input went silent for longer than input_timeout_s
-    autopilot_silent: int = 0  # times the autopilot's HEARTBEAT stopped for HEARTBEAT_LOST_S
+    autopilot_silent: int = 0  # times nothing came from the autopilot (HEARTBEAT, input) for HEARTBEAT_LOST_S
     input_rate_hz: float = float("nan")  # received, over the service's last rate window
     rate_warnings: int = 0  # times the input stayed below the requested rate
     mean_iterations: float = float("nan")

@@ -88,8 +88,9 @@ class PendingRequests:
 
     def timed_out(self, now_s: float, heard_s: float = math.inf) -> tuple[list[StreamRequest], int]:
         """Requests unanswered for ``timeout_s``, each reported once (they still match a late ACK), and how many
-        more were dropped unreported: sent to a vehicle not heard from since (``heard_s``: its latest HEARTBEAT's
-        arrival), whose silence (a restart, the link down) is no refusal, and which will not answer them."""
+        more were dropped unreported: sent to a vehicle not heard from since (``heard_s``: when it last was, its
+        HEARTBEAT or its input), whose silence (a restart, the link down) is no refusal, and which will not answer
+        them."""
         self._forget(now_s)
         out, unheard = [], [p for p in self._pending if heard_s < p.sent_s and now_s - p.sent_s >= self.timeout_s]
         for p in unheard:

@@ -88,8 +88,8 @@ class LinkSession:
         self._held = True
 
     def tick(self, now: float, heard_s: float = math.inf) -> None:
-        """What is due at ``now``; ``heard_s``: the arrival of the vehicle's latest HEARTBEAT (a request it has not
-        been heard from since is not said unanswered: :meth:`~.requests.PendingRequests.timed_out`)."""
+        """What is due at ``now``; ``heard_s``: when the vehicle was last heard, its HEARTBEAT or its input (a request
+        it has not been heard from since is not said unanswered: :meth:`~.requests.PendingRequests.timed_out`)."""
         if self._heartbeat.due(now):
             self.link.send_heartbeat()
         if self.link.counters.reconnects != self._reconnects_seen:
