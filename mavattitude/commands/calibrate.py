@@ -45,6 +45,7 @@ HELP = "fit the magnetometer's hard- and soft-iron calibration (ellipsoid fit) a
 
 log = logging.getLogger(__name__)
 
+REFUSED_HINT = "--message asks for another IMU message"  # a refused stream, in this command's words
 LIVE_MIN_SAMPLES = 500  # live collection stops once coverage is met with at least this many samples
 LIVE_RATE_HZ = 50.0  # the IMU rate asked of the autopilot while collecting
 LIVE_WAIT_S = 0.1  # the longest a live read waits for input before the periodic work
@@ -248,7 +249,7 @@ class _Live(_Skipped):
     def __init__(self, link: MavlinkLink, request: StreamRequest, duration_s: float) -> None:
         now = time.monotonic()
         self.request = request
-        self.session = LinkSession(link, [request], REQUEST_REPEAT_S, now)
+        self.session = LinkSession(link, [request], REQUEST_REPEAT_S, now, refused_hint=REFUSED_HINT)
         self.deadline = now + duration_s
         self.dispatcher: Dispatcher | None = None  # the one reading the link, once it has run
 

@@ -30,6 +30,7 @@ HEARTBEAT_PERIOD_S = 1.0
 ACK_TIMEOUT_S = 2.0
 ACK_FORGET_S = 10.0  # an unanswered request still matches a late ACK for this long
 PARAMETER_TRIES = 3
+REFUSED_HINT = "if it streams the message by itself, set link.request_messages: false"  # the service's config words
 
 
 @dataclass
@@ -55,8 +56,10 @@ class LinkSession:
         now: float,
         counters: RequestCounters | None = None,
         parameters: Sequence[str] = (),
+        refused_hint: str = REFUSED_HINT,
     ) -> None:
         self.link = link
+        self._refused_hint = refused_hint  # what to do when a stream is refused, in the caller's words
         self.counters = counters if counters is not None else RequestCounters()
         self.vehicle: Sender | None = None
         self._heartbeat = Every(HEARTBEAT_PERIOD_S, now)
@@ -156,9 +159,5 @@ class LinkSession:
         elif result == "TIMEOUT":
             log.warning("no COMMAND_ACK for SET_MESSAGE_INTERVAL(%s) within %.0f s", request.describe(), ACK_TIMEOUT_S)
         else:
-            log.warning(
-                "autopilot answered SET_MESSAGE_INTERVAL(%s) with %s; if it streams the message by itself, "
-                "set link.request_messages: false",
-                request.describe(),
-                result,
-            )
+            hint = self._refused_hint
+            log.warning("autopilot answered SET_MESSAGE_INTERVAL(%s) with %s; %s", request.describe(), result, hint)

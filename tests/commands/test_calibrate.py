@@ -6,6 +6,7 @@ import argparse
 import gzip
 import io
 import itertools
+import logging
 import socket
 import threading
 import time
@@ -201,6 +202,27 @@ def test_live_on_a_px4_asked_for_raw_imu_ends_at_once_saying_why(
         "--profile px4 reads its HIGHRES_IMU\n"
     )
     assert took_s < 30.0  # its first HEARTBEAT within a second or two of ours; the default --duration is 180 s
+
+
+def test_live_a_refused_stream_is_said_in_the_commands_words(caplog: pytest.LogCaptureFixture) -> None:
+    """The autopilot refusing the IMU message: the fix said is the command's flag, not the service's config key."""
+    from mavattitude.link.memory import MemoryLink
+
+    link = MemoryLink()
+    live = _live(link, argparse.Namespace(message="SCALED_IMU3", profile="ardupilot", duration=30.0))
+    now = time.monotonic()
+    live.session.lock((1, 1), now)
+    live.session.tick(now)
+    autopilot = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    result = mavlink2.MAV_RESULT_DENIED
+    denied = autopilot.command_ack_encode(mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, result, 0, 0, 1, 191)
+    denied.pack(autopilot)
+    with caplog.at_level(logging.WARNING, logger="mavattitude.link.session"):
+        live.session.on_message(denied, now)
+    assert [r.getMessage() for r in caplog.records] == [
+        "autopilot answered SET_MESSAGE_INTERVAL(SCALED_IMU3 at 50 Hz) with DENIED; --message asks for another IMU "
+        "message"
+    ]
 
 
 def test_live_reads_the_chosen_autopilot_as_the_service_does() -> None:
