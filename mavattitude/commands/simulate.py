@@ -64,6 +64,14 @@ def add_vehicle_arguments(parser: argparse.ArgumentParser, default_duration_s: f
     parser.add_argument(
         "--rate", type=float, default=DEFAULT_RATE_HZ, metavar="HZ", help=f"IMU rate, Hz (default {DEFAULT_RATE_HZ:g})"
     )
+    parser.add_argument(
+        "--link-max-hz",
+        type=float,
+        metavar="HZ",
+        help="the most IMU messages a second the link carries, whatever rate is asked: a telemetry radio (a "
+        "57600-baud one carries about 140 RAW_IMU a second), a ground station's stream rates (2-10); default: no "
+        "limit",
+    )
     parser.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
     parser.add_argument(
         "--autopilot-error",
@@ -78,8 +86,9 @@ def add_vehicle_arguments(parser: argparse.ArgumentParser, default_duration_s: f
 def vehicle_from_args(args: argparse.Namespace, connect: str, stream_on_start: bool) -> FakeVehicle:
     if not args.duration > 0:
         raise MavAttitudeError(f"--duration must be positive, got {args.duration}")
-    if not args.rate > 0:
-        raise MavAttitudeError(f"--rate must be positive, got {args.rate}")
+    for flag, value in (("--rate", args.rate), ("--link-max-hz", args.link_max_hz)):
+        if value is not None and not value > 0:
+            raise MavAttitudeError(f"{flag} must be positive, got {value}")
     script = scenarios.script_named(args.script, args.duration)
     if args.script == "paper_static" and args.sensors == "consumer":
         log.info("paper_static flies with the paper's noise; use --sensors to choose another")
@@ -91,6 +100,7 @@ def vehicle_from_args(args: argparse.Namespace, connect: str, stream_on_start: b
         fly_when_asked=True,  # the script (and --duration) starts when the IMU is first asked for
         seed=args.seed,
         attitude_error_deg=tuple(args.autopilot_error),
+        link_max_imu_hz=args.link_max_hz,
     )
     return FakeVehicle(script, scenarios.sensors_named(args.sensors, args.rate), config)
 

@@ -115,3 +115,25 @@ def test_simulate_serves_a_running_service() -> None:
     assert f"ATTITUDE_QUATERNION received: {int(count)}" in out
     # what the service told the vehicle, as a ground station shows it: its start, first of all
     assert re.search(r"STATUSTEXT from the service: mavattitude \S+: attitude from RAW_IMU", err), err
+
+
+def test_demo_on_a_slow_link_is_told_so_and_scores_each_sample() -> None:
+    """--link-max-hz 4: a telemetry-rate link whatever the service asks. The service outputs one attitude per
+    sample (too slow to filter), says the rate (two 5 s windows under 90 % of the 200 Hz asked), and the table's
+    latency is each output's own sample's (it read -249 ms: the output's millisecond rounded past its sample)."""
+    done = subprocess.run(
+        [*CLI, "demo", "--duration", "14", "--script", "static", "--sensors", "paper", "--link-max-hz", "4"],
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT_S,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "STATUSTEXT mavattitude: RAW_IMU 4 Hz < 200 asked" in done.stdout, done.stdout
+    *_, rate_hz, lat_p50, lat_p99 = map(float, done.stdout.strip().splitlines()[-1].split())  # the whole run's
+    assert rate_hz == pytest.approx(4.0, abs=0.1) and 0.0 < lat_p50 <= lat_p99 < 50.0, done.stdout
+
+
+@pytest.mark.parametrize("flag", ["--link-max-hz", "--rate"])
+def test_a_rate_that_is_not_positive_is_refused(flag: str) -> None:
+    done = subprocess.run([*CLI, "simulate", flag, "0"], capture_output=True, text=True, timeout=TIMEOUT_S)
+    assert done.returncode == 2 and f"{flag} must be positive, got 0.0" in done.stderr, done.stderr
