@@ -6,10 +6,7 @@
 - Heading error: the twist about the NED vertical of the NED-frame error rotation ``q̂ ⊗ q*``
   (well defined at any attitude, unlike a difference of Euler yaws near ±90° pitch or when inverted).
 - Output rate on the vehicle's clock; latency from the send of the first IMU sample at or after the
-  output's vehicle time (the sample that made that output possible) to the output's arrival. The output's time
-  is ATTITUDE_QUATERNION's ``time_boot_ms``, the vehicle time rounded to the millisecond: a sample up to half of
-  one before it is its own (an output per sample, at a slow rate, carries the sample's time; at most it makes the
-  latency that much longer where samples come faster than one a millisecond).
+  output's vehicle time (the sample that made that output possible) to the output's arrival.
 """
 
 from __future__ import annotations
@@ -76,9 +73,6 @@ class Score:
         )
 
 
-OUTPUT_TIME_RESOLUTION_S = 1e-3  # ATTITUDE_QUATERNION's time_boot_ms
-
-
 @dataclass(frozen=True)
 class Comparison:
     """Per-output arrays: vehicle time, estimate, truth and body-frame error angles (rad)."""
@@ -94,7 +88,7 @@ def compare(
     t_s: Array, q_est: Array, recv_mono_s: Array, q_true: Array, sent_t_s: Array, sent_mono_s: Array
 ) -> Comparison:
     """Pair outputs with truth and with the IMU send that enabled each (``sent_*`` sorted by time)."""
-    index = np.searchsorted(sent_t_s, t_s - OUTPUT_TIME_RESOLUTION_S / 2.0 - 1e-6)
+    index = np.searchsorted(sent_t_s, t_s - 1e-6)
     has_source = index < len(sent_t_s)
     latency = np.full(len(t_s), np.nan)
     latency[has_source] = recv_mono_s[has_source] - sent_mono_s[index[has_source]]

@@ -598,6 +598,8 @@ class FakeVehicle:
             if kind == "ATTITUDE_QUATERNION":
                 q = (msg.q1, msg.q2, msg.q3, msg.q4)
                 self.attitude_log.append((mono, msg.time_boot_ms / 1000.0, q, self._epoch, msg.get_srcSystem()))
+            elif kind == "ATTITUDE_QUATERNION_COV":
+                self._timed_to_the_microsecond(msg)
             elif kind == "STATUSTEXT":
                 self.statustexts.append(msg.text)
             self._cond.notify_all()
@@ -605,6 +607,16 @@ class FakeVehicle:
             self._command(msg)
         elif kind == "PARAM_REQUEST_READ" and msg.target_system in (0, self.config.system_id):
             self._parameter(msg.param_id)
+
+    def _timed_to_the_microsecond(self, msg: Any) -> None:
+        """The covariance sent with the attitude before it (the same time, in µs): that output's time to the µs, where
+        its time_boot_ms is rounded to the ms (an output per sample of a slow input carries its sample's time, and
+        the scoring pairs each output with the sample at or after it). Called under ``_cond``."""
+        if not self.attitude_log:
+            return
+        mono, t_s, q, epoch, system = self.attitude_log[-1]
+        if system == msg.get_srcSystem() and round(t_s * 1e3) == round(msg.time_usec / 1e3):
+            self.attitude_log[-1] = (mono, msg.time_usec / 1e6, q, epoch, system)
 
     def _parameter(self, name: str) -> None:
         """PARAM_VALUE of one of the parameters it has (its level trim, its compasses' use); another name is not

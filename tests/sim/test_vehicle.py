@@ -225,3 +225,16 @@ def test_a_batch_the_send_loop_took_before_a_reboot_sends_no_time_from_before_th
             m.pack(v.conn.mav)  # type: ignore[attr-defined]
     finally:
         v.stop()
+
+
+def test_an_output_is_timed_to_the_microsecond_by_its_covariance(vehicle: FakeVehicle, gcs: object) -> None:
+    """ATTITUDE_QUATERNION's time_boot_ms rounds to the ms, past its sample half the time: an output per sample of a
+    4 Hz input was then paired with the next sample, 250 ms on (its latency −249 ms). The covariance sent with it
+    carries the time in µs; without one the ms stays."""
+    q = (1.0, 0.0, 0.0, 0.0)
+    gcs.mav.attitude_quaternion_send(10251, *q, 0.0, 0.0, 0.0)  # type: ignore[attr-defined]
+    gcs.mav.attitude_quaternion_cov_send(10250700, q, 0.0, 0.0, 0.0, [0.0] * 9)  # type: ignore[attr-defined]
+    gcs.mav.attitude_quaternion_send(12000, *q, 0.0, 0.0, 0.0)  # type: ignore[attr-defined]
+    assert vehicle.wait_for_outputs(2, TIMEOUT_S)
+    assert vehicle.wait_until(lambda: vehicle.received[(1, 191, "ATTITUDE_QUATERNION_COV")] == 1, TIMEOUT_S)
+    assert [row[1] for row in vehicle.attitude_log] == [10.2507, 12.0]
