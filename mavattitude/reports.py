@@ -268,12 +268,16 @@ CLOCKS_APART_STATUSTEXT = "mavattitude: no cross-check: clocks apart"
 FIRMWARE_NAMES = {"ardupilot": "an ArduPilot", "px4": "a PX4"}  # by unit profile (link.source.FIRMWARE_PROFILES)
 
 
-def firmware_without(vehicle_profile: str | None, message: str) -> str | None:
+def firmware_without(vehicle_profile: str | None, message: str, remedy: str) -> str | None:
     """That the autopilot's firmware (the unit profile its HEARTBEAT names) has no ``message`` stream, as a PX4 has
-    no RAW_IMU; None when it has one, or when the firmware is not one with a profile."""
+    no RAW_IMU, and the ``remedy`` in the caller's words, given the profile that reads the firmware (``{profile}``)
+    and that profile's own message (``{message}``); None when it has one, or when the firmware is not one with a
+    profile."""
     if vehicle_profile is None or message in PROFILES[vehicle_profile].messages:
         return None
-    return f"the autopilot is {FIRMWARE_NAMES[vehicle_profile]} (its HEARTBEAT), which has no {message} stream"
+    own = PROFILES[vehicle_profile].default_message
+    lacks = f"the autopilot is {FIRMWARE_NAMES[vehicle_profile]} (its HEARTBEAT), which has no {message} stream"
+    return f"{lacks}: {remedy.format(profile=vehicle_profile, message=own)}"
 
 
 #: Of an input, this share repeating the time of the sample before, one copy each (a clock that stands still repeats

@@ -487,11 +487,8 @@ class AttitudeService:
 
     def _firmware_text(self) -> str:
         """That the autopilot's firmware sends no ``input.message``, and what to read instead (empty: it does)."""
-        profile = self.dispatcher.vehicle_profile
-        lacks = firmware_without(profile, self._input_name)
-        if lacks is None or profile is None:
-            return ""
-        return f"{lacks}: set input.message: {units.PROFILES[profile].default_message} and input.profile: {profile}"
+        remedy = "set input.message: {message} and input.profile: {profile}"
+        return firmware_without(self.dispatcher.vehicle_profile, self._input_name, remedy) or ""
 
     def _dead_imu_hint(self, refused: Counter[str]) -> str:
         """:meth:`_other_imu_text` when the input is refused as an IMU the vehicle lacks (``refused_as_dead_imu``)."""
@@ -513,9 +510,9 @@ class AttitudeService:
         self.session.lock(vehicle, time.monotonic())
         log.info("locked onto the autopilot: system %d, component %d", *vehicle)
         self._statustext("start", start_statustext(__version__, self._input_name), "info")
-        profile = self.dispatcher.vehicle_profile
-        if profile is not None and firmware_without(profile, self._input_name):
-            log.warning("%s", self._firmware_text())
+        profile, firmware = self.dispatcher.vehicle_profile, self._firmware_text()
+        if profile is not None and firmware:
+            log.warning("%s", firmware)
             text = f"mavattitude: {FIRMWARE_NAMES[profile]} sends no {self._input_name}"
             self._statustext("firmware", text, "warning", log_it=False)
 

@@ -274,10 +274,7 @@ class _Live(_Skipped):
         from mavattitude.reports import firmware_without
 
         profile = None if self.dispatcher is None else self.dispatcher.vehicle_profile
-        lacks = firmware_without(profile, self.request.name)
-        if lacks is None or profile is None:
-            return None
-        return f"{lacks}: --profile {profile} reads its {units.PROFILES[profile].default_message}"
+        return firmware_without(profile, self.request.name, "--profile {profile} reads its {message}")
 
     def why_none(self) -> str:
         """Why the link gave no magnetometer reading, as far as the link shows (the words after a colon)."""
