@@ -169,6 +169,7 @@ def counters_line(
         ("sent", link_counters.sent),
         ("send_failed", link_counters.send_failed),
         ("reconnects", link_counters.reconnects),
+        ("same_id", link_counters.same_id),  # another program's HEARTBEATs under our id
         *(compass_pairs(compass) if compass is not None else ()),
         *(crosscheck_pairs(xcheck) if xcheck is not None else ()),
         *((f"{pipeline_counters.estimator_prefix}.{k}", v) for k, v in pipeline_counters.estimator().items()),

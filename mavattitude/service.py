@@ -51,6 +51,9 @@ service is the dispatcher's listener. What it does on the link:
   check, and a STATUSTEXT), and in the wait for a position, which it keeps from ending;
 - the compass judged inconsistent (:mod:`mavattitude.estimation.compass`): said once (log warning with the
   measured and expected dip, and a STATUSTEXT) until it clears; its figures go into the counters line;
+- another program sending HEARTBEATs under our system and component id (a second mavattitude, the systemd service
+  beside a run by hand; not our own echoed back): said (log warning and STATUSTEXT), and when it has been gone
+  ``SAME_ID_GONE_S``;
 - the autopilot's HEARTBEAT missed for ``HEARTBEAT_LOST_S`` is said (a restart, the link down), nothing asked of it
   meanwhile, and its streams asked for at once when it is back (a restarted autopilot has forgotten them);
 - while it waits (for the autopilot's HEARTBEAT, the IMU stream, a GPS position, the first attitude:
@@ -131,6 +134,7 @@ ATTITUDE_FRESH_S = 2.0  # the autopilot's attitudes still come: one within this 
 UNLOCKED_SYSTEM_ID = 1  # our system id before locking onto an autopilot in automatic mode
 RATE_WINDOW_S = 5.0  # the input rate is measured over windows this long
 HEARTBEAT_LOST_S = 5.0  # nothing from the autopilot this long (its 1 Hz HEARTBEAT missed): the link or it is down
+SAME_ID_GONE_S = 10.0  # another program's 1 Hz HEARTBEAT under our id unheard this long: it has gone
 DEGENERATE = DegenerateGeometryError.__name__  # the pipeline's reject reason for collinear acc and mag
 POSITION_MESSAGE = "GLOBAL_POSITION_INT"
 POSITION_RATE_HZ = 1.0
@@ -319,6 +323,7 @@ class AttitudeService:
         self._twice = Every(RATE_WINDOW_S, now, first_s=RATE_WINDOW_S)  # the input arriving twice (_watch_twice)
         self._twice_times: list[float] = []  # the window's input sample times, in arrival order
         self._twice_said = False
+        self._same_id_said = False  # another program under our id, said until it has gone
         self._wait_reports = WaitReports(Waiting.AUTOPILOT, now)
         self._last_counters: dict[str, str] = {}  # the last periodic line's key=value, to log what changed
         self.dispatcher = Dispatcher(
@@ -379,6 +384,8 @@ class AttitudeService:
         self.session.tick(now, math.inf if heard is None else heard)
         if self.pipeline.frontend.per_sample != self._per_sample:
             self._say_rate_handling()
+        if self._same_id_said != (now - self.link.same_id_heard_s < SAME_ID_GONE_S):
+            self._say_same_id()
         if self.vehicle is not None and self.counters.other_autopilots - self._others_said:
             self._say_other_autopilots(self.vehicle)
         if self._rate is not None:
@@ -754,6 +761,24 @@ class AttitudeService:
                 text = f"mavattitude: autopilot sys {system} also heard"
                 self._statustext(f"autopilot{system}", text, "warning", log_it=False)
         self._others_said = set(self.counters.other_autopilots)
+
+    def _say_same_id(self) -> None:
+        """Another program sending HEARTBEATs as us (:attr:`~mavattitude.link.connection.LinkCounters.same_id`): the
+        autopilot's answers to our requests reach it too, and a ground station cannot tell its messages from ours
+        (two attitudes under one id). Said when heard, and when it has been gone ``SAME_ID_GONE_S``."""
+        self._same_id_said = not self._same_id_said
+        system, component = self.link.source
+        if not self._same_id_said:
+            log.info("no other program heard as system %d, component %d for %.0f s", system, component, SAME_ID_GONE_S)
+            return
+        log.warning(
+            "another program sends HEARTBEATs as system %d, component %d, our id (a second mavattitude, the systemd "
+            "service beside a run by hand, another onboard program): a ground station cannot tell its messages from "
+            "ours; stop it, or give one of them another link.component_id",
+            system,
+            component,
+        )
+        self._statustext("same_id", f"mavattitude: comp {component} also used by another", "warning", log_it=False)
 
     def _say_tilt_only(self, unknown: bool) -> None:
         """Our attitudes lost or found their heading (no magnetometer reading at all): said once each way."""

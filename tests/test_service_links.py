@@ -658,3 +658,41 @@ def test_an_autopilot_whose_input_flows_is_not_silent_for_want_of_heartbeats(mon
         _step_until(service, lambda: not link.inbox)
         service.step(STEP_S)
     assert service.counters.autopilot_silent == 0 and service.counters.interval_requests >= 3
+
+
+def test_another_program_under_our_id_is_said_and_gone_too_and_our_own_echo_is_not_it(monkeypatch, caplog):
+    """A second program sending HEARTBEATs as system 1, component 191 (a second mavattitude, the systemd service
+    beside a run by hand): said, log and STATUSTEXT, and said gone once unheard for ``SAME_ID_GONE_S``. Our own
+    HEARTBEATs echoed back (a broadcast address, a routing loop) carry the sequence numbers we sent: not it."""
+    monkeypatch.setattr(service_module, "SAME_ID_GONE_S", 0.3)  # not 10 s of a test's time
+    caplog.set_level(logging.INFO, logger="mavattitude.service")
+    service, link = _service()
+    link.deliver(Peer().heartbeat())
+    _step_until(service, lambda: sent(link, "HEARTBEAT"))
+    parser = mavlink2.MAVLink(None)
+    ours = [buf for buf in link.sent_bytes if parser.parse_buffer(buf)[0].get_type() == "HEARTBEAT"]
+    link.deliver(*ours)
+    _step_until(service, lambda: not link.inbox)
+    other = Peer(system=1, component=191)
+    other.mav.seq = (1 + max(m.get_seq() for m in sent(link, "HEARTBEAT"))) % 256  # none of ours
+    beat = other.heartbeat(mavlink2.MAV_TYPE_ONBOARD_CONTROLLER, mavlink2.MAV_AUTOPILOT_INVALID)
+
+    def said(words: str) -> list[str]:
+        return [r.getMessage() for r in caplog.records if words in r.getMessage()]
+
+    service.step(STEP_S)  # periodic work after the echoes: nothing to say
+    assert link.counters.same_id == 0 and not said("another program")
+    link.deliver(beat)
+    _step_until(service, lambda: said("another program"))
+    assert said("another program") == [
+        "another program sends HEARTBEATs as system 1, component 191, our id (a second mavattitude, the systemd "
+        "service beside a run by hand, another onboard program): a ground station cannot tell its messages from "
+        "ours; stop it, or give one of them another link.component_id"
+    ]
+    assert [m.text for m in sent(link, "STATUSTEXT") if "191" in m.text] == [
+        "mavattitude: comp 191 also used by another"
+    ]
+    _step_until(service, lambda: said("no other program heard"))
+    link.deliver(beat)  # back: said again
+    _step_until(service, lambda: len(said("another program")) == 2)
+    assert link.counters.same_id == 2

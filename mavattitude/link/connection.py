@@ -27,6 +27,7 @@ import socket
 import struct
 import sys
 import time
+from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -58,6 +59,9 @@ _TIMESPEC = struct.Struct("@ll")
 _TIMESPEC_SPACE = socket.CMSG_SPACE(_TIMESPEC.size)
 CLOCK_STEP_S = 0.001  # the wall clock moved this much against the monotonic one between reads: it was set
 CLOCK_READ_S = 50e-6  # the two clocks read further apart than this (preempted between): read again
+# our HEARTBEATs (1 Hz) whose echo is known as ours: another program's own sequence numbers collide with these 3 in
+# 256 of its beats, so it is heard within a beat or two all the same
+ECHO_HEARTBEATS = 3
 UDP_PEER_TIMEOUT_S = 5.0  # a udpin peer silent this long is no longer sent to (unless it is the only one)
 CONNECT_TIMEOUT_S = 0.5  # a TCP connect attempt; short, so a stop request is never held up for long
 SIGNING_CLOCK_UPDATE_S = 1.0
@@ -93,6 +97,7 @@ class LinkCounters:
     send_failed: int = 0  # the link was down or the write failed
     disconnects: int = 0
     reconnects: int = 0
+    same_id: int = 0  # HEARTBEATs under our own system and component id that are not ours echoed: another program
 
 
 class _Disconnected(ConnectionError):
@@ -575,6 +580,8 @@ class MavlinkLink:
         self._backlog_since: float | None = None  # a sleep's backlog is being read: its stamp
         self.backlog = False  # the last recv_items returned what waited through a sleep, stamped at its start
         self.last_send_s = float("nan")  # time.monotonic() at which the last packet was handed to the OS
+        self._heartbeat_seqs: deque[int] = deque(maxlen=ECHO_HEARTBEATS)  # of our latest HEARTBEATs
+        self.same_id_heard_s = -math.inf  # when another program's HEARTBEAT under our id last arrived (t_rx)
         try:
             self._open()
         except OSError as exc:
@@ -687,8 +694,9 @@ class MavlinkLink:
             self._conn.mav.srcSystem = system_id
 
     @property
-    def source_system(self) -> int:
-        return self._source[0]
+    def source(self) -> Sender:
+        """Our (system id, component id): what we send as."""
+        return self._source
 
     def close(self) -> None:
         self._close_conn()
@@ -778,13 +786,24 @@ class MavlinkLink:
                 elif msg.get_type() == "BAD_DATA":
                     self._count_bad(msg)
                 else:
-                    received.append((t_rx, (msg.get_srcSystem(), msg.get_srcComponent()), decode(msg)))
+                    sender = (msg.get_srcSystem(), msg.get_srcComponent())
+                    if sender == self._source:
+                        self._heard_as_us(msg, t_rx)
+                    received.append((t_rx, sender, decode(msg)))
         except OSError as exc:  # includes _Disconnected and serial.SerialException
             self._drop(exc)
         if received:
             self.counters.received += len(received)
             self._backoff_s = self._reconnect_range_s[0]  # the link works: the next failure retries fast
         return received
+
+    def _heard_as_us(self, msg: Message, t_rx: float) -> None:
+        """A message sent under our own id: our HEARTBEAT echoed (a broadcast address, a loop in the routing) has
+        the sequence number we sent it with; a HEARTBEAT with another is a second program speaking as us (a second
+        mavattitude, the systemd service beside a run by hand, another onboard program on the same component)."""
+        if msg.get_type() == "HEARTBEAT" and msg.get_seq() not in self._heartbeat_seqs:
+            self.counters.same_id += 1
+            self.same_id_heard_s = t_rx
 
     @property
     def stamps_arrivals(self) -> bool:
@@ -854,17 +873,15 @@ class MavlinkLink:
         return True
 
     def send_heartbeat(self) -> bool:
-        """Our HEARTBEAT: an onboard controller, not an autopilot."""
-        return self._send(
-            mavlink2.MAVLink_heartbeat_message(
-                mavlink2.MAV_TYPE_ONBOARD_CONTROLLER,
-                mavlink2.MAV_AUTOPILOT_INVALID,
-                0,
-                0,
-                mavlink2.MAV_STATE_ACTIVE,
-                3,
-            )
+        """Our HEARTBEAT: an onboard controller, not an autopilot. Its sequence number is kept: an echo of it is
+        not another program under our id."""
+        msg = mavlink2.MAVLink_heartbeat_message(
+            mavlink2.MAV_TYPE_ONBOARD_CONTROLLER, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, mavlink2.MAV_STATE_ACTIVE, 3
         )
+        sent = self._send(msg)
+        if sent:
+            self._heartbeat_seqs.append(msg.get_seq())
+        return sent
 
     def request_message_interval(self, target: tuple[int, int], message_id: int, rate_hz: float) -> bool:
         """MAV_CMD_SET_MESSAGE_INTERVAL for one message; param3 = 0 (ArduPilot refuses anything else)."""

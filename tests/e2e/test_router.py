@@ -44,6 +44,7 @@ def test_through_mavproxy_the_service_works_and_the_router_injects_nothing(
     # The service's ACK came back through the router too, and it counted every output that arrived.
     assert final["acks.accepted"] >= 1
     assert final["emitted"] == len(v.attitude_log)
+    assert final["same_id"] == 0  # no program but the service spoke as (1, 191): none said to
 
 
 def test_mavproxy_does_not_route_between_its_outputs_so_a_second_ground_station_never_sees_the_attitude(
