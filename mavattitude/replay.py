@@ -20,6 +20,7 @@ log, when the batch has one reference; one by one, each record where it comes in
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from collections.abc import Callable
@@ -97,6 +98,12 @@ class Replayed:
     #: each magnetometer judged that the autopilot does not use, and the parameter that says so ("COMPASS_USE2 0")
     unused_compasses: dict[int, str] = field(default_factory=dict)
 
+    @functools.cached_property
+    def covariances(self) -> np.ndarray:
+        """Every output's covariance, ``(N, 3, 3)`` (:func:`output_covariances`): the cross-check's and the CSV's,
+        computed once."""
+        return output_covariances(self.outputs)
+
     def output_array(self) -> np.ndarray:
         """Rows ``t_s, qw, qx, qy, qz`` of every output."""
         if not self.outputs:
@@ -123,7 +130,7 @@ class Replayed:
         gate = CrossCheckGate()
         moving = np.array([gate.moving(o) for o in self.outputs], dtype=bool)
         flags = np.array([int(o.flags) for o in self.outputs], dtype=np.int64)
-        judged = comparable_heading(ours[:, 1:5], output_covariances(self.outputs), flags)
+        judged = comparable_heading(ours[:, 1:5], self.covariances, flags)
         settings = self.pipeline.config.crosscheck
         t, q = ours[:, 0], ours[:, 1:5]
         return cross_check_log(t, q, autopilot[:, 0], autopilot[:, 1:5], settings, self.heading(), moving, judged)

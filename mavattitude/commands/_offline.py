@@ -115,10 +115,11 @@ def config_from_args(args: argparse.Namespace, extra: dict[str, Any] | None = No
 ROW_FORMAT = ["%.6f", *["%.9f"] * 4, *["%.4f"] * 3, "%d", "%d", *["%.6e"] * 6]
 
 
-def write_outputs(path: str | Path, outputs: Sequence[AttitudeOutput]) -> int:
+def write_outputs(path: str | Path, outputs: Sequence[AttitudeOutput], covariances: np.ndarray | None = None) -> int:
     """Write the attitude CSV (``OUTPUT_COLUMNS``), Euler angles computed for all rows at once; returns the
-    number of rows. The covariance is of the body-frame error angles, rad² (NaN: none); the yaw of an attitude
-    without a heading (``NO_HEADING``: its quaternion holds yaw 0) is NaN."""
+    number of rows. The covariance is of the body-frame error angles, rad² (NaN: none; ``covariances``: the
+    outputs' already computed, ``(N, 3, 3)``); the yaw of an attitude without a heading (``NO_HEADING``: its
+    quaternion holds yaw 0) is NaN."""
     from mavattitude.estimation.conventions import euler_from_quat
     from mavattitude.pipeline import output_covariances
     from mavattitude.sensors.frontend import SampleFlag
@@ -127,6 +128,7 @@ def write_outputs(path: str | Path, outputs: Sequence[AttitudeOutput]) -> int:
     q = np.array([o.q for o in outputs], dtype=float).reshape(n, 4)
     euler_deg = np.degrees(euler_from_quat(q)).reshape(n, 3)
     euler_deg[[bool(o.flags & SampleFlag.NO_HEADING) for o in outputs], 2] = np.nan  # no magnetometer: yaw 0 held
+    cov = output_covariances(list(outputs)) if covariances is None else covariances
     table = np.column_stack(
         [
             np.array([o.time_s for o in outputs], dtype=float),
@@ -134,7 +136,7 @@ def write_outputs(path: str | Path, outputs: Sequence[AttitudeOutput]) -> int:
             euler_deg,
             np.array([o.iterations for o in outputs], dtype=float),
             np.array([o.converged for o in outputs], dtype=float),
-            output_covariances(list(outputs))[:, _UPPER[0], _UPPER[1]].reshape(n, 6),
+            cov[:, _UPPER[0], _UPPER[1]].reshape(n, 6),
         ]
     )
     with open_text(path, "w") as f:

@@ -350,7 +350,7 @@ def _replay_log(job: Job) -> LogResult:
     log.info("%s", result.columns["rate_handling"])
     if message and not replayed.pipeline.compass_seen:  # a .bin's or .ulg's reader said it as it read the log
         log.warning("%s carries no magnetometer reading: %s", message, TILT_ONLY)
-    write_outputs(job.csv, replayed.outputs)
+    write_outputs(job.csv, replayed.outputs, replayed.covariances)
     log.info("wrote %d attitudes to %s", result.outputs, job.csv)
     damage = getattr(source, "damage", None)
     if damage:
