@@ -173,6 +173,36 @@ class ErrorStateFilter:
         )
         self.dx = (d0 + kt0 * z, d1 + kt1 * z, d2 + kt2 * z, d3 + kb0 * z, d4 + kb1 * z, d5 + kb2 * z)
 
+    def hold_heading_unknown(self, down: Vec3, var: float) -> None:
+        """The rotation about ``down`` (the body's vertical, ``A(q) e_D``, unit) unknown, variance ``var``, and
+        uncorrelated with the rest of the state: ``P_θθ ← Π P_θθ Π + var d dᵀ``, ``P_θb ← Π P_θb``, ``Π = I − d dᵀ``.
+
+        While no heading has been measured this is the truth, and it must be re-stated as the tilt updates move
+        the vertical: left on the axis where it was first put (a few mrad off the vertical once the tilt is
+        corrected), the huge variance leaks through each tilt update into the heading–bias covariance, and a
+        zero-rate update then turns the heading (100° on a compass whose dip is off at start) and takes a third
+        off its σ with no heading measured."""
+        d0, d1, d2 = down
+        t0, t1, t2, t3, t4, t5, t6, t7, t8 = self.p_tt
+        u0, u1, u2 = t0 * d0 + t1 * d1 + t2 * d2, t3 * d0 + t4 * d1 + t5 * d2, t6 * d0 + t7 * d1 + t8 * d2  # P d
+        a = var + d0 * u0 + d1 * u1 + d2 * u2  # Π P Π = P − d uᵀ − u dᵀ + (dᵀ P d) d dᵀ, plus var d dᵀ
+        w0, w1, w2 = u0 - a * d0, u1 - a * d1, u2 - a * d2  # P − d wᵀ − w dᵀ − a d dᵀ, with w = u − a d
+        xy = t1 - d0 * w1 - w0 * d1 - a * d0 * d1
+        xz = t2 - d0 * w2 - w0 * d2 - a * d0 * d2
+        yz = t5 - d1 * w2 - w1 * d2 - a * d1 * d2
+        self.p_tt = (
+            t0 - 2.0 * d0 * w0 - a * d0 * d0, xy, xz,
+            xy, t4 - 2.0 * d1 * w1 - a * d1 * d1, yz,
+            xz, yz, t8 - 2.0 * d2 * w2 - a * d2 * d2,
+        )  # fmt: skip
+        c0, c1, c2, c3, c4, c5, c6, c7, c8 = self.p_tb
+        r0, r1, r2 = d0 * c0 + d1 * c3 + d2 * c6, d0 * c1 + d1 * c4 + d2 * c7, d0 * c2 + d1 * c5 + d2 * c8  # dᵀ P_θb
+        self.p_tb = (
+            c0 - d0 * r0, c1 - d0 * r1, c2 - d0 * r2,
+            c3 - d1 * r0, c4 - d1 * r1, c5 - d1 * r2,
+            c6 - d2 * r0, c7 - d2 * r1, c8 - d2 * r2,
+        )  # fmt: skip
+
     def turn_about_down(self, angle_rad: float) -> None:
         """``q ← q_z(angle) ⊗ q``: the attitude turned about NED down (north moved, the body did not). ``P`` is of
         body-frame errors, and the gyro-only ``q_gyro`` keeps a frame of its own: both unchanged."""

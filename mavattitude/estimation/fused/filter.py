@@ -154,6 +154,7 @@ class FusedFilter:
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)
         self._started = False
         self.heading_known = False  # a magnetometer reading started it: its yaw is a heading, not 0 held
+        self._heading_held = False  # started with the heading unknown, and no heading update taken since
         self._first_s = math.nan  # the first sample's time, while no magnetometer reading has come
         self._update_period_s = 1.0 / s.update_rate_hz
         self._output_period_s = 1.0 / output_rate_hz
@@ -339,12 +340,14 @@ class FusedFilter:
             self.counters["skipped_updates"] += 1
             return
         self.counters["updates"] += 1
+        r = rotation_matrix_parts(ekf.q)
+        down = (r[6], r[7], r[8])  # A(q) e_D: the field check's, the tilt's and the heading's, formed once
+        if self._heading_held:
+            ekf.hold_heading_unknown(down, HEADING_UNKNOWN_STD_RAD * HEADING_UNKNOWN_STD_RAD)
         if s.rest_gyro_std_radps > 0.0:
             rest_rate = self._rest.rate(self._gyr_last, raw, ekf.bias, time_s)
             if rest_rate is not None:
                 self._rest_update(rest_rate)
-        r = rotation_matrix_parts(ekf.q)
-        down = (r[6], r[7], r[8])  # A(q) e_D: the field check's, the tilt's and the heading's, formed once
         acc, sigma_a2 = self._prefiltered(raw, r, time_s)
         acc_norm = math.sqrt(acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2])
         mag = None if mag_uT is None else self._mag.corrected((float(mag_uT[0]), float(mag_uT[1]), float(mag_uT[2])))
@@ -366,6 +369,7 @@ class FusedFilter:
             sigma_m2 = sigma_max2 if sigma_max2 < sigma_m2 else sigma_m2
             if self._heading_update(mag, mag_norm, sigma_m2, r, down):
                 self._heading_at_s = time_s
+                self._heading_held = False
                 return
         self.counters["tilt_only_updates"] += 1
 
@@ -466,11 +470,14 @@ class FusedFilter:
                 self._started = False
                 return []
             q, p_tt = self._tilt_start(acc)
+            self._heading_held = True
         else:
             r = solve(acc, mag, self.mag_ref, self._noise, acc_ref=self.acc_ref)
             q = tuple(float(v) for v in r.q)  # type: ignore[assignment]
             p_tt = tuple(r.covariance.ravel().tolist())
-            if self._dip_off(mag, q, p_tt):  # IGN's heading is the field's, whose dip says it is another field
+            # IGN's heading is the field's, whose dip may say it is another field's
+            self._heading_held = self._dip_off(mag, q, p_tt)
+            if self._heading_held:
                 self.counters["start_heading_unknown"] += 1
                 p_tt = tuple(heading_uncertain(r.covariance, acc).ravel().tolist())
         if self._started:
