@@ -34,12 +34,13 @@ nothing else, so a wrong or disturbed field can never move roll and pitch. ``σ_
 Start-up and gaps: the first sample with both vectors initialises ``q`` from IGN and ``P_θθ`` from its
 covariance, ``P_bb = σ_b0² I`` (or the bias measured at rest: :meth:`FusedFilter.set_rest_noise`); with its dip off
 the reference's (the field check's dip term, :mod:`.magnetic`) the heading IGN gives is another field's, and
-``P_θθ`` starts with the heading unknown about the vertical, for the heading updates to set it; a gap longer
-than ``max_gap_s``, or a time before the last (the autopilot rebooted: its clock starts again), restarts from
-IGN, keeping the bias. With no
-magnetometer reading for ``max_gap_s`` from the first sample (a vehicle without a compass), it starts on roll
-and pitch alone (:func:`~mavattitude.estimation.conventions.tilt_quat_parts`, yaw 0, ``P_θθ`` the tilt's σ
-with a heading uniform over ±180°): the gyro and the tilt updates carry roll and pitch, and the heading stays
+``P_θθ`` starts with the heading unknown about the vertical, for the heading updates to set it (held unknown on
+the current vertical at every update until one is taken: :meth:`.ekf.ErrorStateFilter.hold_heading_unknown`); a
+gap longer than ``max_gap_s``, or a time before the last (the autopilot rebooted: its clock starts again),
+restarts from IGN, keeping the bias. With no magnetometer reading for ``max_gap_s`` from the first sample (a
+vehicle without a compass), it starts on roll and pitch alone
+(:func:`~mavattitude.estimation.conventions.tilt_quat_parts`, yaw 0, ``P_θθ`` the tilt's σ with a heading
+uniform over ±180°, held so likewise): the gyro and the tilt updates carry roll and pitch, and the heading stays
 unknown (:attr:`FusedFilter.heading_known` false) until a reading comes, which turns the attitude about the
 vertical to the field's heading and keeps roll, pitch and the bias (the pipeline runs the filter so while it
 waits for a magnetic reference, its outputs dropped: the reference, when it comes, only gives it a heading).
