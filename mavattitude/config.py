@@ -118,6 +118,18 @@ def _connection(value: Any, path: str) -> str:
     return value
 
 
+AUTOPILOT_COMPONENT_ID = 1  # MAV_COMP_ID_AUTOPILOT1
+
+
+def _component_id(value: Any, path: str) -> int:
+    """Our MAVLink component id: 1–255, not the autopilot's own (a ground station would take our messages for
+    its, and the autopilot's HEARTBEAT for a second program under our id)."""
+    component = int(_number(1, 255, integer=True)(value, path))
+    if component == AUTOPILOT_COMPONENT_ID:
+        _fail(path, "1 is the autopilot's own component id: use 191 (an onboard computer) or another free id")
+    return component
+
+
 def _optional(check: Check) -> Check:
     return lambda value, path: None if value is None else check(value, path)
 
@@ -195,7 +207,7 @@ class LinkConfig:
         default=0, metadata=_meta(_number(0, 254, integer=True), "autopilot system id; 0 = first autopilot")
     )
     component_id: int = field(
-        default=191, metadata=_meta(_number(1, 255, integer=True), "our component id (191 = onboard computer)")
+        default=191, metadata=_meta(_component_id, "our component id (191 = onboard computer; not the autopilot's 1)")
     )
     request_messages: bool = field(
         default=True,

@@ -65,6 +65,8 @@ def test_example_file_comments_every_key_with_its_default(path):
         ({"input": {"input_timeout_s": 0}}, r"input\.input_timeout_s: 0 is out of range: must be > 0"),
         ({"link": {"vehicle_system_id": 255}}, r"link\.vehicle_system_id: 255 is out of range: must be ≤ 254"),
         ({"link": {"request_messages": "yes"}}, r"link\.request_messages: expected true or false"),
+        ({"link": {"component_id": 1}}, r"link\.component_id: 1 is the autopilot's own component id: use 191"),
+        ({"link": {"component_id": 0}}, r"link\.component_id: 0 is out of range: must be ≥ 1"),
         ({"noise": {"mag_std_uT": -1}}, r"noise\.mag_std_uT: -1 is out of range: must be > 0"),
         ({"estimator": {"fused": {"mag_std_uT": 0}}}, r"estimator\.fused\.mag_std_uT: 0 is out of range: must be > 0"),
         (
