@@ -60,16 +60,21 @@ HEADING_LOST_S = 60.0
 
 def heading_lost(counters: dict[str, float]) -> str | None:
     """The words for a fused filter whose compass gave (almost) no heading, from its counters; ``None`` when it
-    gave one. A compass off for a while is the filter's to coast over; one that never comes back is a finding."""
+    gave one. A compass off for a while is the filter's to coast over; one that never comes back is a finding.
+    Where no heading update was ever taken after a start with the heading unknown (the first reading's field
+    already off: ``start_heading_unknown``), there is no heading for the gyro to carry: the yaw is meaningless."""
     updates, tilt_only = counters.get("updates", 0), counters.get("tilt_only_updates", 0)
     gap_s = counters.get("heading_gap_s", 0.0)
     if not updates or (tilt_only < HEADING_LOST_FRACTION * updates and gap_s < HEADING_LOST_S):
         return None
     share = 100.0 * tilt_only / updates
+    if tilt_only == updates and counters.get("start_heading_unknown", 0):
+        what = "the heading was never known (the field already off at the start): the yaw means nothing"
+    else:
+        what = f"none for the last {gap_s:.0f} s: the heading is the gyro's alone and drifts"
     return (
-        f"the compass gave no heading for {tilt_only:.0f} of {updates:.0f} updates ({share:.0f} %), none for the "
-        f"last {gap_s:.0f} s: the heading is the gyro's alone and drifts; check the compass (a disturbance that "
-        "never ends, a field off the reference, no magnetometer)"
+        f"the compass gave no heading for {tilt_only:.0f} of {updates:.0f} updates ({share:.0f} %), {what}; check "
+        "the compass (a disturbance that never ends, a field off the reference, no magnetometer)"
     )
 
 

@@ -515,6 +515,20 @@ def test_a_magnetometer_behind_the_gyro_weighs_less_while_turning() -> None:
     assert heading[FusedSettings().mag_skew_s] < 0.9 * heading[0.0]
 
 
+def test_a_compass_off_from_its_first_reading_is_said_to_have_given_no_heading_at_all() -> None:
+    """A field 30° of dip off from the first reading to the last (20 s, within ``mag_relearn_s``): no heading
+    update is ever taken, and the finding says the yaw means nothing, not that a heading drifts on the gyro."""
+    script = Script([Hold(5.0), Rotate(15.0, (0.05, -0.03, 0.15))], tuple(MAG_NED_UT))
+    t, acc, gyr, _ = _measure(script, _sensors())
+    steeper = cv.rotate_ned_to_body(
+        script.attitude(t), cv.rotate_body_to_ned(cv.quat_from_euler(0, 0.52, 0), MAG_NED_UT)
+    )
+    f, _ = _run(t, acc, gyr, steeper)
+    assert f.counters["tilt_only_updates"] == f.counters["updates"] and f.counters["start_heading_unknown"] == 1
+    lost = heading_lost({**f.counters, "heading_gap_s": f.heading_gap_s})
+    assert lost is not None and "the heading was never known" in lost and "drifts" not in lost
+
+
 def test_a_new_magnetic_reference_keeps_the_state_and_turns_the_heading_with_north() -> None:
     """WMM after a move, or after a field measured from the compass: the reference changes, the filter carries on
     (no restart), its heading turned at once by the change of declination (north moved, the body did not)."""
