@@ -59,7 +59,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"autopilot system id 1-254; 0 = the first autopilot heartbeat (default {d.link.vehicle_system_id})",
     )
     parser.add_argument(
-        "--component-id", type=int, metavar="ID", help=f"our MAVLink component id (default {d.link.component_id})"
+        "--component-id",
+        type=int,
+        metavar="ID",
+        help=f"our MAVLink component id 2-255, not the autopilot's 1 (default {d.link.component_id}, an onboard "
+        "computer's)",
     )
     parser.add_argument(
         "--rate",
