@@ -122,8 +122,8 @@ AUTOPILOT_COMPONENT_ID = 1  # MAV_COMP_ID_AUTOPILOT1
 
 
 def _component_id(value: Any, path: str) -> int:
-    """Our MAVLink component id: 1–255, not the autopilot's own (a ground station would take our messages for
-    its, and the autopilot's HEARTBEAT for a second program under our id)."""
+    """Our MAVLink component id: 1–255, not the autopilot's (a ground station would take our messages for the
+    autopilot's, and we its HEARTBEAT for a second program under our id)."""
     component = int(_number(1, 255, integer=True)(value, path))
     if component == AUTOPILOT_COMPONENT_ID:
         _fail(path, "1 is the autopilot's own component id: use 191 (an onboard computer) or another free id")
