@@ -973,6 +973,13 @@ METHOD = """\
   user + system time from `/proc/PID/stat` over wall time. Rates: the vehicle streams at each rate for
   20 s (2 000 Hz) or 10 s; between rates the stream pauses until the service's received count settles,
   so the loss is exact.
+- **live**: one fake vehicle streaming RAW_IMU alone at 200 Hz on loopback UDP, and in turn, twice each, 10 s
+  after 2 s of settling: the bare pymavlink loop (`recv_match(blocking=True)`, a HEARTBEAT and an interval
+  request a second), the same woken once per 20 ms, the job's I/O alone (a raw socket woken once per 20 ms,
+  reading what came undecoded, sending one ATTITUDE_QUATERNION packed beforehand) and `mavattitude run` with
+  ign and with fused (cross-check off). CPU as above, wake-ups from `voluntary_ctxt_switches`
+  (`/proc/PID/status`). Then the bare loop and the ign service on a pseudo-terminal carrying the stream, and on
+  a stream with a real autopilot's other telemetry besides.
 - **soak**: `mavattitude.sim.soak.run_soak`: one hour of vehicle time at 200 Hz, accelerated 20×, resident
   memory and error statistics per 5-minute window (growth measured from the end of the first window).
 - **replay**: a generated 30-minute flight (400 Hz IMU, 10 Hz MAG, ATT, POS) written as `.bin` and `.tlog`;
