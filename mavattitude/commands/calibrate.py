@@ -50,6 +50,10 @@ LIVE_MIN_SAMPLES = 500  # live collection stops once coverage is met with at lea
 LIVE_RATE_HZ = 50.0  # the IMU rate asked of the autopilot while collecting
 LIVE_WAIT_S = 0.1  # the longest a live read waits for input before the periodic work
 REQUEST_REPEAT_S = 5.0  # asked again this often (a ground station may change rates; a reboot forgets)
+#: Live, the command speaks as a second onboard computer (MAV_COMP_ID_ONBOARD_COMPUTER2), not as the service's 191:
+#: run beside the service (both behind one router) it would otherwise take the service's id, draw its replies and
+#: be said by the service to be another program under its id
+LIVE_COMPONENT_ID = 192
 REST_RATE_RADPS = 0.05  # a batch turning slower than 3°/s throughout is a vehicle at rest
 PROGRESS_EVERY = 100
 
@@ -113,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         from mavattitude.link.connection import MavlinkLink
 
-        with MavlinkLink(source, source_system=args.system_id or 1) as link:
+        with MavlinkLink(source, source_system=args.system_id or 1, source_component=LIVE_COMPONENT_ID) as link:
             live = _live(link, args)
             try:
                 mag = _collect(_live_samples(link, args, live), args, sys.stderr, live=True)

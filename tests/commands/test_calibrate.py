@@ -182,6 +182,8 @@ def test_live_over_udp_asks_for_the_stream_and_shows_coverage(
     _check_yaml(out)
     assert requests and requests[0].command == mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL
     assert requests[0].param1 == mavlink2.MAVLINK_MSG_ID_RAW_IMU and requests[0].param2 == 1e6 / 50.0
+    # as a second onboard computer: run beside the service, it does not take the service's 191
+    assert requests[0].get_srcComponent() == mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER2
     err = capsys.readouterr().err
     assert "coverage [" in err and "at rest" not in err
 
