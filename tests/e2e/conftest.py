@@ -7,9 +7,11 @@ counters line, a STATUSTEXT) with a bounded time-out; the only sleeps are the ve
 
 from __future__ import annotations
 
+import select
 import socket
 import subprocess
 import sys
+import threading
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -135,6 +137,40 @@ def free_udp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+ROUTER_POLL_S = 0.05  # how soon the router's thread sees the stop
+
+
+@contextmanager
+def udp_router(upstream_port: int) -> Iterator[int]:
+    """A MAVLink router as mavlink-router's UDP server endpoint is one: a port (yielded) whose every client's datagram
+    goes to the autopilot at ``upstream_port`` on 127.0.0.1 and to every other client, and the autopilot's to every
+    client; none back to its sender. (MAVProxy routes no client's messages to another: it cannot stand in.)"""
+    stop = threading.Event()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        upstream = ("127.0.0.1", upstream_port)
+
+        def route() -> None:
+            clients: list[tuple[str, int]] = []
+            while not stop.is_set():
+                if not select.select([sock], [], [], ROUTER_POLL_S)[0]:
+                    continue
+                data, sender = sock.recvfrom(65535)
+                if sender != upstream and sender not in clients:
+                    clients.append(sender)
+                for peer in [upstream, *clients]:
+                    if peer != sender:
+                        sock.sendto(data, peer)
+
+        thread = threading.Thread(target=route, name="router", daemon=True)
+        thread.start()
+        try:
+            yield int(sock.getsockname()[1])
+        finally:
+            stop.set()
+            thread.join(5.0)
 
 
 # MAVProxy as a pure router: no heartbeats of its own, no stream-rate requests, no modules (param, wp,

@@ -10,8 +10,17 @@ import pytest
 from pymavlink import mavutil
 
 from mavattitude.sim import scenarios
+from mavattitude.sim.daemon import ServiceProcess, config_for
+from mavattitude.sim.vehicle import FakeVehicle, VehicleConfig
 
-from .conftest import EVENT_TIMEOUT_S, assert_all_outputs_valid, routed_flight, wait_outputs
+from .conftest import (
+    EVENT_TIMEOUT_S,
+    FAST_SERVICE,
+    assert_all_outputs_valid,
+    routed_flight,
+    udp_router,
+    wait_outputs,
+)
 
 GCS_IMU_SAMPLES = 200  # one second of the vehicle's 200 Hz RAW_IMU, seen by the ground station
 
@@ -70,3 +79,30 @@ def test_mavproxy_does_not_route_between_its_outputs_so_a_second_ground_station_
     # ~1 s of the vehicle's 200 Hz stream: the service sent ~50 ATTITUDE_QUATERNION through MAVProxy meanwhile.
     assert routed_to_vehicle > 0
     assert seen["ATTITUDE_QUATERNION"] == 0, seen
+
+
+SAME_ID = "another program sends HEARTBEATs as system 1, component 191, our id"
+
+
+def test_two_services_behind_one_router_each_say_the_other_is_under_its_id() -> None:
+    """The systemd service and a `mavattitude run` started by hand, both behind one router (mavlink-router's wiring,
+    which routes each client's messages to the others): both speak as system 1, component 191. Alone behind the
+    router a service says nothing; once the second runs, each says the other is under its id (log and
+    STATUSTEXT)."""
+    script = scenarios.static(60.0)
+    with (
+        FakeVehicle(script, scenarios.paper_sensors(200.0), VehicleConfig("udpin:127.0.0.1:0")) as v,
+        udp_router(v.port) as port,
+    ):
+        config = config_for(v, **FAST_SERVICE)
+        config["link"]["connect"] = f"udpout:127.0.0.1:{port}"
+        with ServiceProcess(config) as first:
+            wait_outputs(v, 100)  # two seconds of attitudes through the router: two of its 1 Hz HEARTBEATs or more
+            alone = list(first.lines)
+            with ServiceProcess(config) as second:
+                for svc in (first, second):
+                    assert svc.wait_for_line(SAME_ID, EVENT_TIMEOUT_S) is not None, svc.log_tail()
+                assert v.wait_until(lambda: "mavattitude: comp 191 also used by another" in v.statustexts, EVENT_TIMEOUT_S)
+                assert second.stop() == 0
+            assert first.stop() == 0
+    assert not any(SAME_ID in line for line in alone)
