@@ -56,8 +56,11 @@ hypotheses' separation, a good compass gives ``S_I − S_M = −D − 2 Σ d·n`
 mounting gains more than that on the configured one and explains at least ``MIN_EXPLAINED_SHARE`` of its
 residual (a hard-iron residual the size of the turn can favour another mounting a little: 7 % on BROAD 33).
 
-Only *quiet* samples count for the dip and |B|: low acceleration (``| |f| − g | ≤ low_accel_fraction · g``)
-and slow rotation (``|ω| ≤ max_rate_dps``): elsewhere the specific force is not gravity (linear acceleration; or the
+Only *quiet* samples count for the dip and |B|: low acceleration (``| |f| − g | ≤ low_accel_fraction · g``),
+slow rotation (``|ω| ≤ max_rate_dps``) and a slower turn about the vertical (``|f̂ · ω| ≤ max_turn_rate_dps``: a
+coordinated turn at 10 m/s and 7°/s leans the specific force by 7°, 1.2 m/s² of centripetal acceleration, for
+as long as it lasts, where ``|f|`` is off g by 0.75 %: under the 10° dip allowance; a vehicle circling, a
+copter's CIRCLE mode, is not quiet): elsewhere the specific force is not gravity (linear acceleration; or the
 centripetal and tangential acceleration of a sensor off the rotation axis, and the small time offset
 between the filtered accelerometer and magnetometer, which together bias the dip by −6° on BROAD's fast
 rotation trial at 100–800°/s) and the dip is not the field's. :class:`CompassMonitor` keeps both figures over a
@@ -104,7 +107,7 @@ from .conventions import (
     rotate_body_to_ned_parts,
     rotation_matrix_parts,
 )
-from .motion import moving, norm, norm_rows
+from .motion import moving, norm, norm_rows, turning
 
 NOISE_SIGMAS = 3.0  # k: a window mean this many per-sample σ off is not noise
 CLEAR_FRACTION = 0.75  # consistent again below this fraction of the thresholds
@@ -161,6 +164,13 @@ class CompassSettings:
     window_s: float = ranged(10.0, "sliding window of the dip and |B| figures, s", 1.0, 3600.0)
     low_accel_fraction: float = ranged(0.05, "samples with ||a| − g| below this · g count", 0.0, 0.5, lo_open=True)
     max_rate_dps: float = ranged(60.0, "and rotating slower than this, deg/s", 0.0, 2000.0, lo_open=True)
+    max_turn_rate_dps: float = ranged(
+        7.0,
+        "and turning about the vertical slower than this (a sustained turn leans the gravity), deg/s",
+        0.0,
+        2000.0,
+        lo_open=True,
+    )
     dip_allowance_deg: float = ranged(10.0, "dip error calibration and field model explain, deg", 0.0, 90.0)
     field_allowance: float = ranged(0.15, "|B| error calibration and field model explain, fraction", 0.0, 1.0)
     turn_allowance: float = ranged(0.2, "share of the field's turn it may make unlike the gyroscope", 0.0, 10.0)
@@ -561,6 +571,7 @@ class CompassMonitor:
     def __init__(self, settings: CompassSettings, accel_std_mps2: Vec3, mag_std_uT: Vec3) -> None:
         self.settings = settings
         self._max_rate_radps = math.radians(settings.max_rate_dps)
+        self._max_turn_radps = math.radians(settings.max_turn_rate_dps)
         self._sigmas = (accel_std_mps2, mag_std_uT)
         self._mag_sigma2 = rms_sigma(mag_std_uT) ** 2  # σ̄_mag², every judgement's
         self._window: deque[tuple[float, float, float | None]] = deque()  # (t, dip, |B| or None)
@@ -624,8 +635,13 @@ class CompassMonitor:
         self._thresholds = thresholds(self.settings, *self._sigmas, scale)
 
     def quiet(self, acc_mps2: Vec3, gyr_radps: Vec3) -> bool:
-        """Low acceleration and slow rotation: the specific force shows gravity (module docstring)."""
-        return not moving(norm(acc_mps2), norm(gyr_radps), self.settings.low_accel_fraction, self._max_rate_radps)
+        """Low acceleration, slow rotation and a slower turn about the vertical: the specific force shows gravity
+        (module docstring)."""
+        (a0, a1, a2), (w0, w1, w2), acc_norm = acc_mps2, gyr_radps, norm(acc_mps2)
+        return not (
+            moving(acc_norm, norm(gyr_radps), self.settings.low_accel_fraction, self._max_rate_radps)
+            or turning(a0 * w0 + a1 * w1 + a2 * w2, acc_norm, self._max_turn_radps)
+        )
 
     def quiet_dip_field(self, acc_mps2: Vec3, mag_uT: Vec3, gyr_radps: Vec3) -> tuple[float, float]:
         """The dip (degrees) and |B| (µT) of one tick when it is quiet, NaN when not: what the monitor takes
@@ -723,8 +739,12 @@ class CompassMonitor:
 
     def _quiet_rows(self, acc_mps2: Array, gyr_radps: Array) -> NDArray[np.bool_]:
         """:meth:`quiet` of each row, the same operations in the same order."""
-        s = self.settings
-        return ~moving(norm_rows(acc_mps2), norm_rows(gyr_radps), s.low_accel_fraction, self._max_rate_radps)
+        s, (a0, a1, a2), (w0, w1, w2) = self.settings, acc_mps2.T, gyr_radps.T
+        acc_norm = norm_rows(acc_mps2)
+        return ~(
+            moving(acc_norm, norm_rows(gyr_radps), s.low_accel_fraction, self._max_rate_radps)
+            | turning(a0 * w0 + a1 * w1 + a2 * w2, acc_norm, self._max_turn_radps)
+        )
 
     def _take(
         self,

@@ -8,6 +8,11 @@ Three users ask it with thresholds of their own purpose: the front end's ``ACC_N
 weight inflated) and ``MOVING`` flag (the cross-check does not vouch for a snapshot), and the compass monitor's
 *quiet* samples (the only ones its dip and |B| count).
 
+A third symptom is for a vehicle in a sustained turn, which neither of those sees: a coordinated turn's
+centripetal acceleration ``v ψ̇`` leans the specific force by ``atan(v ψ̇ / g)`` for as long as the turn lasts,
+while ``|f|`` is off g by only ``1/cos − 1`` of it (0.75 % at 7°) and the body turns slowly. It turns about the
+vertical, though, which the specific force still nearly shows: :func:`turning` is ``|f · ω| / |f|`` beyond a rate.
+
 Each function takes plain floats or equal-shape arrays alike; :func:`norm` and :func:`norm_rows` are the same
 operations in the same order (both square roots correctly rounded), so the per-sample and the batch paths agree
 to the bit.
@@ -47,6 +52,12 @@ def norm_rows(a: Array) -> Array:
 def off_gravity(acc_norm_mps2: Any, fraction: float, gravity_mps2: float = STANDARD_GRAVITY_MPS2) -> Any:
     """``| |f| − g | > fraction · g``: the specific force's magnitude is off g, above or below (False for NaN)."""
     return abs(acc_norm_mps2 - gravity_mps2) > fraction * gravity_mps2
+
+
+def turning(acc_dot_gyr: Any, acc_norm_mps2: Any, rate_radps: float) -> Any:
+    """Turning about the specific force's direction faster than ``rate_radps``: ``|f · ω| > rate · |f|``, with
+    ``f · ω`` given (False for NaN)."""
+    return abs(acc_dot_gyr) > rate_radps * acc_norm_mps2
 
 
 def moving(

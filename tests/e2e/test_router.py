@@ -102,7 +102,8 @@ def test_two_services_behind_one_router_each_say_the_other_is_under_its_id() -> 
             with ServiceProcess(config) as second:
                 for svc in (first, second):
                     assert svc.wait_for_line(SAME_ID, EVENT_TIMEOUT_S) is not None, svc.log_tail()
-                assert v.wait_until(lambda: "mavattitude: comp 191 also used by another" in v.statustexts, EVENT_TIMEOUT_S)
+                said = "mavattitude: comp 191 also used by another"
+                assert v.wait_until(lambda: said in v.statustexts, EVENT_TIMEOUT_S)
                 assert second.stop() == 0
             assert first.stop() == 0
     assert not any(SAME_ID in line for line in alone)

@@ -142,6 +142,19 @@ def test_fast_rotation_is_not_quiet():
     assert m.samples == 0 and not m.judged and not m.suspect(acc, mag, spinning)
 
 
+def test_a_turn_about_the_vertical_is_not_quiet_one_about_a_horizontal_axis_is():
+    """``max_turn_rate_dps`` gates the rate about the specific force's direction (a sustained turn's lean), not the
+    body's rate: level and upside-down compass, turning about the vertical just faster is not judged; rolling at
+    the same rate is."""
+    rate = np.radians(CompassSettings().max_turn_rate_dps + 1.0)
+    acc, mag = _body(quat_from_euler(0.0, 0.0, 0.0), flip_z=True)
+    for gyr, judged in (((0.0, 0.0, rate), False), ((rate, 0.0, 0.0), True)):
+        m = _monitor()
+        for i in range(200):
+            m.update(0.02 * i, acc, mag, gyr)
+        assert (m.samples > 0, m.judged) == (judged, judged)
+
+
 def _turning(
     flip: np.ndarray,
     seconds: float = 20.0,
@@ -183,7 +196,9 @@ def test_a_compass_turned_about_the_vertical_is_found_by_its_turn(flip):
 
 
 def test_a_good_compass_turns_with_the_gyroscope():
-    events, m = _turning(np.eye(3))
+    # yaw ±10° (up to 31°/s): the default ±90° turns about the vertical faster than max_turn_rate_dps nearly all the
+    # time, and the dip, never quiet, is never judged; a vouching needs it
+    events, m = _turning(np.eye(3), amplitudes_deg=(20.0, 20.0, 10.0))
     assert events == [] and m.figures().turn_mismatch < 0.01  # exact data: only the rate's discretisation
     assert m.confirmed  # vouched for by a turn about three axes: every sample of it is trusted from now on
     acc, mag = _body(quat_from_euler(0.3, -0.2, 1.0))
@@ -285,10 +300,12 @@ def test_the_dip_of_many_rows_is_each_rows_bit_for_bit():
 @pytest.mark.parametrize("flip", [np.eye(3), TURNED_90_Z, np.diag([1.0, 1.0, -1.0])], ids=["good", "turned", "flipped"])
 def test_rows_at_once_are_update_then_suspect_one_by_one(flip):
     """update_rows: the same events, suspect verdicts and figures as update then suspect per row (turning, the
-    field noisy, a fifth of the rows accelerated, so not quiet; a compass turned or upside down is warned about)."""
+    field noisy, a fifth of the rows accelerated and those turning about the vertical faster than
+    ``max_turn_rate_dps`` not quiet; a compass turned or upside down is warned about)."""
     rng = np.random.default_rng(23)
     t = np.arange(0.0, 12.0, 0.02)
-    angles = np.radians([[25.0], [25.0], [90.0]]) * np.sin(2 * np.pi * np.array([[0.3], [0.4], [0.25]]) * t)
+    # yaw ±30° at 0.25 Hz (47°/s at most): quiet about a tenth of the time, enough to judge within the window
+    angles = np.radians([[25.0], [25.0], [30.0]]) * np.sin(2 * np.pi * np.array([[0.3], [0.4], [0.25]]) * t)
     q = quat_from_euler(*angles)
     acc = np.array([_body(qk)[0] for qk in q]) * rng.choice([1.0, 1.2], (len(t), 1), p=[0.8, 0.2])
     mag = np.array([flip @ np.array(_body(qk)[1]) for qk in q]) + rng.normal(0.0, 0.5, (len(t), 3))
