@@ -89,6 +89,7 @@ COUNTERS = (
     "updates",
     "tilt_only_updates",
     "rest_updates",
+    "rest_refused",
     "mag_disturbed",
     "mag_relearned",
     "mag_offset_learned",
@@ -100,6 +101,9 @@ COUNTERS = (
     "start_heading_unknown",
 )
 _MAX_UNIT_STD = 0.5  # rad: the largest direction noise handed to a measurement update
+# A zero-rate measurement the bias's uncertainty cannot explain (beyond χ²'s 99.9 % point, 3 degrees of freedom) is
+# a rotation, not the bias: a turn that starts slowly, which the rest detector takes for stillness
+_REST_GATE_CHI2 = 16.27
 # The update pace is the mean of the last PACE_WINDOW update intervals, measured once PACE_MIN_INTERVALS are
 # in (the first interval, from a start, is up to one input period long); the per-update filters are designed
 # again when it moves by more than PACE_TOLERANCE (as the front end's low-pass: jitter does not re-design).
@@ -454,8 +458,15 @@ class FusedFilter:
 
     def _rest_update(self, rate: Vec3) -> None:
         """Zero-rate update of the bias (``rate``: ``ḡ − b`` once the gyro and accelerometer have been still for
-        ``rest_min_s``, :class:`~.rest.RestDetector`)."""
+        ``rest_min_s``, :class:`~.rest.RestDetector`), refused when ``P_bb`` cannot explain it (``_REST_GATE_CHI2``,
+        ``P_bb``'s diagonal). The detector compares the rate with the current bias: a turn that starts slowly passes
+        it, and each update taken moved the bias toward the rate, which kept the next one passing as the rate grew
+        (the simulator's circle at 3°/s: the bias took the turn, the heading went 24° off)."""
         var = self.settings.rest_gyro_std_radps**2
+        (r0, r1, r2), bb = rate, self._ekf.p_bb
+        if r0 * r0 / (bb[0] + var) + r1 * r1 / (bb[4] + var) + r2 * r2 / (bb[8] + var) > _REST_GATE_CHI2:
+            self.counters["rest_refused"] += 1
+            return
         for axis, h in enumerate(_AXES):
             self._ekf.update(rate[axis], None, var, h)
         self.counters["rest_updates"] += 1
