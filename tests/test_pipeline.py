@@ -635,3 +635,41 @@ def test_a_vehicle_circling_with_a_good_compass_is_not_warned_about(method):
     pushed = pipeline.push_batch(t, acc, gyr, mag, np.ones(len(t), dtype=bool))
     assert pushed.outputs and pipeline.compass.samples > 0  # judged: the holds and straight legs are quiet
     assert pushed.compass == []
+
+
+def test_a_gentle_circle_is_not_judged_by_the_cross_check():
+    """A circle at 10 m/s over 120 s (3°/s on average, up to 6°/s): under the 10°/s and 3 % of g that mark a turn or
+    an acceleration, yet its centripetal acceleration leans the specific force up to 3.5°, which IGN takes for tilt
+    and the field's dip turns into heading. Against the true attitude as the autopilot's, the cross-check warned
+    (6.4°) of what is ours to be wrong about; the outputs turning about the vertical faster than 2°/s are not
+    judged, and those at rest before and after are."""
+    from mavattitude.estimation.crosscheck import cross_check_log
+    from mavattitude.sim import scenarios
+    from mavattitude.sim.trajectory import Fly, Hold, Script
+
+    script = Script(
+        [
+            Hold(5.0),
+            Fly(5.0, delta_vel_ned_mps=(10.0, 0.0, 0.0)),
+            Fly(120.0, turn_rad=2.0 * np.pi),
+            Fly(5.0, delta_vel_ned_mps=(-10.0, 0.0, 0.0)),
+            Hold(5.0),
+        ],
+        scenarios.DEFAULT_MAG_NED_UT,
+    )
+    rng = np.random.default_rng(2)
+    sensors = scenarios.consumer_sensors(100.0)
+    t = sensors.sample_times(0.0, script.duration_s, rng)
+    acc, gyr, mag = sensors.measure(script, t, rng)
+    config = from_dict({"reference": {"magnetic": {"field_ned_uT": [float(v) for v in script.mag_ned_uT]}}})
+    outputs = AttitudePipeline(config).push_batch(t, acc, gyr, mag, np.ones(len(t), dtype=bool)).outputs
+    gate = CrossCheckGate()
+    moving = np.array([gate.moving(o) for o in outputs])
+    ours_t, ours_q = np.array([o.time_s for o in outputs]), np.array([o.q for o in outputs])
+    theirs_t = np.arange(0.0, script.duration_s, 0.1)  # the autopilot's ATTITUDE at 10 Hz: the truth
+    _, pairs, events = cross_check_log(
+        ours_t, ours_q, theirs_t, script.attitude(theirs_t), config.crosscheck, None, moving
+    )
+    assert events == []
+    judged = np.array([p.time_s for p in pairs if p.judged])
+    assert np.any(judged < 5.0) and np.any(judged > 135.0)  # at rest, before and after

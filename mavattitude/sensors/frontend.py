@@ -134,6 +134,10 @@ class FrontEndSettings:
     # | |a| − g | above 3 % of g (g / cos 14° = 1.03 g)
     moving_rate_dps: float = 10.0
     moving_accel_fraction: float = 0.03
+    # and a sustained turn, which neither sees: at 10 m/s a turn about the vertical at 2°/s leans the specific force
+    # 2° (the centripetal v ψ̇, 0.35 m/s²), which the field's dip doubles in heading: 4.5° in all, under the 5° of
+    # the cross-check's threshold
+    moving_turn_rate_dps: float = 2.0
     dead_fraction: float = 0.05  # a raw |a| < this·g or |B| < this·|B₀| is a dead sensor: refused
     acc_full_scale_mps2: float = 16.0 * STANDARD_GRAVITY_MPS2
     gyr_full_scale_radps: float = math.radians(2000.0)
@@ -292,13 +296,13 @@ def acc_suspect(norm_mps2: Any, settings: FrontEndSettings) -> Any:
     return motion.off_gravity(norm_mps2, settings.acc_norm_tolerance, settings.gravity_mps2)
 
 
-def moving(acc_norm_mps2: Any, gyr_norm_radps: Any, settings: FrontEndSettings) -> Any:
-    """``|ω| > moving_rate_dps`` or ``| |a| − g | > moving_accel_fraction · g``: the vehicle turns or accelerates
-    (``MOVING``)."""
+def moving(acc_norm_mps2: Any, gyr_norm_radps: Any, acc_dot_gyr: Any, settings: FrontEndSettings) -> Any:
+    """``|ω| > moving_rate_dps``, ``| |a| − g | > moving_accel_fraction · g`` or a turn about the vertical faster
+    than ``moving_turn_rate_dps`` (``acc_dot_gyr``: ``a · ω``): the vehicle turns or accelerates (``MOVING``)."""
     s = settings
     return motion.moving(
         acc_norm_mps2, gyr_norm_radps, s.moving_accel_fraction, math.radians(s.moving_rate_dps), s.gravity_mps2
-    )
+    ) | motion.turning(acc_dot_gyr, acc_norm_mps2, math.radians(s.moving_turn_rate_dps))
 
 
 def mag_suspect(norm_uT: Any, expected_uT: float, settings: FrontEndSettings) -> Any:
@@ -636,7 +640,7 @@ class FrontEnd:
         if acc_suspect(acc_norm, s):
             flags |= _ACC_NORM
             acc_scale = s.suspect_std_scale
-        if moving(acc_norm, norm(gyr), s):
+        if moving(acc_norm, norm(gyr), acc[0] * gyr[0] + acc[1] * gyr[1] + acc[2] * gyr[2], s):
             flags |= _MOVING
         b0 = self.expected_field_uT
         if mag is not None and b0 is not None and mag_suspect(norm(mag), b0, s):
@@ -1166,7 +1170,8 @@ def _screen_batch(s: FrontEndSettings, out: BatchOutput, b0: float | None) -> No
     acc_norm = norm_rows(out.acc_mps2)
     acc_bad = acc_suspect(acc_norm, s)
     out.flags[acc_bad] |= SampleFlag.ACC_NORM
-    out.flags[moving(acc_norm, norm_rows(out.gyr_radps), s)] |= SampleFlag.MOVING
+    (a0, a1, a2), (w0, w1, w2) = out.acc_mps2.T, out.gyr_radps.T
+    out.flags[moving(acc_norm, norm_rows(out.gyr_radps), a0 * w0 + a1 * w1 + a2 * w2, s)] |= SampleFlag.MOVING
     out.acc_std_scale[acc_bad] = s.suspect_std_scale
     if b0 is not None:
         with np.errstate(invalid="ignore"):

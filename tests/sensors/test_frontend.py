@@ -170,22 +170,27 @@ def test_screening_drops_bad_samples_and_flags_suspect_vectors() -> None:
 
 
 @pytest.mark.parametrize(
-    ("rate_dps", "acc_g", "moving"),
+    ("rate_dps", "vertical_dps", "acc_g", "moving"),
     [
-        (0.0, 1.0, False),
-        (9.0, 1.0, False),  # below the 10°/s that marks a turn
-        (11.0, 1.0, True),
-        (0.0, 1.025, False),  # a steady acceleration at 12.7° of tilt: below the 3 % of g that marks one
-        (0.0, 1.035, True),  # at 15°
-        (0.0, 0.96, True),  # a descent's 4 % of g
+        (0.0, 0.0, 1.0, False),
+        (9.0, 0.0, 1.0, False),  # about a horizontal axis: below the 10°/s that marks a turn
+        (11.0, 0.0, 1.0, True),
+        (0.0, 1.5, 1.0, False),  # about the vertical: below the 2°/s of a sustained turn's lean
+        (0.0, 2.5, 1.0, True),
+        (0.0, 0.0, 1.025, False),  # a steady acceleration at 12.7° of tilt: below the 3 % of g that marks one
+        (0.0, 0.0, 1.035, True),  # at 15°
+        (0.0, 0.0, 0.96, True),  # a descent's 4 % of g
     ],
 )
 @pytest.mark.parametrize("filtered", [True, False])
-def test_a_turn_or_an_acceleration_flags_the_tick_moving(rate_dps: float, acc_g: float, moving: bool, filtered) -> None:
-    """Constant inputs (the low-pass passes them unchanged), so each tick's |ω| and |a| are the input's."""
+def test_a_turn_or_an_acceleration_flags_the_tick_moving(
+    rate_dps: float, vertical_dps: float, acc_g: float, moving: bool, filtered
+) -> None:
+    """Constant inputs (the low-pass passes them unchanged), so each tick's |ω|, rate about the vertical (level:
+    the z axis) and |a| are the input's."""
     n = 200
     t = np.arange(n) * 0.005
-    gyr = np.tile(np.radians([rate_dps * 0.6, 0.0, rate_dps * 0.8]), (n, 1))
+    gyr = np.tile(np.radians([rate_dps, 0.0, vertical_dps]), (n, 1))
     samples = _samples(t, np.tile([0.0, 0.0, -acc_g * G], (n, 1)), gyr, np.tile(FIELD_UT, (n, 1)))
     settings = FrontEndSettings(filter_enabled=filtered)
     stream, _ = _stream(settings, samples)
