@@ -107,7 +107,7 @@ from .conventions import (
     rotate_body_to_ned_parts,
     rotation_matrix_parts,
 )
-from .motion import moving, norm, norm_rows, turning
+from .motion import dot, dot_rows, moving, norm, norm_rows, turning
 
 NOISE_SIGMAS = 3.0  # k: a window mean this many per-sample σ off is not noise
 CLEAR_FRACTION = 0.75  # consistent again below this fraction of the thresholds
@@ -637,10 +637,10 @@ class CompassMonitor:
     def quiet(self, acc_mps2: Vec3, gyr_radps: Vec3) -> bool:
         """Low acceleration, slow rotation and a slower turn about the vertical: the specific force shows gravity
         (module docstring)."""
-        (a0, a1, a2), (w0, w1, w2), acc_norm = acc_mps2, gyr_radps, norm(acc_mps2)
+        acc_norm = norm(acc_mps2)
         return not (
             moving(acc_norm, norm(gyr_radps), self.settings.low_accel_fraction, self._max_rate_radps)
-            or turning(a0 * w0 + a1 * w1 + a2 * w2, acc_norm, self._max_turn_radps)
+            or turning(dot(acc_mps2, gyr_radps), acc_norm, self._max_turn_radps)
         )
 
     def quiet_dip_field(self, acc_mps2: Vec3, mag_uT: Vec3, gyr_radps: Vec3) -> tuple[float, float]:
@@ -739,11 +739,10 @@ class CompassMonitor:
 
     def _quiet_rows(self, acc_mps2: Array, gyr_radps: Array) -> NDArray[np.bool_]:
         """:meth:`quiet` of each row, the same operations in the same order."""
-        s, (a0, a1, a2), (w0, w1, w2) = self.settings, acc_mps2.T, gyr_radps.T
-        acc_norm = norm_rows(acc_mps2)
+        s, acc_norm = self.settings, norm_rows(acc_mps2)
         return ~(
             moving(acc_norm, norm_rows(gyr_radps), s.low_accel_fraction, self._max_rate_radps)
-            | turning(a0 * w0 + a1 * w1 + a2 * w2, acc_norm, self._max_turn_radps)
+            | turning(dot_rows(acc_mps2, gyr_radps), acc_norm, self._max_turn_radps)
         )
 
     def _take(

@@ -39,6 +39,16 @@ def norm(v: Sequence[float]) -> float:
     return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
 
 
+def dot(a: Sequence[float], b: Sequence[float]) -> float:
+    """``a · b`` of two 3-vectors of plain floats."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def dot_rows(a: Array, b: Array) -> Array:
+    """:func:`dot` of each row pair of two ``(n, 3)`` arrays, the same operations in the same order."""
+    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
+
+
 def norm2_rows(a: Array) -> Array:
     """:func:`norm2` of each row of an ``(n, 3)`` array."""
     return a[:, 0] * a[:, 0] + a[:, 1] * a[:, 1] + a[:, 2] * a[:, 2]

@@ -640,7 +640,7 @@ class FrontEnd:
         if acc_suspect(acc_norm, s):
             flags |= _ACC_NORM
             acc_scale = s.suspect_std_scale
-        if moving(acc_norm, norm(gyr), acc[0] * gyr[0] + acc[1] * gyr[1] + acc[2] * gyr[2], s):
+        if moving(acc_norm, norm(gyr), motion.dot(acc, gyr), s):
             flags |= _MOVING
         b0 = self.expected_field_uT
         if mag is not None and b0 is not None and mag_suspect(norm(mag), b0, s):
@@ -1170,8 +1170,8 @@ def _screen_batch(s: FrontEndSettings, out: BatchOutput, b0: float | None) -> No
     acc_norm = norm_rows(out.acc_mps2)
     acc_bad = acc_suspect(acc_norm, s)
     out.flags[acc_bad] |= SampleFlag.ACC_NORM
-    (a0, a1, a2), (w0, w1, w2) = out.acc_mps2.T, out.gyr_radps.T
-    out.flags[moving(acc_norm, norm_rows(out.gyr_radps), a0 * w0 + a1 * w1 + a2 * w2, s)] |= SampleFlag.MOVING
+    turn = motion.dot_rows(out.acc_mps2, out.gyr_radps)
+    out.flags[moving(acc_norm, norm_rows(out.gyr_radps), turn, s)] |= SampleFlag.MOVING
     out.acc_std_scale[acc_bad] = s.suspect_std_scale
     if b0 is not None:
         with np.errstate(invalid="ignore"):
