@@ -130,9 +130,9 @@ class Replayed:
         gate = CrossCheckGate()
         moving = np.array([gate.moving(o) for o in self.outputs], dtype=bool)
         flags = np.array([int(o.flags) for o in self.outputs], dtype=np.int64)
-        judged = comparable_heading(ours[:, 1:5], self.covariances, flags)
-        settings = self.pipeline.config.crosscheck
         t, q = ours[:, 0], ours[:, 1:5]
+        judged = comparable_heading(q, self.covariances, flags)
+        settings = self.pipeline.config.crosscheck
         return cross_check_log(t, q, autopilot[:, 0], autopilot[:, 1:5], settings, self.heading(), moving, judged)
 
     def heading(self) -> NDArray[np.bool_]:

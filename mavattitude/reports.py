@@ -16,7 +16,7 @@ from __future__ import annotations
 import logging
 import math
 from collections import Counter
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -28,6 +28,7 @@ from mavattitude.estimation.crosscheck import CrossCheck
 from mavattitude.link.connection import STATUSTEXT_LEN
 from mavattitude.link.session import RequestCounters
 from mavattitude.pipeline import SLOW_INPUT_METHOD
+from mavattitude.sensors.clock import first_repeats
 from mavattitude.sensors.frontend import SLOW_PACE, FrontEndSettings
 from mavattitude.sensors.units import PROFILES, get_profile
 
@@ -291,10 +292,11 @@ def firmware_without(vehicle_profile: str | None, message: str, remedy: str) -> 
 TWICE_SHARE = 0.25
 
 
-def arriving_twice(received: int, first_repeats: int, message: str) -> str | None:
-    """The words for an input that arrives twice, every sample followed by a copy (by two routes), from how many of
-    ``received`` were :func:`~mavattitude.sensors.clock.first_repeats`; None when it does not."""
-    share = first_repeats / received if received else 0.0
+def arriving_twice(time_s: Sequence[float], message: str) -> str | None:
+    """The words for an input that arrives twice, every sample followed by a copy (by two routes), from its samples'
+    times in arrival order (:func:`~mavattitude.sensors.clock.first_repeats`); None when it does not."""
+    received = len(time_s)
+    share = first_repeats(time_s) / received if received else 0.0
     if share < TWICE_SHARE:
         return None
     return (

@@ -119,7 +119,6 @@ from mavattitude.reports import (
     start_statustext,
 )
 from mavattitude.sensors import units
-from mavattitude.sensors.clock import first_repeats
 from mavattitude.sensors.frontend import SampleFlag
 from mavattitude.sensors.magref import declination_parameter
 from mavattitude.sensors.mounting import TRIM_PARAMETERS
@@ -667,7 +666,7 @@ class AttitudeService:
         """The input arriving twice over the last window (:func:`~mavattitude.reports.arriving_twice`): said once.
         The copies are dropped as duplicates and the attitude is right, at twice the cost."""
         times, self._twice_times = self._twice_times, []
-        words = arriving_twice(len(times), first_repeats(times), self._input_name)
+        words = arriving_twice(times, self._input_name)
         if words is None or self._twice_said:
             return
         self._twice_said = True

@@ -86,7 +86,6 @@ from mavattitude.estimation.conventions import euler_from_quat
 from mavattitude.files import refuse_overwriting
 from mavattitude.link.logstreams import TILT_ONLY
 from mavattitude.reports import arriving_twice, compass_unused_warning, heading_lost, profile_units, rate_handling
-from mavattitude.sensors.clock import first_repeats
 from mavattitude.sensors.frontend import SampleFlag
 from mavattitude.sensors.units import MESSAGES, PROFILE_NAMES, get_profile
 
@@ -446,7 +445,7 @@ def _fill(result: LogResult, replayed: Any, imu_name: str) -> None:
         + sum(pipeline.frontend.rejected.values())
         + sum(pipeline.rejected.values())
     )
-    twice = arriving_twice(len(replayed.sample_times_s), first_repeats(replayed.sample_times_s), imu_name)
+    twice = arriving_twice(replayed.sample_times_s, imu_name)
     if twice is not None:  # recorded so: the ground station heard the vehicle by two routes
         log.warning("%s", twice)
     # The estimator's own counters: the fused filter's and its learnt offset, a snapshot's noise measured at rest.
